@@ -1,0 +1,1 @@
+"""PNG figures (matplotlib, Agg backend): one module per subject."""
