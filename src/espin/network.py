@@ -10,8 +10,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
-__all__ = ["Network"]
+from espin.crosslinks import Crosslinks
+from espin.mat import FiberMat
+
+__all__ = ["Network", "build_network"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -110,3 +115,104 @@ class Network:
     def reference_volume(self) -> float:
         """V0 = L^2 N_l D [um^3], the volume that homogenized stresses refer to."""
         return self.size**2 * self.n_layers * self.thickness
+
+
+def _clusters(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Label of the connected component of each of ``n`` items linked by pairs (a, b)."""
+    graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
+
+
+def build_network(mat: FiberMat, crosslinks: Crosslinks, tolerance: float) -> Network:
+    """Cut every fiber at its nodes into elements (paper Fig. 8; SPEC 2).
+
+    Node candidates are the cross-links and the two ends of every fiber. Candidates that
+    follow each other along a fiber closer than ``tolerance`` are merged into one node (which
+    then joins more than two fibers); a merged node that contains a fiber end is a border
+    node. Elements whose end nodes still lie closer than ``tolerance`` have those nodes merged
+    too, so no element is shorter than the tolerance and none has zero length. A merged inner
+    node sits at the mean of its candidates, a border node at its fiber end. Because merging
+    moves nodes by up to about the tolerance, an element's contour length is kept at least as
+    long as its end-to-end length (tortuosity >= 1); the arc inside a merged node (shorter than
+    the tolerance) belongs to no element.
+
+    Parameters
+    ----------
+    mat
+        The deposited fibers.
+    crosslinks
+        Their cross-links.
+    tolerance
+        Merge tolerance [um] (``rve.merge_tolerance_ratio`` D).
+
+    Returns
+    -------
+    Network
+        Inner nodes first, then border nodes; elements in fiber order.
+    """
+    nf, nx = mat.n_fibers, crosslinks.n
+    fibers = np.arange(nf)
+    first, last = mat.fiber_offsets[:-1], mat.fiber_offsets[1:] - 1
+    # Candidates: cross-links 0..nx-1, then fiber f's start nx + 2f and end nx + 2f + 1.
+    position = np.concatenate([crosslinks.point, np.stack([mat.vertices[first], mat.vertices[last]], 1).reshape(-1, 2)])
+    is_end = np.r_[np.zeros(nx, bool), np.ones(2 * nf, bool)]
+    # Cut points along the fibers, sorted by fiber, then arc length (start first, end last).
+    cut_fiber = np.concatenate([crosslinks.fiber[:, 0], crosslinks.fiber[:, 1], fibers, fibers])
+    cut_arc = np.concatenate([crosslinks.arc[:, 0], crosslinks.arc[:, 1], np.zeros(nf), mat.contour_length])
+    cut_rank = np.concatenate([np.ones(2 * nx), np.zeros(nf), np.full(nf, 2.0)])
+    cut_node = np.concatenate([np.arange(nx), np.arange(nx), nx + 2 * fibers, nx + 2 * fibers + 1])
+    order = np.lexsort((cut_rank, cut_arc, cut_fiber))
+    cut_fiber, cut_arc, cut_node = cut_fiber[order], cut_arc[order], cut_node[order]
+    along = cut_fiber[1:] == cut_fiber[:-1]
+    a, b = cut_node[:-1][along], cut_node[1:][along]
+    gap = np.diff(cut_arc)[along]
+    fiber_of_pair = cut_fiber[1:][along]
+
+    merge = gap < tolerance
+    n_cand = len(position)
+    while True:
+        label = _clusters(n_cand, a[merge], b[merge])
+        n_clusters = label.max() + 1 if n_cand else 0
+        border = np.bincount(label, weights=is_end, minlength=n_clusters) > 0
+        weight = np.bincount(label, minlength=n_clusters)
+        centre = np.stack([np.bincount(label, weights=position[:, i], minlength=n_clusters) for i in (0, 1)], 1)
+        centre /= weight[:, None]
+        ends = np.flatnonzero(is_end)
+        centre[label[ends]] = position[ends]
+        la, lb = label[a], label[b]
+        distinct = la != lb
+        too_short = distinct & (np.hypot(*(centre[lb] - centre[la]).T) < tolerance)
+        if not too_short.any():
+            break
+        merge |= too_short
+
+    # Number the clusters: inner first, then border; drop clusters that no element uses.
+    used = np.zeros(n_clusters, bool)
+    used[la[distinct]] = used[lb[distinct]] = True
+    inner = np.flatnonzero(used & ~border)
+    outer = np.flatnonzero(used & border)
+    node_of_cluster = np.full(n_clusters, -1, dtype=np.int64)
+    node_of_cluster[inner] = np.arange(len(inner))
+    node_of_cluster[outer] = len(inner) + np.arange(len(outer))
+    node_position = centre[np.concatenate([inner, outer])]
+
+    # Elements: consecutive cut points of a fiber in distinct nodes.
+    e1 = node_of_cluster[la[distinct]]
+    e2 = node_of_cluster[lb[distinct]]
+    contour = gap[distinct]
+    fiber = fiber_of_pair[distinct]
+    chord = np.hypot(*(node_position[e2] - node_position[e1]).T)
+    return Network(
+        node_position=node_position,
+        n_inner=len(inner),
+        element_nodes=np.c_[e1, e2].astype(np.int64),
+        element_contour_length=np.maximum(contour, chord),
+        element_diameter=mat.fiber_diameter[fiber],
+        element_layer=mat.fiber_layer[fiber],
+        element_fiber=fiber.astype(np.int64),
+        size=mat.size,
+        thickness=mat.thickness,
+        n_layers=mat.n_layers,
+        n_merged=int(n_cand - n_clusters),
+        merge_tolerance=float(tolerance),
+    )

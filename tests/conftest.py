@@ -1,0 +1,31 @@
+"""Shared fixtures: small RVEs (tests use small RVEs; big ones belong to benchmarks)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from espin.mat import FiberMat
+
+
+def make_mat(fibers: list[list[tuple[float, float]]], layers: list[int], size: float = 10.0,
+             diameter: float = 0.1, n_layers: int | None = None) -> FiberMat:
+    """A FiberMat from explicit polylines (hand-built fixtures)."""
+    counts = [len(f) for f in fibers]
+    return FiberMat(
+        vertices=np.array([p for f in fibers for p in f], dtype=float),
+        fiber_offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+        fiber_layer=np.array(layers, dtype=np.int64),
+        fiber_diameter=np.full(len(fibers), diameter),
+        size=size,
+        thickness=diameter,
+        n_layers=n_layers if n_layers is not None else max(layers) + 1,
+    )
+
+
+@pytest.fixture(scope="session")
+def small_rve():
+    """A small plla-like RVE (L = 40 D, 3 layers), generated once per test session."""
+    import espin.rve
+
+    return espin.rve.generate("plla", rve__size_ratio=40, rve__layers=3)
