@@ -51,9 +51,11 @@ def test_crossing_at_a_vertex_counts_once():
 
 
 def test_pairs_in_cells():
-    a, b, key = segment_pairs_in_cells(np.array([3, 1, 3, 3, 1, 7]), np.arange(6))
-    got = {(min(i, j), max(i, j), k) for i, j, k in zip(a, b, key)}
-    assert got == {(0, 2, 3), (0, 3, 3), (2, 3, 3), (1, 4, 1)}
+    key = np.array([3, 1, 3, 3, 1, 7])
+    order, i, j = segment_pairs_in_cells(key)
+    assert np.all(key[order][i] == key[order][j]) and np.all(i < j)
+    got = {tuple(sorted((order[a], order[b]))) for a, b in zip(i, j)}
+    assert got == {(0, 2), (0, 3), (2, 3), (1, 4)}
 
 
 def test_grid_search_equals_brute_force():

@@ -59,7 +59,10 @@ class Crosslinks:
 
 
 def _cells_of_segments(p: np.ndarray, q: np.ndarray, cell: float, n_cells: int):
-    """Grid cells overlapped by each segment's bounding box, as (segment, cell) entries."""
+    """Grid cells overlapped by each segment's bounding box, as (segment, cell) entries.
+
+    Also returns the integer cell coordinates of each box's lower-left corner.
+    """
     lo = np.clip(np.floor(np.minimum(p, q) / cell).astype(np.int64), 0, n_cells - 1)
     hi = np.clip(np.floor(np.maximum(p, q) / cell).astype(np.int64), 0, n_cells - 1)
     width = hi[:, 0] - lo[:, 0] + 1
@@ -68,41 +71,66 @@ def _cells_of_segments(p: np.ndarray, q: np.ndarray, cell: float, n_cells: int):
     k = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
     ix = lo[seg, 0] + k % width[seg]
     iy = lo[seg, 1] + k // width[seg]
-    return seg, iy * n_cells + ix
+    return seg, iy * n_cells + ix, lo
 
 
-def segment_pairs_in_cells(
-    key: np.ndarray, item: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """All pairs of items that share a key (each unordered pair once per shared key).
+def segment_pairs_in_cells(key: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """All pairs of entries that share a key.
 
     Parameters
     ----------
     key : (m,) int64
         Bin of each entry.
-    item : (m,) int64
-        Item of each entry.
 
     Returns
     -------
-    a, b : (n_pairs,) int64
-        Items of each pair.
-    pair_key : (n_pairs,) int64
-        The key they share.
+    order : (m,) int64
+        Permutation sorting the entries by key.
+    i, j : (n_pairs,) int64
+        Positions in the sorted order of the two entries of each pair (i < j, same key).
     """
     order = np.argsort(key, kind="stable")
-    key, item = key[order], item[order]
+    key = key[order]
     idx = np.arange(len(key))
     boundary = np.flatnonzero(np.diff(key)) + 1
-    group_end = np.repeat(np.append(boundary, len(key)), np.diff(np.concatenate([[0], boundary, [len(key)]])))
+    sizes = np.diff(np.concatenate([[0], boundary, [len(key)]]))
+    group_end = np.repeat(np.append(boundary, len(key)), sizes)
     partners = group_end - idx - 1
-    first = np.repeat(idx, partners)
+    i = np.repeat(idx, partners)
     offset = np.arange(partners.sum()) - np.repeat(np.cumsum(partners) - partners, partners)
-    return item[first], item[first + 1 + offset], key[first]
+    return order, i, i + 1 + offset
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def _crossings_in_bins(seg, cell, lo, seg_fiber, seg_layer, base, n_cells, p, q):
+    """Crossings among grid entries (segment, cell) of layers ``base`` and ``base + 1``.
+
+    Pairs of entries in the same cell are filtered on the entries themselves before any
+    coordinates are read: different fibers; same-layer pairs of layer base + 1 are left to the
+    next layer pair; a pair sharing several cells is kept in the one cell that holds the
+    lower-left corner of the overlap of the two bounding boxes. Returns the segment pairs
+    (a < b) that intersect and the parameters t, u of the crossing along each.
+    """
+    order, i, j = segment_pairs_in_cells(cell)
+    seg, cell = seg[order], cell[order]
+    fiber, layer, lo_x, lo_y = seg_fiber[seg], seg_layer[seg], lo[seg, 0], lo[seg, 1]
+    keep = fiber[i] != fiber[j]
+    keep &= np.minimum(layer[i], layer[j]) == base
+    keep &= np.maximum(lo_y[i], lo_y[j]) * n_cells + np.maximum(lo_x[i], lo_x[j]) == cell[i]
+    a, b = seg[i[keep]], seg[j[keep]]
+    a, b = np.minimum(a, b), np.maximum(a, b)
+    r = q[a] - p[a]
+    w = q[b] - p[b]
+    d = p[b] - p[a]
+    denom = _cross(r, w)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = _cross(d, w) / denom
+        u = _cross(d, r) / denom
+    hit = (denom != 0.0) & (t >= 0.0) & (t < 1.0) & (u >= 0.0) & (u < 1.0)
+    return a[hit], b[hit], t[hit], u[hit]
 
 
 def find_crosslinks(mat: FiberMat, cell_size: float | None = None) -> Crosslinks:
@@ -134,36 +162,26 @@ def find_crosslinks(mat: FiberMat, cell_size: float | None = None) -> Crosslinks
         cell_size = max(float(mat.segment_length.max(initial=0.0)), mat.size / 4096)
     n_cells = max(int(np.ceil(mat.size / cell_size)), 1)
 
-    seg, cell = _cells_of_segments(p, q, cell_size, n_cells)
-    # Enter every segment in the bins of layer pairs (k, k+1) (base k) and (k-1, k) (base k-1).
-    layer = seg_layer[seg]
-    upper = layer > 0
-    base = np.concatenate([layer, layer[upper] - 1])
-    seg = np.concatenate([seg, seg[upper]])
-    cell = np.concatenate([cell, cell[upper]])
-    a, b, key = segment_pairs_in_cells(base * (n_cells * n_cells) + cell, seg)
-    # A same-layer pair of layer k meets in the bins of bases k and k - 1: keep base k only.
-    pair_base = key // (n_cells * n_cells)
-    keep = (seg_fiber[a] != seg_fiber[b]) & (np.minimum(seg_layer[a], seg_layer[b]) == pair_base)
-    a, b = np.minimum(a[keep], b[keep]), np.maximum(a[keep], b[keep])
-
+    seg, cell, lo = _cells_of_segments(p, q, cell_size, n_cells)
+    by_layer = np.argsort(seg_layer[seg], kind="stable")
+    seg, cell = seg[by_layer], cell[by_layer]
+    bounds = np.searchsorted(seg_layer[seg], np.arange(mat.n_layers + 1))
+    found_a, found_b, found_t, found_u = [], [], [], []
+    # One layer pair (k, k+1) at a time keeps the working arrays in cache.
+    for k in range(mat.n_layers):
+        rows = slice(bounds[k], bounds[min(k + 2, mat.n_layers)])
+        a, b, t, u = _crossings_in_bins(
+            seg[rows], cell[rows], lo, seg_fiber, seg_layer, k, n_cells, p, q
+        )
+        found_a.append(a)
+        found_b.append(b)
+        found_t.append(t)
+        found_u.append(u)
+    a, b = np.concatenate(found_a), np.concatenate(found_b)
+    t, u = np.concatenate(found_t), np.concatenate(found_u)
+    first = np.lexsort((b, a))
+    a, b, t, u = a[first], b[first], t[first], u[first]
     r = q[a] - p[a]
-    w = q[b] - p[b]
-    d = p[b] - p[a]
-    denom = _cross(r, w)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = _cross(d, w) / denom
-        u = _cross(d, r) / denom
-    hit = (denom != 0.0) & (t >= 0.0) & (t < 1.0) & (u >= 0.0) & (u < 1.0)
-    code = np.unique(a[hit] * mat.n_segments + b[hit])
-    a, b = code // mat.n_segments, code % mat.n_segments
-
-    r = q[a] - p[a]
-    w = q[b] - p[b]
-    d = p[b] - p[a]
-    denom = _cross(r, w)
-    t = _cross(d, w) / denom
-    u = _cross(d, r) / denom
     seg_len = mat.segment_length
     arc = mat.segment_arc_start
     return Crosslinks(

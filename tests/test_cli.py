@@ -1,0 +1,67 @@
+"""The command line and the examples (small variants), run as a user would."""
+
+from __future__ import annotations
+
+import json
+import runpy
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+from typer.testing import CliRunner
+
+from espin.cli import app
+from espin.io.rve_file import load_rve
+
+runner = CliRunner()
+EXAMPLES = Path(__file__).parents[1] / "examples"
+
+
+def test_generate_writes_the_folder(tmp_path):
+    out = tmp_path / "rve"
+    result = runner.invoke(app, ["generate", "plla", "--size-ratio", "30", "--layers", "2",
+                                 "--seed", "4", "-o", str(out), "--set", "rve.max_deviation_deg=10"])
+    assert result.exit_code == 0, result.output
+    names = {p.name for p in out.iterdir()}
+    assert names == {"rve.h5", "config.toml", "statistics.json", "statistics.txt", "mat.png",
+                     "statistics.png", "fibers.vtu", "network.vtu"}
+    assert (out / "mat.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    rve = load_rve(out / "rve.h5")
+    assert (rve.config.rve.layers, rve.config.rve.seed, rve.config.rve.max_deviation_deg) == (2, 4, 10)
+    summary = json.loads((out / "statistics.json").read_text())
+    assert summary["n_dof"] == rve.network.n_dof
+    # The written config regenerates the same RVE.
+    again = tmp_path / "again"
+    result = runner.invoke(app, ["generate", str(out / "config.toml"), "-o", str(again),
+                                 "--no-figures", "--no-vtk", "-q"])
+    assert result.exit_code == 0, result.output
+    assert np.array_equal(load_rve(again / "rve.h5").mat.vertices, rve.mat.vertices)
+    assert not (again / "mat.png").exists()
+
+
+def test_bad_input_is_a_clear_error(tmp_path):
+    result = runner.invoke(app, ["generate", "--set", "rve.layerz=3", "-o", str(tmp_path / "x")])
+    assert result.exit_code == 2 and "rve.layerz: unknown key" in result.output
+    result = runner.invoke(app, ["generate", "--volume-fraction", "1.2", "-o", str(tmp_path / "x")])
+    assert result.exit_code == 2 and "rve.volume_fraction" in result.output
+    assert "less than 1" in result.output
+    assert not (tmp_path / "x").exists()  # nothing started
+
+
+def test_config_command_prints_resolved_toml():
+    result = runner.invoke(app, ["config", "plla", "--set", "rve.orientation={von_mises={kappa=3}}"])
+    assert result.exit_code == 0
+    data = tomllib.loads(result.output)
+    assert data["rve"]["seeding"] == "border" and data["rve"]["orientation"]["von_mises"]["kappa"] == 3
+
+
+def test_example_generate_plla(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "argv", ["generate_plla.py", "--size-ratio", "40", "--layers", "3"])
+    runpy.run_path(str(EXAMPLES / "generate_plla.py"), run_name="__main__")
+    summary = json.loads((tmp_path / "plla_rve" / "statistics.json").read_text())
+    # At least the target; at most one longest fiber (sqrt 2 L) more: pi sqrt(2) D / (4 L).
+    assert 0.19 <= summary["volume_fraction_min"]
+    assert summary["volume_fraction_max"] <= 0.19 + np.pi * np.sqrt(2) / (4 * 40)
+    assert summary["fiber_tortuosity_mean"] < 1.02  # Table 2 fibers are nearly straight

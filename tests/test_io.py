@@ -1,0 +1,79 @@
+"""RVE files and VTK exports: round trips, atomic writes, clear errors."""
+
+from __future__ import annotations
+
+import h5py
+import meshio
+import numpy as np
+import pytest
+
+from espin.errors import RVEFileError
+from espin.io.atomic import atomic_write
+from espin.io.rve_file import SCHEMA_VERSION, load_rve, save_rve
+from espin.io.vtk import write_mat_vtu, write_network_vtu
+
+
+def test_rve_round_trip(small_rve, tmp_path):
+    path = save_rve(small_rve, tmp_path / "rve.h5")
+    back = load_rve(path)
+    assert back.config == small_rve.config
+    for part in ("mat", "crosslinks", "network"):
+        a, b = getattr(small_rve, part), getattr(back, part)
+        for name, value in vars(a).items():
+            if isinstance(value, np.ndarray):
+                assert np.array_equal(value, getattr(b, name)), (part, name)
+            else:
+                assert value == getattr(b, name), (part, name)
+    with h5py.File(path) as f:
+        assert f.attrs["schema_version"] == SCHEMA_VERSION and f.attrs["seed"] == 1
+        for key in ("espin_version", "numpy_version", "scipy_version", "units", "config_toml"):
+            assert f.attrs[key]
+
+
+def test_atomic_write_leaves_nothing_on_failure(tmp_path):
+    target = tmp_path / "out.bin"
+    target.write_bytes(b"old")
+
+    def broken(tmp):
+        tmp.write_bytes(b"half")
+        raise RuntimeError("disk full")
+
+    with pytest.raises(RuntimeError):
+        atomic_write(target, broken)
+    assert target.read_bytes() == b"old"
+    assert [p.name for p in tmp_path.iterdir()] == ["out.bin"]
+
+
+def test_load_errors(tmp_path, small_rve):
+    with pytest.raises(RVEFileError, match="cannot open"):
+        load_rve(tmp_path / "missing.h5")
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f.attrs["schema"] = "something.else"
+    with pytest.raises(RVEFileError, match="not an espin RVE file"):
+        load_rve(other)
+    newer = save_rve(small_rve, tmp_path / "newer.h5")
+    with h5py.File(newer, "a") as f:
+        f.attrs["schema_version"] = SCHEMA_VERSION + 1
+    with pytest.raises(RVEFileError, match="schema version"):
+        load_rve(newer)
+    partial = save_rve(small_rve, tmp_path / "partial.h5")
+    with h5py.File(partial, "a") as f:
+        del f["network/element_nodes"]
+    with pytest.raises(RVEFileError, match="incomplete"):
+        load_rve(partial)
+
+
+def test_vtk_exports(small_rve, tmp_path):
+    mat, net = small_rve.mat, small_rve.network
+    fibers = meshio.read(write_mat_vtu(mat, tmp_path / "fibers.vtu"))
+    assert fibers.cells_dict["line"].shape == (mat.n_segments, 2)
+    assert set(fibers.cell_data) >= {"layer", "fiber", "tortuosity", "diameter_um"}
+    z = fibers.points[:, 2]
+    assert np.allclose(np.unique(z), (np.arange(mat.n_layers) + 0.5) * mat.thickness)
+    moved = net.node_position * 1.1
+    stress = np.arange(net.n_elements, dtype=float)
+    network = meshio.read(write_network_vtu(net, tmp_path / "net.vtu", moved, {"stress_MPa": stress}))
+    assert np.allclose(network.points[:, :2], moved)
+    assert np.array_equal(network.cell_data["stress_MPa"][0], stress)
+    assert np.array_equal(network.cells_dict["line"], net.element_nodes)
