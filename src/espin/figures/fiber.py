@@ -7,7 +7,6 @@ from pathlib import Path
 import numpy as np
 
 from espin.fiber_law import YIELD_THRESHOLD
-from espin.io.atomic import atomic_write
 from espin.single_fiber import FiberHistory
 
 __all__ = ["plot_single_fiber"]
@@ -43,12 +42,12 @@ def plot_single_fiber(
     Path
         The written file.
     """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+
+    from espin.figures import save_figure
 
     law, lam_r = history.law, max(history.tortuosity, 1.0)
     fig = Figure(figsize=(6.0, 4.2), layout="constrained")
-    FigureCanvasAgg(fig)
     ax = fig.add_subplot()
     ax.plot(history.stretch, history.stress, color="C0", lw=1.8, label="fiber")
     ax.axvline(lam_r, color="0.4", ls=":", lw=1, label=rf"recruitment $\lambda_r$ = {lam_r:.3g}")
@@ -79,4 +78,4 @@ def plot_single_fiber(
         inset.axvline(lam_r, color="0.4", ls=":", lw=1)
         inset.set_title(r"slack branch ($E_b$)", fontsize=7)
         inset.tick_params(labelsize=6)
-    return atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=dpi))
+    return save_figure(fig, path, dpi)

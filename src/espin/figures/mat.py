@@ -12,26 +12,18 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection
 from matplotlib.colors import BoundaryNorm
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-from espin.io.atomic import atomic_write
+from espin.figures import save_figure
 
 if TYPE_CHECKING:  # pragma: no cover
     from espin.mat import FiberMat
     from espin.statistics import NetworkStatistics, VisibleFibers
 
 __all__ = ["plot_mat", "plot_statistics"]
-
-
-def _save(fig: Figure, path: str | Path, dpi: float) -> Path:
-    """Render ``fig`` with the Agg canvas and write it atomically; format from the suffix."""
-    FigureCanvasAgg(fig)
-    fmt = Path(path).suffix.lstrip(".").lower() or "png"
-    return atomic_write(path, lambda tmp: fig.savefig(tmp, format=fmt, dpi=dpi))
 
 
 def plot_mat(
@@ -112,7 +104,7 @@ def plot_mat(
                           f"L = {mat.size:g} um")
     ticks = np.arange(0, n_layers, -(-n_layers // 10))  # at most 10 evenly spaced layers
     fig.colorbar(lc, ax=ax, label="layer", ticks=ticks, shrink=0.85)
-    return _save(fig, path, dpi)
+    return save_figure(fig, path, dpi)
 
 
 def _hist(ax, sample: np.ndarray, bins: np.ndarray, label: str, color: str = "C0") -> None:
@@ -239,4 +231,4 @@ def plot_statistics(stats: NetworkStatistics, path: str | Path, *, dpi: float = 
     ax.set_xlabel("element length l0 [um]")
     ax.set_ylabel("count")
     ax.set_title("element length")
-    return _save(fig, path, dpi)
+    return save_figure(fig, path, dpi)

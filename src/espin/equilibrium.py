@@ -1,0 +1,327 @@
+"""Equilibrium of the network over one load step (paper 3.1.4; SPEC 4).
+
+Unknowns: the inner node positions x_I and, under mixed control, the free components f_k of
+F = F_prescribed + sum_k f_k G_k. Border nodes follow x = F X (X relative to the RVE centre).
+The step minimizes the incremental potential
+
+    Phi(x_I, f) = sum_e A_e l0_e * integral from lambda_n to lambda of t_alg(lambda') dlambda'
+
+(each element's algorithmic stress depends on its own stretch only, so Phi exists for the
+plastic step too); its gradient is the residual [g_I, V0 P : G_k] and its Hessian the
+consistent tangent. Newton's method with:
+
+* the exact tangent when the factorization's inertia shows it positive definite, else the
+  tangent without the negative geometric stiffness of compressed elements (positive
+  semi-definite by construction); after an indefinite exact tangent the next few iterations
+  use the clipped one directly;
+* a line search on Phi along the Newton direction through its exact derivative (the residual
+  projected on the direction, one residual evaluation per trial); Phi itself is evaluated,
+  as the increment from the current iterate to the trial with a quadrature on flowing
+  elements (never as a difference of two large totals), only where the residual grew;
+* convergence when max |g_I| <= rtol max_e |T_e| + atol E_t mean(A_e) and, under mixed
+  control, |P : G_k| <= rtol max |P| + atol E_t phi (phi: fiber volume over V0).
+
+A step that does not converge raises :class:`StepFailed` with the residual history; the
+driver cuts the step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+
+from espin.assembly import Kinematics, NetworkAssembler
+from espin.config import SolverConfig
+from espin.fiber_law import FiberLaw, LawState, axial_force_and_stiffness, update, work_increment
+from espin.network import Network
+
+__all__ = ["StepState", "StepResult", "StepFailed", "EquilibriumSolver"]
+
+_SLOPE_RATIO = 0.5
+_MAX_SEARCH = 10
+_MIN_STEP = 1e-6
+_CLIPPED_AFTER_INDEFINITE = 3
+
+
+@dataclass(frozen=True, eq=False)
+class StepState:
+    """Converged state at the end of a step (the start of the next).
+
+    Attributes
+    ----------
+    time : float [s]
+    inner : (n_inner, 2) float64 [um]
+        Inner node positions.
+    free : (n_free,) float64
+        Values f_k of the free components of F.
+    F : (2, 2) float64
+        Deformation gradient.
+    stretch : (n_elements,) float64
+        lambda = l / l0.
+    plastic_stretch : (n_elements,) float64
+        lambda_p.
+    """
+
+    time: float
+    inner: np.ndarray
+    free: np.ndarray
+    F: np.ndarray
+    stretch: np.ndarray
+    plastic_stretch: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class StepResult:
+    """A converged step: new state, element results and solver statistics."""
+
+    state: StepState
+    law: LawState
+    force: np.ndarray
+    kinematics: Kinematics
+    iterations: int
+    factorizations: int
+    residual: float
+    residual_history: list[float] = field(default_factory=list)
+
+
+class StepFailed(Exception):
+    """Newton did not converge in a step; ``history`` holds the residual per iteration."""
+
+    def __init__(self, reason: str, history: list[float]):
+        super().__init__(reason)
+        self.reason = reason
+        self.history = history
+
+
+@dataclass(eq=False)
+class _Point:
+    """Everything evaluated at one iterate."""
+
+    z: np.ndarray
+    F: np.ndarray
+    kin: Kinematics
+    stretch: np.ndarray
+    law: LawState
+    force: np.ndarray
+    stiffness: np.ndarray
+    gradient: np.ndarray  # full gradient over all DOF
+    residual: np.ndarray  # [g_I, V0 P : G_k]
+
+
+class EquilibriumSolver:
+    """Solves load steps of one network with one fiber law.
+
+    Parameters
+    ----------
+    network
+        The network.
+    law
+        The fiber law.
+    config
+        Tolerances and limits.
+    linear_solver
+        Object with ``factorize(K) -> factorization``; the factorization has ``solve(b)``
+        and ``n_negative`` (int, or None when the backend cannot tell).
+    """
+
+    def __init__(self, network: Network, law: FiberLaw, config: SolverConfig, linear_solver) -> None:
+        self.network = network
+        self.law = law
+        self.config = config
+        self.linear = linear_solver
+        self.asm = NetworkAssembler(network)
+        self.l0 = network.element_length
+        self.area = network.element_area
+        self.tortuosity = network.element_tortuosity
+        self.n_inner = network.n_inner
+        self.border_reference = self.asm.reference[network.n_inner:]
+        self.force_tolerance_abs = config.atol * law.taut_modulus * float(np.mean(self.area))
+        fiber_fraction = float(np.sum(self.area * network.element_contour_length)) / network.reference_volume
+        self.stress_tolerance_abs = config.atol * law.taut_modulus * fiber_fraction
+        self._clipped_left = 0
+
+    # -- evaluation ---------------------------------------------------------------------------
+    def _F(self, F_prescribed: np.ndarray, directions: np.ndarray, free: np.ndarray) -> np.ndarray:
+        return F_prescribed + np.tensordot(free, directions, axes=1) if len(free) else F_prescribed
+
+    def _border_modes(self, directions: np.ndarray) -> np.ndarray:
+        """(n_free, 2 n_border): d x_B / d f_k = G_k X_B, flattened like the border DOF."""
+        return np.stack([(self.border_reference @ G.T).ravel() for G in directions]) if len(directions) else np.zeros((0, 2 * len(self.border_reference)))
+
+    def _evaluate(self, z, start: StepState, F_prescribed, directions, dt) -> _Point:
+        n = 2 * self.n_inner
+        free = z[n:]
+        F = self._F(F_prescribed, directions, free)
+        x = self.asm.positions(z[:n], F)
+        kin = self.asm.kinematics(x)
+        stretch = kin.length / self.l0
+        law = update(self.law, stretch, start.plastic_stretch, self.tortuosity, dt)
+        force, stiffness = axial_force_and_stiffness(law, self.area, self.l0)
+        gradient = self.asm.gradient(force, kin)
+        modes = self._border_modes(directions)
+        residual = np.concatenate([gradient[:n], modes @ gradient[n:]])
+        return _Point(z, F, kin, stretch, law, force, stiffness, gradient, residual)
+
+    def _converged(self, p: _Point, n_free: int) -> tuple[bool, float]:
+        n = 2 * self.n_inner
+        g = p.residual[:n]
+        force_norm = float(np.max(np.abs(g))) if n else 0.0
+        ok = force_norm <= self.config.rtol * float(np.max(np.abs(p.force), initial=0.0)) + self.force_tolerance_abs
+        if n_free:
+            V0 = self.network.reference_volume
+            stress = np.abs(p.residual[n:]) / V0
+            P_scale = float(np.max(np.abs(p.gradient[n:].reshape(-1, 2).T @ self.border_reference))) / V0
+            ok &= bool(np.all(stress <= self.config.rtol * P_scale + self.stress_tolerance_abs))
+        return ok, force_norm
+
+    # -- tangent ------------------------------------------------------------------------------
+    def _hessian(self, p: _Point, directions: np.ndarray, clipped: bool) -> sp.csr_matrix:
+        transverse = p.force / np.maximum(p.kin.length, 1e-300)
+        transverse = np.where(p.kin.length > self.l0 * 1e-6, transverse, 0.0)
+        if clipped:
+            transverse = np.maximum(transverse, 0.0)
+        K = self.asm.tangent("II", p.stiffness, transverse, p.kin)
+        if not len(directions):
+            return K
+        modes = self._border_modes(directions)
+        K_IB = self.asm.tangent("IB", p.stiffness, transverse, p.kin)
+        K_BB = self.asm.tangent("BB", p.stiffness, transverse, p.kin)
+        coupling = sp.csr_matrix(K_IB @ modes.T)
+        corner = modes @ (K_BB @ modes.T)
+        return sp.bmat([[K, coupling], [coupling.T, sp.csr_matrix(corner)]], format="csr")
+
+    def _direction(self, p: _Point, directions: np.ndarray) -> tuple[np.ndarray, int]:
+        """Newton direction and the number of factorizations it took."""
+        factorizations = 0
+        if self._clipped_left == 0:
+            fact = self.linear.factorize(self._hessian(p, directions, clipped=False))
+            factorizations += 1
+            step = fact.solve(-p.residual)
+            indefinite = fact.n_negative is not None and fact.n_negative > 0
+            if not indefinite and np.dot(step, p.residual) < 0.0:
+                return step, factorizations
+            self._clipped_left = _CLIPPED_AFTER_INDEFINITE
+        self._clipped_left -= 1
+        fact = self.linear.factorize(self._hessian(p, directions, clipped=True))
+        return fact.solve(-p.residual), factorizations + 1
+
+    # -- one step -----------------------------------------------------------------------------
+    def solve(
+        self,
+        start: StepState,
+        time: float,
+        F_prescribed: np.ndarray,
+        directions: np.ndarray,
+        guess_inner: np.ndarray,
+        guess_free: np.ndarray,
+    ) -> StepResult:
+        """Equilibrium at ``time`` from the converged ``start`` state.
+
+        Raises
+        ------
+        StepFailed
+            When Newton does not converge within ``config.max_iterations``, the line search
+            cannot lower the potential, or the state becomes non-finite.
+        """
+        dt = time - start.time
+        n_free = len(directions)
+        z = np.concatenate([guess_inner.ravel(), guess_free])
+        p = self._evaluate(z, start, F_prescribed, directions, dt)
+        history: list[float] = []
+        factorizations = 0
+        self._clipped_left = 0
+        for iteration in range(self.config.max_iterations + 1):
+            if not np.all(np.isfinite(p.residual)):
+                raise StepFailed("non-finite residual", history)
+            ok, norm = self._converged(p, n_free)
+            history.append(norm)
+            if ok:
+                state = StepState(time, p.z[: 2 * self.n_inner].reshape(-1, 2), p.z[2 * self.n_inner:].copy(),
+                                  p.F, p.stretch, p.law.plastic_stretch)
+                return StepResult(state, p.law, p.force, p.kin, iteration, factorizations, norm, history)
+            if iteration == self.config.max_iterations:
+                break
+            step, used = self._direction(p, directions)
+            factorizations += used
+            p = self._line_search(p, step, start, F_prescribed, directions, dt, history)
+        raise StepFailed(f"no convergence in {self.config.max_iterations} iterations", history)
+
+    def _line_search(self, p, step, start, F_prescribed, directions, dt, history) -> _Point:
+        """Step length along the Newton direction on the incremental potential Phi.
+
+        Phi's derivative along the line, s(alpha) = r(z + alpha dz) . dz, costs one residual
+        evaluation; the step is accepted when the full step still descends (s(1) <= 0) or
+        when |s(alpha)| <= 0.5 |s(0)| (Phi near its minimum along the line); otherwise the
+        zero of s is bracketed and found by safeguarded regula falsi. Where the residual
+        grew, the decrease of Phi itself is checked, computed as the increment from the
+        current iterate to the trial (a 1-D quadrature on flowing elements).
+        """
+        s0 = float(np.dot(p.residual, step))
+        lo, s_lo = 0.0, s0
+        hi, s_hi = None, None
+        alpha = 1.0
+        for _ in range(_MAX_SEARCH):
+            trial = self._evaluate(p.z + alpha * step, start, F_prescribed, directions, dt)
+            if not np.all(np.isfinite(trial.residual)):
+                hi, s_hi = alpha, None
+                alpha = lo + 0.1 * (alpha - lo)
+                continue
+            s = float(np.dot(trial.residual, step))
+            if (s <= 0.0 and alpha == 1.0) or abs(s) <= _SLOPE_RATIO * abs(s0):
+                if self._decreases(p, trial, start, dt):
+                    return trial
+                hi, s_hi = alpha, None
+            elif s > 0.0:
+                hi, s_hi = alpha, s
+            else:
+                lo, s_lo = alpha, s
+            if hi is None:
+                alpha = min(2.0 * alpha, 1.0)
+            elif s_hi is None:
+                alpha = lo + 0.5 * (hi - lo)
+            else:
+                guess = lo - s_lo * (hi - lo) / (s_hi - s_lo)
+                width = hi - lo
+                alpha = float(np.clip(guess, lo + 0.1 * width, hi - 0.1 * width))
+            if hi is not None and hi - lo < _MIN_STEP:
+                break
+        raise StepFailed("line search could not lower the incremental potential", history)
+
+    def _decreases(self, p: _Point, trial: _Point, start: StepState, dt: float) -> bool:
+        """Whether Phi(trial) < Phi(p); checked only when the residual grew."""
+        if np.linalg.norm(trial.residual) <= np.linalg.norm(p.residual):
+            return True
+        w = work_increment(self.law, p.stretch, trial.stretch, start.plastic_stretch, self.tortuosity, dt)
+        return float(np.sum(self.area * self.l0 * w)) < 0.0
+
+    def macroscopic_tangent(self, result: StepResult) -> np.ndarray:
+        """Algorithmic macroscopic tangent A_iJkL = dP_iJ / dF_kL [MPa] at a converged step.
+
+        By condensation of the exact tangent on the border DOF (SPEC 5):
+        S = K_BB - K_BI K_II^-1 K_IB and A_iJkL = (1 / V0) sum_b,b' X_bJ S[(b,i),(b',k)] X_b'L,
+        with four solves on one factorization of K_II. The derivative is taken at fixed
+        plastic state of the step start and fixed time step (consistent with the step).
+
+        Returns
+        -------
+        (2, 2, 2, 2) float64
+            Indexed [i, J, k, L].
+        """
+        kin = result.kinematics
+        _, stiffness = axial_force_and_stiffness(result.law, self.area, self.l0)
+        transverse = np.where(kin.length > self.l0 * 1e-6, result.force / np.maximum(kin.length, 1e-300), 0.0)
+        K_II = self.asm.tangent("II", stiffness, transverse, kin)
+        K_IB = self.asm.tangent("IB", stiffness, transverse, kin)
+        K_BB = self.asm.tangent("BB", stiffness, transverse, kin)
+        # Border motion for a unit F_kL: x_b = e_k X_bL, flattened like the border DOF.
+        X = self.border_reference
+        modes = np.zeros((4, 2 * len(X)))
+        for k in range(2):
+            for L in range(2):
+                modes[2 * k + L, k::2] = X[:, L]
+        coupling = K_IB @ modes.T
+        fluctuation = self.linear.factorize(K_II).solve(coupling) if self.n_inner else coupling[:0]
+        condensed = modes @ (K_BB @ modes.T) - coupling.T @ fluctuation
+        return condensed.reshape(2, 2, 2, 2) / self.network.reference_volume
