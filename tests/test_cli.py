@@ -65,3 +65,33 @@ def test_example_generate_plla(tmp_path, monkeypatch):
     assert 0.19 <= summary["volume_fraction_min"]
     assert summary["volume_fraction_max"] <= 0.19 + np.pi * np.sqrt(2) / (4 * 40)
     assert summary["fiber_tortuosity_mean"] < 1.02  # Table 2 fibers are nearly straight
+
+
+def test_simulate_from_preset_and_from_saved_rve(tmp_path):
+    out = tmp_path / "test"
+    args = ["simulate", "plla", "--set", "rve.size_ratio=30", "--set", "rve.layers=2",
+            "--max-strain", "0.04", "--steps", "4", "-o", str(out)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    for name in ("curve.csv", "results.h5", "deformation.pvd", "curve.png", "deformed.png", "rve.h5"):
+        assert (out / name).stat().st_size > 0, name
+    assert len(list((out / "vtk").glob("step_*.vtu"))) == 5
+    curve = np.genfromtxt(out / "curve.csv", delimiter=",", names=True)
+    assert len(curve) == 5 and curve["stress_MPa"][-1] > curve["stress_MPa"][1] > 0
+    # The same RVE, loaded from its file, pulled at another rate.
+    again = tmp_path / "again"
+    result = runner.invoke(app, ["simulate", str(out / "rve.h5"), "--max-strain", "0.04", "--steps", "4",
+                                 "--strain-rate-per-s", "0.05", "-o", str(again), "-q"])
+    assert result.exit_code == 0, result.output
+    fast = np.genfromtxt(again / "curve.csv", delimiter=",", names=True)
+    assert fast["stress_MPa"][-1] > curve["stress_MPa"][-1]  # rate dependence
+    assert not (again / "rve.h5").exists()
+
+
+def test_simulate_rejects_bad_input_before_work(tmp_path):
+    result = runner.invoke(app, ["simulate", "--lateral", "sideways", "-o", str(tmp_path / "x")])
+    assert result.exit_code == 2 and "loading.lateral" in result.output
+    result = runner.invoke(app, ["simulate", "--test", "path", "--set", "loading.path_csv='missing.csv'",
+                                 "-o", str(tmp_path / "x")])
+    assert result.exit_code == 2 and "loading.path_csv" in result.output
+    assert not (tmp_path / "x").exists()

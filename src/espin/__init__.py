@@ -25,6 +25,8 @@ _EXPORTS = {
     "save_rve": "espin.io.rve_file",
     "load_rve": "espin.io.rve_file",
     "write_rve_folder": "espin.outputs",
+    "simulate": "espin.run",
+    "load_results": "espin.io.results_file",
     "network_statistics": "espin.statistics",
     "window_tortuosity": "espin.statistics",
 }

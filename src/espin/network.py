@@ -131,10 +131,11 @@ def build_network(mat: FiberMat, crosslinks: Crosslinks, tolerance: float) -> Ne
     then joins more than two fibers); a merged node that contains a fiber end is a border
     node. Elements whose end nodes still lie closer than ``tolerance`` have those nodes merged
     too, so no element is shorter than the tolerance and none has zero length. A merged inner
-    node sits at the mean of its candidates, a border node at its fiber end. Because merging
-    moves nodes by up to about the tolerance, an element's contour length is kept at least as
-    long as its end-to-end length (tortuosity >= 1); the arc inside a merged node (shorter than
-    the tolerance) belongs to no element.
+    node sits at the mean of its candidates, a border node at its fiber end. An element's
+    tortuosity is that of its piece of fiber (arc over the chord between its own cut points),
+    and its contour length L0 is that tortuosity times its end-to-end length between the
+    (possibly merged) nodes, so merging never makes a straight piece look wavy; the arc inside
+    a merged node (shorter than the tolerance) belongs to no element.
 
     Parameters
     ----------
@@ -196,17 +197,20 @@ def build_network(mat: FiberMat, crosslinks: Crosslinks, tolerance: float) -> Ne
     node_of_cluster[outer] = len(inner) + np.arange(len(outer))
     node_position = centre[np.concatenate([inner, outer])]
 
-    # Elements: consecutive cut points of a fiber in distinct nodes.
+    # Elements: consecutive cut points of a fiber in distinct nodes. An element keeps the
+    # waviness of its piece of fiber (arc over the chord between its own cut points), so the
+    # small shifts of merged nodes do not show up as tortuosity.
     e1 = node_of_cluster[la[distinct]]
     e2 = node_of_cluster[lb[distinct]]
-    contour = gap[distinct]
     fiber = fiber_of_pair[distinct]
+    own_chord = np.hypot(*(position[b[distinct]] - position[a[distinct]]).T)
+    waviness = np.maximum(gap[distinct] / np.maximum(own_chord, np.finfo(float).tiny), 1.0)
     chord = np.hypot(*(node_position[e2] - node_position[e1]).T)
     return Network(
         node_position=node_position,
         n_inner=len(inner),
         element_nodes=np.c_[e1, e2].astype(np.int64),
-        element_contour_length=np.maximum(contour, chord),
+        element_contour_length=waviness * chord,
         element_diameter=mat.fiber_diameter[fiber],
         element_layer=mat.fiber_layer[fiber],
         element_fiber=fiber.astype(np.int64),

@@ -1,0 +1,258 @@
+"""Every linear solver backend on the same small symmetric matrices (SPD and indefinite)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from threadpoolctl import threadpool_limits
+
+import espin.linear_solvers as ls
+from espin.errors import ConfigError, SolverError
+from espin.linear_solvers import LINEAR_SOLVER_NAMES, make_linear_solver
+
+
+def _pardiso_param() -> object:
+    try:
+        make_linear_solver("pardiso")
+    except ConfigError as exc:
+        return pytest.param("pardiso", marks=pytest.mark.skip(reason=f"PARDISO unusable: {exc}"))
+    return "pardiso"
+
+
+BACKENDS = ["superlu", _pardiso_param()]
+
+
+@pytest.fixture(params=BACKENDS)
+def solver(request: pytest.FixtureRequest) -> Iterator[ls.LinearSolver]:
+    with make_linear_solver(request.param) as solver:
+        yield solver
+
+
+def laplacian_2dof(m: int) -> sp.csr_matrix:
+    """SPD stiffness-like matrix: 5-point Laplacian of an m x m grid (Dirichlet), 2 DOF a node.
+
+    The 2 x 2 node block [[2, 1], [1, 2]] couples the DOFs, so the pattern has 10 entries in
+    an interior row, like a network tangent.
+    """
+    T = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(m, m))
+    lap = sp.kron(T, sp.eye(m)) + sp.kron(sp.eye(m), T)
+    K = sp.kron(lap, np.array([[2.0, 1.0], [1.0, 2.0]]), format="csr")
+    K.sort_indices()
+    return K
+
+
+def same_pattern(K: sp.csr_matrix, data: np.ndarray) -> sp.csr_matrix:
+    return sp.csr_matrix((data, K.indices.copy(), K.indptr.copy()), shape=K.shape)
+
+
+def random_symmetric_values(K: sp.csr_matrix, seed: int) -> sp.csr_matrix:
+    """A symmetric indefinite matrix with K's pattern and random values."""
+    rng = np.random.default_rng(seed)
+    R = same_pattern(K, rng.standard_normal(K.nnz))
+    S = ((R + R.T) / 2).tocsr()
+    S.sort_indices()
+    assert np.array_equal(S.indices, K.indices) and np.array_equal(S.indptr, K.indptr)
+    return S
+
+
+def n_negative_eigenvalues(K: sp.csr_matrix) -> int:
+    eigenvalues = np.linalg.eigvalsh(K.toarray())
+    assert np.min(np.abs(eigenvalues)) > 1e-8 * np.max(np.abs(eigenvalues))  # nonsingular
+    return int(np.count_nonzero(eigenvalues < 0))
+
+
+def relative_residual(K: sp.csr_matrix, x: np.ndarray, b: np.ndarray) -> float:
+    return float(np.linalg.norm(K @ x - b) / np.linalg.norm(b))
+
+
+def test_spd_matrix_is_solved_and_positive_definite(solver: ls.LinearSolver) -> None:
+    K = laplacian_2dof(12)
+    b = np.random.default_rng(0).standard_normal(K.shape[0])
+    with solver.factorize(K) as factorization:
+        x = factorization.solve(b)
+        assert factorization.n == K.shape[0]
+        assert factorization.n_negative == 0
+        assert factorization.n_perturbed == 0
+        assert factorization.nnz_factor >= K.nnz // 2
+    assert x.shape == b.shape
+    assert relative_residual(K, x, b) < 1e-12
+
+
+@pytest.mark.parametrize("quantile", [0.003, 0.1, 0.37, 0.5, 0.81, 0.999])
+def test_shifted_laplacian_inertia(solver: ls.LinearSolver, quantile: float) -> None:
+    """K - sigma I with sigma between two eigenvalues: n_negative = eigenvalues below sigma."""
+    K = laplacian_2dof(8)
+    eigenvalues = np.unique(np.round(np.linalg.eigvalsh(K.toarray()), 9))
+    i = int(quantile * (len(eigenvalues) - 1))
+    sigma = (eigenvalues[i] + eigenvalues[i + 1]) / 2
+    shifted = (K - sigma * sp.eye(K.shape[0])).tocsr()
+    expected = n_negative_eigenvalues(shifted)
+    assert expected > 0
+    b = np.random.default_rng(1).standard_normal(K.shape[0])
+    factorization = solver.factorize(shifted)
+    assert factorization.n_negative == expected
+    assert relative_residual(shifted, factorization.solve(b), b) < 1e-10
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_random_indefinite_inertia(solver: ls.LinearSolver, seed: int) -> None:
+    K = random_symmetric_values(laplacian_2dof(7), seed)
+    b = np.random.default_rng(seed).standard_normal(K.shape[0])
+    factorization = solver.factorize(K)
+    assert factorization.n_negative == n_negative_eigenvalues(K)
+    assert relative_residual(K, factorization.solve(b), b) < 1e-10
+
+
+def test_saddle_point_matrix_with_missing_diagonal(solver: ls.LinearSolver) -> None:
+    """[[A, B^T], [B, 0]]: no diagonal entries stored in the lower right block.
+
+    Its inertia is (n_A positive, n_B negative). SuperLU must pivot off the diagonal here,
+    so it may not know the inertia, but what it reports must be right.
+    """
+    A = laplacian_2dof(5)
+    rng = np.random.default_rng(3)
+    B = sp.random(10, A.shape[0], density=0.2, random_state=rng) + sp.eye(10, A.shape[0])
+    K = sp.bmat([[A, B.T], [B, None]], format="csr")
+    K.sort_indices()
+    assert n_negative_eigenvalues(K) == 10
+    b = rng.standard_normal(K.shape[0])
+    factorization = solver.factorize(K)
+    assert factorization.n_negative in (None, 10)
+    if solver.name == "pardiso":
+        assert factorization.n_negative == 10
+    assert relative_residual(K, factorization.solve(b), b) < 1e-10
+
+
+def test_multiple_right_hand_sides(solver: ls.LinearSolver) -> None:
+    K = random_symmetric_values(laplacian_2dof(9), seed=4)
+    B = np.random.default_rng(5).standard_normal((K.shape[0], 3))
+    factorization = solver.factorize(K)
+    X = factorization.solve(B)
+    assert X.shape == B.shape
+    assert relative_residual(K, X, B) < 1e-10
+    for j in range(B.shape[1]):
+        np.testing.assert_allclose(factorization.solve(B[:, j]), X[:, j], rtol=1e-8, atol=1e-10)
+    # a list and a non-contiguous view are accepted too
+    np.testing.assert_allclose(factorization.solve(list(B[:, 1])), X[:, 1], rtol=1e-8, atol=1e-10)
+    np.testing.assert_allclose(factorization.solve(B[:, ::2]), X[:, ::2], rtol=1e-8, atol=1e-10)
+
+
+def test_pattern_work_is_reused_across_values(
+    solver: ls.LinearSolver, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Same pattern, new values: correct results, and the pattern is analysed only once."""
+    analysed = []
+    of = ls._Pattern.of
+    monkeypatch.setattr(ls._Pattern, "of", lambda K: analysed.append(K.shape) or of(K))
+    spd = laplacian_2dof(10)
+    indefinite = random_symmetric_values(spd, seed=6)
+    b = np.random.default_rng(7).standard_normal(spd.shape[0])
+    for K in (spd, indefinite, spd, indefinite):
+        factorization = solver.factorize(K)
+        assert factorization.n_negative == n_negative_eigenvalues(K)
+        assert relative_residual(K, factorization.solve(b), b) < 1e-10
+    assert len(analysed) == 1
+    other = laplacian_2dof(6)  # a new pattern is analysed again
+    assert relative_residual(other, solver.factorize(other).solve(b[:72]), b[:72]) < 1e-12
+    assert len(analysed) == 2
+
+
+def test_unsorted_csr_input_is_accepted(solver: ls.LinearSolver) -> None:
+    K = laplacian_2dof(6)
+    coo = K.tocoo()
+    order = np.random.default_rng(8).permutation(K.nnz)
+    shuffled = sp.csr_matrix((coo.data[order], (coo.row[order], coo.col[order])), shape=K.shape)
+    shuffled.has_sorted_indices = False  # as after some assemblies
+    b = np.ones(K.shape[0])
+    assert relative_residual(K, solver.factorize(shuffled).solve(b), b) < 1e-12
+
+
+def test_factorization_is_invalid_after_refactorize_or_release(solver: ls.LinearSolver) -> None:
+    K = laplacian_2dof(6)
+    b = np.ones(K.shape[0])
+    first = solver.factorize(K)
+    second = solver.factorize(2.0 * K)
+    with pytest.raises(SolverError, match="factorize K again"):
+        first.solve(b)
+    np.testing.assert_allclose(second.solve(b), solver.factorize(K).solve(b) / 2.0, rtol=1e-10)
+    with solver.factorize(K) as third:
+        third.solve(b)
+    with pytest.raises(SolverError):
+        third.solve(b)
+    # after a released factorization and a released solver, factorizing works again
+    assert relative_residual(K, solver.factorize(K).solve(b), b) < 1e-12
+    solver.release()
+    assert relative_residual(K, solver.factorize(K).solve(b), b) < 1e-12
+
+
+def test_zero_row_is_reported(solver: ls.LinearSolver) -> None:
+    """An exactly singular K: SuperLU fails loudly, PARDISO reports a perturbed pivot."""
+    K = laplacian_2dof(5)
+    coo = K.tocoo()
+    coo.data[(coo.row == 3) | (coo.col == 3)] = 0.0  # explicit zeros keep the pattern
+    K = sp.csr_matrix((coo.data, (coo.row, coo.col)), shape=K.shape)
+    if solver.name == "superlu":
+        with pytest.raises(SolverError, match="singular"):
+            solver.factorize(K)
+    else:
+        assert solver.factorize(K).n_perturbed >= 1
+
+
+def test_bad_input_is_rejected(solver: ls.LinearSolver) -> None:
+    K = laplacian_2dof(4)
+    with pytest.raises(TypeError, match="CSR"):
+        solver.factorize(K.tocsc())
+    with pytest.raises(TypeError, match="float64"):
+        solver.factorize(K.astype(np.float32))
+    with pytest.raises(ValueError, match="square"):
+        solver.factorize(K[:-1])
+    with pytest.raises(ValueError, match="not symmetric"):
+        solver.factorize(sp.triu(K, format="csr"))
+    with pytest.raises(ValueError, match="shape"):
+        solver.factorize(K).solve(np.ones(K.shape[0] + 1))
+
+
+def test_mkl_thread_count_change_between_factorizations() -> None:
+    """MKL PARDISO crashed when threads dropped after an analysis; the solver re-analyses."""
+    if "pardiso" not in BACKENDS:
+        pytest.skip("PARDISO unusable")
+    K = laplacian_2dof(36)  # 2,592 unknowns: large enough to crash an unguarded MKL
+    b = np.ones(K.shape[0])
+    with make_linear_solver("pardiso") as solver:
+        for threads in (2, 1, 2, 1):
+            with threadpool_limits(threads):
+                factorization = solver.factorize(K)
+                x = factorization.solve(b)
+            assert relative_residual(K, x, b) < 1e-12
+            assert relative_residual(K, factorization.solve(b), b) < 1e-12
+
+
+def test_make_linear_solver_names(monkeypatch: pytest.MonkeyPatch) -> None:
+    assert set(LINEAR_SOLVER_NAMES) == {"auto", "superlu", "pardiso"}
+    assert isinstance(make_linear_solver("superlu"), ls.SuperLUSolver)
+    assert make_linear_solver("auto").name == ("pardiso" if "pardiso" in BACKENDS else "superlu")
+    with pytest.raises(ConfigError, match="'umfpack' is unknown"):
+        make_linear_solver("umfpack")
+    monkeypatch.setattr(ls, "_pardiso_problem", lambda: "no MKL on this machine")
+    assert isinstance(make_linear_solver("auto"), ls.SuperLUSolver)
+    with pytest.raises(ConfigError, match="no MKL on this machine"):
+        make_linear_solver("pardiso")
+
+
+def test_small_pivots_are_refined(solver: ls.LinearSolver) -> None:
+    """Tridiagonal K with a 1e-9 diagonal: neither backend can pivot around the tiny pivots
+    (PARDISO pivots only within supernodes), so the refinement must restore the accuracy."""
+    n = 200
+    rng = np.random.default_rng(9)
+    off = rng.uniform(0.5, 1.5, n - 1)
+    K = sp.diags([off, np.full(n, 1e-9), off], [-1, 0, 1], format="csr")
+    b = rng.standard_normal(n)
+    factorization = solver.factorize(K)
+    x = factorization.solve(b)
+    norm_K = abs(K).sum(axis=1).max()
+    backward_error = np.abs(K @ x - b).max() / (norm_K * np.abs(x).max() + np.abs(b).max())
+    assert backward_error < 1e-12
+    assert factorization.n_negative == n_negative_eigenvalues(K)

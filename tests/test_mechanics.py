@@ -1,0 +1,198 @@
+"""Network mechanics end to end (SPEC 3-6): exact answers, symmetry, convergence, energy."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from conftest import make_mat
+from espin.config import apply_overrides, load_config
+from espin.crosslinks import find_crosslinks
+from espin.equilibrium import EquilibriumSolver, StepState
+from espin.errors import SolverError
+from espin.fiber_law import FiberLaw, elastic_stress
+from espin.homogenization import nominal_stress
+from espin.linear_solvers import make_linear_solver
+from espin.network import build_network
+from espin.simulate import run_program
+from espin.single_fiber import pull_fiber
+
+
+@pytest.fixture(scope="module")
+def linear():
+    return make_linear_solver("auto")
+
+
+def _config(**overrides):
+    return load_config("plla", {k.replace("__", "."): v for k, v in overrides.items()})
+
+
+def _grid(n=4, size=10.0, diameter=0.2):
+    c = (np.arange(n) + 0.5) * size / n
+    fibers = [[(0.0, y), (size, y)] for y in c] + [[(x, 0.0), (x, size)] for x in c]
+    mat = make_mat(fibers, [0] * (2 * n), size=size, diameter=diameter)
+    return build_network(mat, find_crosslinks(mat), 1e-6)
+
+
+def test_grid_reproduces_the_single_fiber_law(linear):
+    """Straight fibers on a grid deform affinely: every horizontal element follows the
+    single-fiber driver, and P11 = n A t L / V0 at every step, with no Newton iteration."""
+    net = _grid()
+    config = _config(loading__max_strain=0.2, loading__steps=10)
+    result = run_program(net, config, linear)
+    law = FiberLaw.from_config(config.fiber)
+    fiber = pull_fiber(law, result.time, 1.0 + result.strain, tortuosity=1.0)
+    A = np.pi * 0.2**2 / 4
+    expected = 4 * A * fiber.stress * 10.0 / net.reference_volume
+    assert result.P[:, 0, 0] == pytest.approx(expected, rel=1e-10, abs=1e-12)
+    assert np.abs(result.P[:, 1, 1]).max() < 1e-12  # vertical fibers keep their length
+    assert result.iterations.sum() == 0
+    assert result.yielded_fraction[-1] == pytest.approx(0.5)  # horizontal half of the fibers
+
+
+def _rotated(net):
+    """The same network turned by 90 deg about its centre."""
+    c = net.centre
+    X = net.node_position - c
+    return replace(net, node_position=np.c_[-X[:, 1], X[:, 0]] + c)
+
+
+@pytest.mark.parametrize("direction", [0.0, 30.0])
+def test_turning_network_and_load_together_changes_nothing(small_rve, linear, direction):
+    config = _config(loading__max_strain=0.05, loading__steps=3, loading__direction_deg=direction)
+    turned = apply_overrides(config, {"loading.direction_deg": direction + 90.0})
+    a = run_program(small_rve.network, config, linear)
+    b = run_program(_rotated(small_rve.network), turned, linear)
+    assert b.stress() == pytest.approx(a.stress(), rel=1e-7)
+    assert b.loading_frame(b.P) == pytest.approx(a.loading_frame(a.P), rel=1e-6, abs=1e-9)
+
+
+def test_equibiaxial_response_turns_with_the_network(small_rve, linear):
+    config = _config(loading__test="equibiaxial", loading__max_strain=0.04, loading__steps=2)
+    a = run_program(small_rve.network, config, linear).P[-1]
+    b = run_program(_rotated(small_rve.network), config, linear).P[-1]
+    R = np.array([[0.0, -1.0], [1.0, 0.0]])
+    assert b == pytest.approx(R @ a @ R.T, rel=1e-6, abs=1e-9)
+
+
+def test_rigid_rotation_gives_zero_stress(small_rve, linear, tmp_path):
+    angles = np.radians([0.0, 20.0, 45.0])
+    rows = "\n".join(f"{10 * k},{np.cos(a)},{-np.sin(a)},{np.sin(a)},{np.cos(a)}" for k, a in enumerate(angles))
+    table = tmp_path / "rotation.csv"
+    table.write_text("time_s,F11,F12,F21,F22\n" + rows + "\n")
+    result = run_program(small_rve.network, _config(loading__test="path", loading__path_csv=str(table)), linear)
+    assert np.abs(result.P).max() < 1e-9
+
+
+def test_convergence_with_load_step(small_rve, linear):
+    """Backward Euler in time: P at 8 % strain converges as the steps are refined."""
+    P = [run_program(small_rve.network, _config(loading__max_strain=0.08, loading__steps=n), linear).P[-1, 0, 0]
+         for n in (2, 4, 8, 16)]
+    errors = np.abs(np.diff(P))
+    assert errors[0] > errors[1] > errors[2]
+    assert errors[2] / errors[1] == pytest.approx(0.5, abs=0.2)  # first order
+
+
+def _stored_energy(net, law, stretch, plastic):
+    """Elastic energy sum A l0 lambda_p int_1^e t(e') de' (trapezoid on a fine grid)."""
+    e = stretch / plastic
+    grid = np.linspace(0.0, 1.0, 2001)[:, None]
+    e_path = 1.0 + grid * (e - 1.0)
+    t = elastic_stress(law, e_path, net.element_tortuosity)
+    psi = np.trapezoid(t, e_path, axis=0)
+    return float(np.sum(net.element_area * net.element_length * plastic * psi))
+
+
+@pytest.mark.parametrize("plastic", [False, True])
+def test_energy_balance(small_rve, linear, plastic):
+    """Work of P on F = stored elastic energy + plastic dissipation (SPEC 6)."""
+    net = small_rve.network
+    config = _config(loading__max_strain=0.06, loading__steps=60,
+                     fiber__flow_rate_per_s=1e-8 if plastic else 0.0)
+    law = FiberLaw.from_config(config.fiber)
+    records = []
+    result = run_program(net, config, linear, on_step=records.append)
+    dF = np.diff(result.F, axis=0)
+    P_mid = 0.5 * (result.P[1:] + result.P[:-1])
+    work = net.reference_volume * np.einsum("nij,nij->", P_mid, dF)
+    # Dissipation: A l0 (t e - psi(e)) d(lambda_p), midpoint in time.
+    dissipation = 0.0
+    for before, after in zip(records[:-1], records[1:]):
+        d_plastic = after.plastic_stretch - before.plastic_stretch
+        lam_p = 0.5 * (after.plastic_stretch + before.plastic_stretch)
+        t = 0.5 * (after.stress + before.stress)
+        stretch_mid = 0.5 * (np.hypot(*_vectors(net, after).T) + np.hypot(*_vectors(net, before).T)) / net.element_length
+        e = stretch_mid / lam_p
+        grid = np.linspace(0.0, 1.0, 401)[:, None]
+        e_path = 1.0 + grid * (e - 1.0)
+        psi = np.trapezoid(elastic_stress(law, e_path, net.element_tortuosity), e_path, axis=0)
+        dissipation += float(np.sum(net.element_area * net.element_length * (t * e - psi) * d_plastic))
+    final = records[-1]
+    stretch = np.hypot(*_vectors(net, final).T) / net.element_length
+    stored = _stored_energy(net, law, stretch, final.plastic_stretch)
+    assert work > 0
+    if not plastic:
+        assert dissipation == 0.0
+    else:
+        assert dissipation > 0.3 * work  # this mat yields near 3 % strain
+    assert stored + dissipation == pytest.approx(work, rel=5e-3)
+
+
+def _vectors(net, record):
+    x = record.positions
+    return x[net.element_nodes[:, 1]] - x[net.element_nodes[:, 0]]
+
+
+def test_faster_pulling_gives_higher_stress_and_holds_relax(small_rve, linear):
+    slow = run_program(small_rve.network, _config(loading__max_strain=0.06, loading__steps=6,
+                                                  loading__strain_rate_per_s=1e-4), linear)
+    fast = run_program(small_rve.network, _config(loading__max_strain=0.06, loading__steps=6,
+                                                  loading__strain_rate_per_s=1e-2), linear)
+    assert fast.P[-1, 0, 0] > slow.P[-1, 0, 0] * 1.05
+    assert np.allclose(fast.P[1, 0, 0], slow.P[1, 0, 0], rtol=0.05)  # elastic start: same
+    hold = run_program(small_rve.network, _config(loading__program=[
+        {"to_strain": 0.05, "rate_per_s": 5e-3, "steps": 5}, {"hold_s": 600.0, "steps": 6},
+        {"to_strain": 0.04, "rate_per_s": 5e-3, "steps": 2}]), linear)
+    during_hold = hold.P[5:12, 0, 0]
+    assert np.all(np.diff(during_hold) < 0)  # stress relaxes at constant strain
+    assert np.all(np.diff(hold.yielded_fraction[5:12]) >= 0)
+    # Unloading is elastic: far steeper than the post-yield loading slope.
+    loading_slope = (hold.P[5, 0, 0] - hold.P[4, 0, 0]) / 0.01
+    unloading_slope = (hold.P[11, 0, 0] - hold.P[13, 0, 0]) / 0.01
+    assert unloading_slope > 3 * loading_slope > 0
+
+
+def test_macroscopic_tangent_matches_finite_differences(linear):
+    import espin.rve
+
+    rve = espin.rve.generate("plla", rve__size_ratio=30, rve__layers=2)
+    net = rve.network
+    for fiber in (dict(flow_rate_per_s=0.0), dict()):
+        config = apply_overrides(rve.config, {f"fiber.{k}": v for k, v in fiber.items()})
+        solver = EquilibriumSolver(net, FiberLaw.from_config(config.fiber), config.solver, linear)
+        X = solver.asm.reference[: net.n_inner]
+        ones = np.ones(net.n_elements)
+        start = StepState(0.0, X, np.zeros(0), np.eye(2), ones, ones)
+        F = np.array([[1.03, 0.004], [0.002, 1.0]])
+        no_free = np.zeros((0, 2, 2))
+        step = solver.solve(start, 6.0, F, no_free, X @ F.T, np.zeros(0))
+        A = solver.macroscopic_tangent(step)
+        h = 1e-6
+        for k in range(2):
+            for L in range(2):
+                P = []
+                for sign in (1, -1):
+                    Fh = F.copy()
+                    Fh[k, L] += sign * h
+                    s = solver.solve(start, 6.0, Fh, no_free, step.state.inner @ np.linalg.solve(F, Fh).T, np.zeros(0))
+                    P.append(nominal_stress(net, s.force, s.kinematics))
+                fd = (P[0] - P[1]) / (2 * h)
+                assert np.allclose(A[:, :, k, L], fd, atol=1e-6 * np.abs(A).max()), (fiber, k, L)
+
+
+def test_failed_solve_says_where_and_why(small_rve, linear):
+    config = _config(loading__max_strain=0.05, loading__steps=2, solver__max_iterations=1, solver__max_cuts=0)
+    with pytest.raises(SolverError, match=r"step 1 of 2 \(time .* strain .*\) did not converge.*residual history"):
+        run_program(small_rve.network, config, linear)
