@@ -198,10 +198,12 @@ class EquilibriumSolver:
         if self._clipped_left == 0:
             fact = self.linear.factorize(self._hessian(p, directions, clipped=False))
             factorizations += 1
-            step = fact.solve(-p.residual)
-            indefinite = fact.n_negative is not None and fact.n_negative > 0
-            if not indefinite and np.dot(step, p.residual) < 0.0:
-                return step, factorizations
+            # Perturbed pivots mean a (nearly) singular tangent: not usable as exact.
+            indefinite = bool(fact.n_negative) or fact.n_perturbed > 0
+            if not indefinite:
+                step = fact.solve(-p.residual)
+                if np.dot(step, p.residual) < 0.0:
+                    return step, factorizations
             self._clipped_left = _CLIPPED_AFTER_INDEFINITE
         self._clipped_left -= 1
         fact = self.linear.factorize(self._hessian(p, directions, clipped=True))

@@ -162,9 +162,11 @@ def _record(index, solver: EquilibriumSolver, result: StepResult, strain, counts
     )
 
 
-def _predict(state: StepState, previous: StepState | None, t_next: float, F_next, asm, n_inner):
+def _predict(state: StepState, previous: StepState | None, t_next: float, F_next, directions, asm, n_inner):
     """Guess of inner positions and free values at ``t_next``: the non-affine fluctuation
-    w = x - F X and the free values extrapolated linearly in time from the last two states."""
+    w = x - F X and the free values extrapolated linearly in time from the last two states.
+    The affine part uses the whole predicted F (prescribed part plus free components), so
+    inner and border nodes move together under mixed control."""
     X = asm.reference[:n_inner]
     w = state.inner - X @ state.F.T
     free = state.free
@@ -172,7 +174,8 @@ def _predict(state: StepState, previous: StepState | None, t_next: float, F_next
         ratio = (t_next - state.time) / (state.time - previous.time)
         w = w + ratio * (w - (previous.inner - X @ previous.F.T))
         free = free + ratio * (free - previous.free)
-    return X @ F_next.T + w, free
+    F = F_next + np.tensordot(free, directions, axes=1) if len(free) else F_next
+    return X @ F.T + w, free
 
 
 def run_program(
@@ -244,7 +247,9 @@ def run_program(
             if t_end - t_next < 1e-9 * span:
                 t_next = t_end
             F_next = program.prescribed_F(t_next)
-            guess_inner, guess_free = _predict(state, previous, t_next, F_next, solver.asm, n_inner)
+            guess_inner, guess_free = _predict(
+                state, previous, t_next, F_next, directions, solver.asm, n_inner
+            )
             try:
                 result = solver.solve(state, t_next, F_next, directions, guess_inner, guess_free)
             except StepFailed as failure:
