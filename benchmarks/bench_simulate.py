@@ -41,7 +41,7 @@ def run_case(size_ratio: float, layers: int, strain: float, steps: int, linear: 
     import espin.linear_solvers as linear_solvers
     from espin.assembly import NetworkAssembler
     from espin.rve import generate
-    from espin.simulate import run_program
+    from espin.driver import run_program
 
     totals: dict[str, float] = defaultdict(float)
     _timed(equilibrium, "update", "law", totals)

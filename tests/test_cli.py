@@ -9,6 +9,7 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from espin.cli import app
@@ -95,3 +96,17 @@ def test_simulate_rejects_bad_input_before_work(tmp_path):
                                  "-o", str(tmp_path / "x")])
     assert result.exit_code == 2 and "loading.path_csv" in result.output
     assert not (tmp_path / "x").exists()
+
+
+def test_example_tensile_plla(tmp_path, monkeypatch):
+    """The paper's tensile test, small: linear start, yield near 3 %, hardening after."""
+    monkeypatch.chdir(tmp_path)
+    module = runpy.run_path(str(EXAMPLES / "tensile_plla.py"))
+    result = module["main"](size_ratio=40, layers=3, max_strain=0.08, steps=8, out="small_test")
+    stress = result.stress()
+    slopes = np.diff(stress) / np.diff(result.strain)
+    assert slopes[0] == pytest.approx(slopes[1], rel=0.1)  # linear up to 2 %
+    assert slopes[-1] < 0.2 * slopes[0]  # post-yield hardening is much softer
+    assert np.all(slopes > 0)  # but still hardening
+    assert result.yielded_fraction[2] < 0.1 < result.yielded_fraction[-1]
+    assert (tmp_path / "small_test" / "curve.csv").exists()

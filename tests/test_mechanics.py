@@ -16,7 +16,7 @@ from espin.fiber_law import FiberLaw, elastic_stress
 from espin.homogenization import nominal_stress
 from espin.linear_solvers import make_linear_solver
 from espin.network import build_network
-from espin.simulate import run_program
+from espin.driver import run_program
 from espin.single_fiber import pull_fiber
 
 

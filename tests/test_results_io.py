@@ -22,7 +22,7 @@ from espin.figures.curve import plot_curve, plot_deformed
 from espin.io.results_file import SCHEMA_VERSION, SimulationWriter, load_results, write_results
 from espin.loading import load_program
 from espin.network import build_network
-from espin.simulate import SimulationResult, StepRecord
+from espin.driver import SimulationResult, StepRecord
 
 PNG = b"\x89PNG\r\n\x1a\n"
 _STACKED = ("time", "strain", "F", "P", "P_paper", "cauchy", "recruited_fraction",

@@ -159,7 +159,7 @@ def simulate(
     from espin.run import resolve_rve
     from espin.run import simulate as run_simulation
     from espin.rve import resolve_config
-    from espin.simulate import FREE_LATERAL_NOTE
+    from espin.driver import FREE_LATERAL_NOTE
 
     console = Console(stderr=True, quiet=quiet)
     options = {

@@ -14,7 +14,7 @@ from espin.errors import ConfigError
 from espin.io.rve_file import load_rve
 from espin.linear_solvers import make_linear_solver
 from espin.rve import RVE, generate, resolve_config
-from espin.simulate import SimulationResult, StepRecord, run_program
+from espin.driver import SimulationResult, StepRecord, run_program
 
 __all__ = ["simulate", "resolve_rve"]
 

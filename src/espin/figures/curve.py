@@ -19,7 +19,7 @@ from espin.figures import save_figure
 
 if TYPE_CHECKING:  # pragma: no cover
     from espin.network import Network
-    from espin.simulate import SimulationResult, StepRecord
+    from espin.driver import SimulationResult, StepRecord
 
 __all__ = ["plot_curve", "plot_deformed"]
 

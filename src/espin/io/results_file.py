@@ -38,7 +38,7 @@ from espin.io.atomic import atomic_write, atomic_write_bytes
 from espin.io.provenance import provenance
 from espin.io.vtk import write_network_vtu
 from espin.network import Network
-from espin.simulate import SimulationResult, StepRecord
+from espin.driver import SimulationResult, StepRecord
 
 __all__ = ["SimulationWriter", "write_results", "load_results", "ResultsFile", "SCHEMA", "SCHEMA_VERSION"]
 
