@@ -24,18 +24,17 @@ simple shear). Floats have 17 significant digits, so reading them back is exact.
 from __future__ import annotations
 
 import io
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import h5py
 import numpy as np
 
-from espin.config import Config, config_from_dict, config_to_toml
+from espin.config import Config
 from espin.errors import RVEFileError
 from espin.fiber_law import yielded
 from espin.io.atomic import atomic_write, atomic_write_bytes
-from espin.io.provenance import provenance
+from espin.io.header import open_checked, read_config, write_header
 from espin.io.vtk import write_network_vtu
 from espin.network import Network
 from espin.driver import SimulationResult, StepRecord
@@ -175,11 +174,7 @@ def write_results(result: SimulationResult, folder: str | Path) -> dict[str, Pat
 
     def write(tmp: Path) -> None:
         with h5py.File(tmp, "w") as f:
-            f.attrs.update(provenance())
-            f.attrs["schema"] = SCHEMA
-            f.attrs["schema_version"] = SCHEMA_VERSION
-            f.attrs["config_toml"] = config_to_toml(result.config)
-            f.attrs["seed"] = result.config.rve.seed
+            write_header(f, SCHEMA, SCHEMA_VERSION, result.config)
             g = f.create_group("steps")
             for attr, (name, units) in _STEPS.items():
                 g.create_dataset(name, data=getattr(result, attr)).attrs["units"] = units
@@ -233,20 +228,9 @@ def load_results(path: str | Path) -> ResultsFile:
         incomplete.
     """
     path = Path(path)
-    try:
-        f = h5py.File(path, "r")
-    except OSError as err:
-        raise RVEFileError(f"cannot open results file {path}: {err}") from None
-    with f:
-        if f.attrs.get("schema") != SCHEMA:
-            raise RVEFileError(f"{path} is not an espin results file (schema {f.attrs.get('schema')!r})")
-        version = int(f.attrs["schema_version"])
-        if version > SCHEMA_VERSION:
-            raise RVEFileError(
-                f"{path} has results schema version {version}; this espin reads up to {SCHEMA_VERSION}"
-            )
+    with open_checked(path, SCHEMA, SCHEMA_VERSION, "results") as f:
         try:
-            config = config_from_dict(tomllib.loads(f.attrs["config_toml"]), f"(stored in {path})")
+            config = read_config(f, path)
             steps = {name: f["steps"][name][()] for name in [*(n for n, _ in _STEPS.values()), "stress_MPa"]}
             final = {name: f["final"][name][()] for name, _ in _FINAL.values()}
             seed = int(f.attrs["seed"])

@@ -13,17 +13,15 @@ Layout (schema ``espin.rve``, version 1)::
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 import h5py
 import numpy as np
 
-from espin.config import config_from_dict, config_to_toml
 from espin.crosslinks import Crosslinks
 from espin.errors import RVEFileError
 from espin.io.atomic import atomic_write
-from espin.io.provenance import provenance
+from espin.io.header import open_checked, read_config, write_header
 from espin.mat import FiberMat
 from espin.network import Network
 from espin.rve import RVE
@@ -63,11 +61,7 @@ def save_rve(rve: RVE, path: str | Path) -> Path:
 
     def write(tmp: Path) -> None:
         with h5py.File(tmp, "w") as f:
-            f.attrs.update(provenance())
-            f.attrs["schema"] = SCHEMA
-            f.attrs["schema_version"] = SCHEMA_VERSION
-            f.attrs["config_toml"] = config_to_toml(rve.config)
-            f.attrs["seed"] = rve.config.rve.seed
+            write_header(f, SCHEMA, SCHEMA_VERSION, rve.config)
             g = f.create_group("mat")
             for name in _MAT:
                 g.create_dataset(name, data=getattr(rve.mat, name))
@@ -96,20 +90,9 @@ def load_rve(path: str | Path) -> RVE:
         If the file is missing, unreadable, not an espin RVE file, or of a newer schema.
     """
     path = Path(path)
-    try:
-        f = h5py.File(path, "r")
-    except (OSError, FileNotFoundError) as err:
-        raise RVEFileError(f"cannot open RVE file {path}: {err}") from None
-    with f:
-        if f.attrs.get("schema") != SCHEMA:
-            raise RVEFileError(f"{path} is not an espin RVE file (schema {f.attrs.get('schema')!r})")
-        version = int(f.attrs["schema_version"])
-        if version > SCHEMA_VERSION:
-            raise RVEFileError(
-                f"{path} has RVE schema version {version}; this espin reads up to {SCHEMA_VERSION}"
-            )
+    with open_checked(path, SCHEMA, SCHEMA_VERSION, "RVE") as f:
         try:
-            config = config_from_dict(tomllib.loads(f.attrs["config_toml"]), f"(stored in {path})")
+            config = read_config(f, path)
             g = f["mat"]
             mat = FiberMat(
                 **{name: g[name][()] for name in _MAT},
