@@ -136,11 +136,11 @@ def simulate(
         Optional[str], typer.Option(help="loading.lateral for uniaxial: fixed or free.")
     ] = None,
     direction_deg: Annotated[
-        Optional[float], typer.Option(help="loading.direction_deg: loading axis [deg].")
+        Optional[float], typer.Option(help="loading.direction_deg: loading axis, degrees from +x.")
     ] = None,
     max_strain: Annotated[Optional[float], typer.Option(help="loading.max_strain.")] = None,
     strain_rate_per_s: Annotated[
-        Optional[float], typer.Option(help="loading.strain_rate_per_s [1/s].")
+        Optional[float], typer.Option(help="loading.strain_rate_per_s, 1/s.")
     ] = None,
     steps: Annotated[Optional[int], typer.Option(help="loading.steps.")] = None,
     linear: Annotated[
@@ -149,8 +149,10 @@ def simulate(
     set_: SetOpt = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or table.")] = False,
 ) -> None:
-    """Pull on a virtual mat: generate (or load) the RVE, run the loading program, write the
-    curve, results, VTK series and figures."""
+    """Pull on a virtual mat: generate or load the RVE, run the loading program, write results.
+
+    Writes the curve (CSV), results (HDF5), a VTK series for ParaView and figures.
+    """
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
