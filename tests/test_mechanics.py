@@ -213,3 +213,17 @@ def test_free_lateral_reaches_zero_free_stresses(small_rve, linear, direction):
     assert np.all(np.diff(F[:, 1, 1]) < 0)  # the mat contracts laterally
     assert np.allclose(F[:, 1, 0], 0.0, atol=1e-14) and np.allclose(F[:, 0, 0], 1 + free.strain)
     assert 0 < free.stress()[-1] < fixed.stress()[-1]  # free contraction relieves the stress
+
+
+def test_free_lateral_stress_agrees_between_load_steps(small_rve, linear):
+    """P'11 is robust across solver paths (SPEC 8), here elastic, in 1, 2 and 4 steps.
+
+    Under free lateral contraction equilibrium is not unique (compressed chains buckle):
+    the 1-step run lands in a neighbouring equilibrium, 0.018 % above the others (measured),
+    while 2, 4 and 8 steps agree to 1e-9. The band is SPEC 8's measured spread of P between
+    equally converged states (up to 0.12 %)."""
+    common = dict(loading__lateral="free", loading__max_strain=0.02, fiber__flow_rate_per_s=0.0,
+                  fiber__slack_modulus_MPa=300.0)
+    final = [run_program(small_rve.network, _config(loading__steps=n, **common), linear).stress()[-1]
+             for n in (1, 2, 4)]
+    assert final == pytest.approx([final[0]] * 3, rel=1.2e-3)
