@@ -345,8 +345,9 @@ class SolverConfig(_Section):
     """Relative tolerance: max |residual| <= rtol max|T_e| + atol E_t mean(A_e), in (0, 1)."""
     atol: Annotated[float, Field(gt=0.0, lt=1.0)] = 1e-8
     """Absolute tolerance, in units of E_t mean(A_e), in (0, 1)."""
-    max_iterations: Annotated[int, Field(ge=1, le=10000)] = 50
-    """Newton iterations per load step before the step is cut, in [1, 10000]."""
+    max_iterations: Annotated[int, Field(ge=1, le=10000)] | None = None
+    """Newton iterations per load step before the step is cut, in [1, 10000]. Default 50,
+    or 500 under mixed control (lateral free), where buckling chains need hundreds."""
     max_cuts: Annotated[int, Field(ge=0, le=60)] = 12
     """Times a load step may be halved before the solve fails, in [0, 60]."""
 

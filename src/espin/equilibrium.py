@@ -39,6 +39,8 @@ from espin.network import Network
 
 __all__ = ["StepState", "StepResult", "StepFailed", "EquilibriumSolver"]
 
+_MAX_ITERATIONS = 50  # default Newton iterations per step
+_MAX_ITERATIONS_MIXED = 500  # under mixed control: buckling chains need hundreds
 _SLOPE_RATIO = 0.5
 _MAX_SEARCH = 10
 _MIN_STEP = 1e-6
@@ -224,17 +226,20 @@ class EquilibriumSolver:
         Raises
         ------
         StepFailed
-            When Newton does not converge within ``config.max_iterations``, the line search
+            When Newton does not converge within the iteration limit, the line search
             cannot lower the potential, or the state becomes non-finite.
         """
         dt = time - start.time
         n_free = len(directions)
+        limit = self.config.max_iterations or (
+            _MAX_ITERATIONS_MIXED if n_free else _MAX_ITERATIONS
+        )
         z = np.concatenate([guess_inner.ravel(), guess_free])
         p = self._evaluate(z, start, F_prescribed, directions, dt)
         history: list[float] = []
         factorizations = 0
         self._clipped_left = 0
-        for iteration in range(self.config.max_iterations + 1):
+        for iteration in range(limit + 1):
             if not np.all(np.isfinite(p.residual)):
                 raise StepFailed("non-finite residual", history)
             ok, norm = self._converged(p, n_free)
@@ -243,12 +248,12 @@ class EquilibriumSolver:
                 state = StepState(time, p.z[: 2 * self.n_inner].reshape(-1, 2), p.z[2 * self.n_inner:].copy(),
                                   p.F, p.stretch, p.law.plastic_stretch)
                 return StepResult(state, p.law, p.force, p.kin, iteration, factorizations, norm, history)
-            if iteration == self.config.max_iterations:
+            if iteration == limit:
                 break
             step, used = self._direction(p, directions)
             factorizations += used
             p = self._line_search(p, step, start, F_prescribed, directions, dt, history)
-        raise StepFailed(f"no convergence in {self.config.max_iterations} iterations", history)
+        raise StepFailed(f"no convergence in {limit} iterations", history)
 
     def _line_search(self, p, step, start, F_prescribed, directions, dt, history) -> _Point:
         """Step length along the Newton direction on the incremental potential Phi.
@@ -263,6 +268,7 @@ class EquilibriumSolver:
         s0 = float(np.dot(p.residual, step))
         lo, s_lo = 0.0, s0
         hi, s_hi = None, None
+        best = None  # the trial at ``lo``: Phi still falls there
         alpha = 1.0
         for _ in range(_MAX_SEARCH):
             trial = self._evaluate(p.z + alpha * step, start, F_prescribed, directions, dt)
@@ -278,7 +284,7 @@ class EquilibriumSolver:
             elif s > 0.0:
                 hi, s_hi = alpha, s
             else:
-                lo, s_lo = alpha, s
+                lo, s_lo, best = alpha, s, trial
             if hi is None:
                 alpha = min(2.0 * alpha, 1.0)
             elif s_hi is None:
@@ -289,6 +295,8 @@ class EquilibriumSolver:
                 alpha = float(np.clip(guess, lo + 0.1 * width, hi - 0.1 * width))
             if hi is not None and hi - lo < _MIN_STEP:
                 break
+        if best is not None and self._decreases(p, best, start, dt):
+            return best  # no better point found, but Phi falls up to here
         raise StepFailed("line search could not lower the incremental potential", history)
 
     def _decreases(self, p: _Point, trial: _Point, start: StepState, dt: float) -> bool:
