@@ -70,7 +70,25 @@ _BACKWARD_ERROR_TOL = 1e-14
 refinement; a backward-stable solve gives about 1e-16."""
 
 
-class Factorization(ABC):
+class _Releasable:
+    """Context-manager support for objects holding solver memory: ``release()`` on exit."""
+
+    def release(self) -> None:  # pragma: no cover - overridden
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.release()
+
+
+class Factorization(_Releasable, ABC):
     """A numeric factorization of a symmetric matrix K, ready to solve ``K x = b``.
 
     A factorization belongs to the solver that made it and stays usable until it is released
@@ -153,17 +171,6 @@ class Factorization(ABC):
             self._matrix = None
             self._free()
 
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.release()
-
     def _check_valid(self) -> None:
         if not self._valid:
             raise SolverError(
@@ -191,7 +198,7 @@ class Factorization(ABC):
         """Drop the factors (called once, by :meth:`release`)."""
 
 
-class LinearSolver(ABC):
+class LinearSolver(_Releasable, ABC):
     """Factorizes symmetric sparse matrices that share one sparsity pattern.
 
     Pattern-dependent work (ordering, symbolic analysis) is done on the first call and again
@@ -252,17 +259,6 @@ class LinearSolver(ABC):
             self._current = None
         self._pattern = None
         self._release_pattern_data()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.release()
 
     @abstractmethod
     def _factorize(self, K: sp.csr_matrix, new_pattern: bool) -> Factorization:
