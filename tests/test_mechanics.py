@@ -178,7 +178,7 @@ def test_macroscopic_tangent_matches_finite_differences(linear):
         solver = EquilibriumSolver(net, FiberLaw.from_config(config.fiber), config.solver, linear)
         X = solver.asm.reference[: net.n_inner]
         ones = np.ones(net.n_elements)
-        start = StepState(0.0, X, np.zeros(0), np.eye(2), ones, ones)
+        start = StepState(0.0, X, np.zeros(0), np.eye(2), ones)
         F = np.array([[1.03, 0.004], [0.002, 1.0]])
         no_free = np.zeros((0, 2, 2))
         step = solver.solve(start, 6.0, F, no_free, X @ F.T, np.zeros(0))
@@ -232,3 +232,28 @@ def test_free_lateral_stress_agrees_between_load_steps(small_rve, linear):
     final = [run_program(small_rve.network, _config(loading__steps=n, **common), linear).stress()[-1]
              for n in (1, 2, 4)]
     assert final == pytest.approx([final[0]] * 3, rel=1.2e-3)
+
+
+def test_a_failed_step_keeps_the_converged_ones(small_rve, linear, tmp_path, monkeypatch):
+    """A step that cannot converge is reported with its place, and the steps before it
+    are written (curve and results) rather than lost."""
+    import espin
+    from espin.driver import SimulationFailed
+    from espin.equilibrium import EquilibriumSolver, StepFailed
+
+    solve = EquilibriumSolver.solve
+    calls = []
+
+    def failing_from_step_3(self, start, time, *args):
+        calls.append(time)
+        if time > 2 * 2.0 + 1e-9:  # steps of 2 s: fail beyond the second step
+            raise StepFailed("forced", [1.0, 0.5])
+        return solve(self, start, time, *args)
+
+    monkeypatch.setattr(EquilibriumSolver, "solve", failing_from_step_3)
+    with pytest.raises(SimulationFailed, match=r"step 3 of 4 .* after 2 cuts: forced") as err:
+        espin.simulate(small_rve, tmp_path / "out", loading__max_strain=0.04, loading__steps=4,
+                       solver__max_cuts=2, output__figures=False, output__vtk=False)
+    assert len(err.value.partial.time) == 3  # steps 0, 1, 2
+    curve = np.genfromtxt(tmp_path / "out" / "curve.csv", delimiter=",", names=True)
+    assert list(curve["step"]) == [0, 1, 2]

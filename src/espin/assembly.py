@@ -101,6 +101,8 @@ class NetworkAssembler:
         self._patterns: dict[str, SparsePattern] = {}
         self.reference = network.node_position - network.centre
         """(n_nodes, 2) float64 [um]: X relative to the RVE centre."""
+        vector = network.element_vector
+        self._reference_unit = vector / np.hypot(vector[:, 0], vector[:, 1])[:, None]
 
     # -- geometry ---------------------------------------------------------------------------
     def positions(self, inner: np.ndarray, F: np.ndarray) -> np.ndarray:
@@ -113,13 +115,8 @@ class NetworkAssembler:
         nodes = self.network.element_nodes
         vector = x[nodes[:, 1]] - x[nodes[:, 0]]
         length = np.hypot(vector[:, 0], vector[:, 1])
-        reference = self.network.element_vector
         safe = length > 0.0
-        unit = np.where(
-            safe[:, None],
-            vector / np.where(safe, length, 1.0)[:, None],
-            reference / np.hypot(*reference.T)[:, None],
-        )
+        unit = np.where(safe[:, None], vector / np.where(safe, length, 1.0)[:, None], self._reference_unit)
         return Kinematics(vector=vector, length=length, unit=unit)
 
     # -- forces -----------------------------------------------------------------------------
@@ -177,3 +174,10 @@ class NetworkAssembler:
             Current element geometry.
         """
         return self.pattern(part).fill(self._element_blocks(axial, transverse, kin))
+
+    def tangents(
+        self, parts: tuple[str, ...], axial: np.ndarray, transverse: np.ndarray, kin: Kinematics
+    ) -> list[sp.csr_matrix]:
+        """Several blocks of the stiffness matrix from one evaluation of the element matrices."""
+        blocks = self._element_blocks(axial, transverse, kin)
+        return [self.pattern(part).fill(blocks) for part in parts]

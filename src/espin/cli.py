@@ -161,7 +161,6 @@ def simulate(
     from espin.run import resolve_rve
     from espin.run import simulate as run_simulation
     from espin.rve import resolve_config
-    from espin.driver import FREE_LATERAL_NOTE
 
     console = Console(stderr=True, quiet=quiet)
     options = {
@@ -184,8 +183,6 @@ def simulate(
         else:
             target = config = resolve_config(source, **{k.replace(".", "__"): v for k, v in overrides.items()})
         program = load_program(config.loading)
-        if config.loading.test == "uniaxial" and config.loading.lateral == "free":
-            console.print(f"note: {FREE_LATERAL_NOTE}", style="yellow")
         columns = (TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[info]}"),
                    TimeElapsedColumn())
         with Progress(*columns, console=console) as bar:

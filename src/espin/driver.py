@@ -22,7 +22,7 @@ from espin.homogenization import cauchy_stress, nominal_stress, paper_stress
 from espin.loading import LoadProgram, load_program
 from espin.network import Network
 
-__all__ = ["StepRecord", "SimulationResult", "run_program", "FREE_LATERAL_NOTE"]
+__all__ = ["StepRecord", "SimulationResult", "SimulationFailed", "run_program", "FREE_LATERAL_NOTE"]
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +33,7 @@ FREE_LATERAL_NOTE = (
     "the stress P, not the lateral stretch, between runs."
 )
 
-_GROW_BELOW = 4  # iterations: a sub-step that converged in fewer lets the next one double
+_GROW_BELOW = 0.1  # of the iteration limit: a sub-step that converged in fewer lets the next double
 
 
 @dataclass(frozen=True, eq=False)
@@ -206,9 +206,10 @@ def run_program(
 
     Raises
     ------
-    SolverError
+    SimulationFailed
         When a step cannot converge even after ``solver.max_cuts`` halvings; the message
-        names the step, time, strain and the residual history of the last attempt.
+        names the step, time, strain and the residual history of the last attempt, and
+        ``partial`` holds the curve up to the last converged step.
     """
     program = program or load_program(config.loading)
     if program.test == "uniaxial" and len(program.free_directions):
@@ -217,29 +218,41 @@ def run_program(
     solver = EquilibriumSolver(network, law, config.solver, linear_solver)
     n_inner = network.n_inner
     directions = program.free_directions
-    n_el = network.n_elements
+    limit = solver.iteration_limit(len(directions))
+    threshold = config.output.yield_threshold
+    records: list[StepRecord] = []
+
+    def fail(k: int, t: float, failure: StepFailed, what: str) -> SimulationFailed:
+        history = ", ".join(f"{r:.3g}" for r in failure.history)
+        return SimulationFailed(
+            f"step {k} of {program.n_steps} (time {t:.6g} s, strain {program.strain_at(t):.6g}) "
+            f"{what}: {failure.reason}; residual history [uN]: {history}",
+            _result(config, program, records) if records else None,
+        )
+
     F0 = program.prescribed_F(0.0)
     state = StepState(
         time=0.0,
         inner=solver.asm.reference[:n_inner] @ F0.T,
         free=np.zeros(len(directions)),
         F=F0,
-        stretch=np.ones(n_el),
-        plastic_stretch=np.ones(n_el),
+        plastic_stretch=np.ones(network.n_elements),
     )
-    first = solver.solve(state, 0.0, F0, directions, state.inner, state.free)
+    try:
+        first = solver.solve(state, 0.0, F0, directions, state.inner, state.free)
+    except StepFailed as failure:
+        raise fail(0, 0.0, failure, "(the initial state) did not converge") from None
     state = first.state
-    threshold = config.output.yield_threshold
-    records = [_record(0, solver, first, program.strain[0], (first.iterations, first.factorizations, 1), threshold)]
+    records.append(_record(0, solver, first, program.strain[0], (first.iterations, first.factorizations, 1), threshold))
     if on_step is not None:
         on_step(records[0])
     previous: StepState | None = None
-    fraction = 1.0  # sub-step size as a fraction of the program step
+    fraction = 1.0  # sub-step size as a fraction of the program step, carried between steps
     for k in range(1, program.n_steps + 1):
         t_end = program.time[k]
         span = t_end - program.time[k - 1]
         counts = [0, 0, 0]
-        last_history: list[float] = []
+        cuts = 0
         if k > 1 and program.segment[k - 1] != program.segment[k - 2]:
             previous = None  # a new segment (e.g. unloading): do not extrapolate across it
         while state.time < t_end:
@@ -253,29 +266,34 @@ def run_program(
             try:
                 result = solver.solve(state, t_next, F_next, directions, guess_inner, guess_free)
             except StepFailed as failure:
-                counts[0] += len(failure.history) - 1
-                last_history = failure.history
+                counts[0] += max(len(failure.history) - 1, 0)
+                cuts += 1
                 fraction /= 2.0
-                if fraction < 0.5**config.solver.max_cuts:
-                    history = ", ".join(f"{r:.3g}" for r in last_history)
-                    raise SolverError(
-                        f"step {k} of {program.n_steps} (time {t_next:.6g} s, strain "
-                        f"{program.strain_at(t_next):.6g}) did not converge after "
-                        f"{config.solver.max_cuts} cuts: {failure.reason}; residual history "
-                        f"[uN]: {history}"
-                    ) from None
+                if cuts > config.solver.max_cuts:
+                    raise fail(k, t_next, failure, f"did not converge after {config.solver.max_cuts} cuts") from None
                 continue
             counts[0] += result.iterations
             counts[1] += result.factorizations
             counts[2] += 1
             previous, state = state, result.state
-            if result.iterations < _GROW_BELOW:
+            if result.iterations < limit * _GROW_BELOW:
                 fraction = min(1.0, 2.0 * fraction)
         record = _record(k, solver, result, program.strain[k], counts, threshold)
         records.append(record)
         if on_step is not None:
             on_step(record)
+    return _result(config, program, records)
 
+
+class SimulationFailed(SolverError):
+    """A step could not converge; ``partial`` holds the curve up to the last converged step."""
+
+    def __init__(self, message: str, partial: SimulationResult | None) -> None:
+        super().__init__(message)
+        self.partial = partial
+
+
+def _result(config: Config, program: LoadProgram, records: list[StepRecord]) -> SimulationResult:
     def stack(name: str) -> np.ndarray:
         return np.array([getattr(r, name) for r in records])
 

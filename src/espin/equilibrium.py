@@ -34,7 +34,8 @@ import scipy.sparse as sp
 
 from espin.assembly import Kinematics, NetworkAssembler
 from espin.config import SolverConfig
-from espin.fiber_law import FiberLaw, LawState, axial_force_and_stiffness, update
+from espin.errors import SolverError
+from espin.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
 from espin.network import Network
 
 __all__ = ["StepState", "StepResult", "StepFailed", "EquilibriumSolver"]
@@ -60,8 +61,6 @@ class StepState:
         Values f_k of the free components of F.
     F : (2, 2) float64
         Deformation gradient.
-    stretch : (n_elements,) float64
-        lambda = l / l0.
     plastic_stretch : (n_elements,) float64
         lambda_p.
     """
@@ -70,7 +69,6 @@ class StepState:
     inner: np.ndarray
     free: np.ndarray
     F: np.ndarray
-    stretch: np.ndarray
     plastic_stretch: np.ndarray
 
 
@@ -112,6 +110,18 @@ class _Point:
     residual: np.ndarray  # [g_I, V0 P : G_k]
 
 
+@dataclass(frozen=True, eq=False)
+class _Step:
+    """What one load step's iterations share."""
+
+    start: StepState
+    dt: float
+    F_prescribed: np.ndarray
+    directions: np.ndarray
+    modes: np.ndarray  # (n_free, 2 n_border): d x_B / d f_k = G_k X_B
+    weight: np.ndarray  # residual row scales for norms (all rows in uN)
+
+
 class EquilibriumSolver:
     """Solves load steps of one network with one fiber law.
 
@@ -145,25 +155,28 @@ class EquilibriumSolver:
         self._clipped_left = 0
 
     # -- evaluation ---------------------------------------------------------------------------
-    def _F(self, F_prescribed: np.ndarray, directions: np.ndarray, free: np.ndarray) -> np.ndarray:
-        return F_prescribed + np.tensordot(free, directions, axes=1) if len(free) else F_prescribed
+    def _context(self, start: StepState, time: float, F_prescribed, directions) -> _Step:
+        X = self.border_reference
+        modes = np.stack([(X @ G.T).ravel() for G in directions]) if len(directions) else np.zeros((0, 2 * len(X)))
+        # Residual rows are forces [uN] for inner DOF and V0 P : G_k [uN um] for free
+        # components; dividing the latter by L / 2 puts both in uN for norms.
+        weight = np.r_[np.ones(2 * self.n_inner), np.full(len(directions), 2.0 / self.network.size)]
+        return _Step(start, time - start.time, F_prescribed, directions, modes, weight)
 
-    def _border_modes(self, directions: np.ndarray) -> np.ndarray:
-        """(n_free, 2 n_border): d x_B / d f_k = G_k X_B, flattened like the border DOF."""
-        return np.stack([(self.border_reference @ G.T).ravel() for G in directions]) if len(directions) else np.zeros((0, 2 * len(self.border_reference)))
-
-    def _evaluate(self, z, start: StepState, F_prescribed, directions, dt) -> _Point:
+    def _evaluate(self, z: np.ndarray, step: _Step) -> _Point:
+        """Everything at the iterate ``z``; an inadmissible state raises :class:`StepFailed`."""
         n = 2 * self.n_inner
         free = z[n:]
-        F = self._F(F_prescribed, directions, free)
+        F = step.F_prescribed + np.tensordot(free, step.directions, axes=1) if len(free) else step.F_prescribed
+        if not (np.all(np.isfinite(z)) and np.linalg.det(F) > 0.0):
+            raise StepFailed("the iterate left the admissible states (non-finite, or det F <= 0)", [])
         x = self.asm.positions(z[:n], F)
         kin = self.asm.kinematics(x)
         stretch = kin.length / self.l0
-        law = update(self.law, stretch, start.plastic_stretch, self.tortuosity, dt)
+        law = update(self.law, stretch, step.start.plastic_stretch, self.tortuosity, step.dt)
         force, stiffness = axial_force_and_stiffness(law, self.area, self.l0)
         gradient = self.asm.gradient(force, kin)
-        modes = self._border_modes(directions)
-        residual = np.concatenate([gradient[:n], modes @ gradient[n:]])
+        residual = np.concatenate([gradient[:n], step.modes @ gradient[n:]])
         return _Point(z, F, kin, stretch, law, force, stiffness, gradient, residual)
 
     def _converged(self, p: _Point, n_free: int) -> tuple[bool, float]:
@@ -179,39 +192,52 @@ class EquilibriumSolver:
         return ok, force_norm
 
     # -- tangent ------------------------------------------------------------------------------
-    def _hessian(self, p: _Point, directions: np.ndarray, clipped: bool) -> sp.csr_matrix:
-        transverse = p.force / np.maximum(p.kin.length, 1e-300)
-        transverse = np.where(p.kin.length > self.l0 * 1e-6, transverse, 0.0)
+    def _stiffness(self, force, stiffness, kin: Kinematics, clipped: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Axial dT/dl and transverse T/l stiffness of every element [uN/um].
+
+        No geometric term for an element below the length floor. ``clipped`` drops what can
+        make the tangent indefinite: T/l of compressed elements and a negative dT/dl (a
+        compressed, flowing element with c_p > 0 softens), so the result is positive
+        semi-definite.
+        """
+        floor = STRETCH_FLOOR * self.l0
+        transverse = np.where(kin.length > floor, force / np.maximum(kin.length, floor), 0.0)
         if clipped:
-            transverse = np.maximum(transverse, 0.0)
-        K = self.asm.tangent("II", p.stiffness, transverse, p.kin)
-        if not len(directions):
-            return K
-        modes = self._border_modes(directions)
-        K_IB = self.asm.tangent("IB", p.stiffness, transverse, p.kin)
-        K_BB = self.asm.tangent("BB", p.stiffness, transverse, p.kin)
+            return np.maximum(stiffness, 0.0), np.maximum(transverse, 0.0)
+        return stiffness, transverse
+
+    def _hessian(self, p: _Point, step: _Step, clipped: bool) -> sp.csr_matrix:
+        axial, transverse = self._stiffness(p.force, p.stiffness, p.kin, clipped)
+        modes = step.modes
+        if not len(modes):
+            return self.asm.tangent("II", axial, transverse, p.kin)
+        K_II, K_IB, K_BB = self.asm.tangents(("II", "IB", "BB"), axial, transverse, p.kin)
         coupling = sp.csr_matrix(K_IB @ modes.T)
         corner = modes @ (K_BB @ modes.T)
-        return sp.bmat([[K, coupling], [coupling.T, sp.csr_matrix(corner)]], format="csr")
+        return sp.bmat([[K_II, coupling], [coupling.T, sp.csr_matrix(corner)]], format="csr")
 
-    def _direction(self, p: _Point, directions: np.ndarray) -> tuple[np.ndarray, int]:
+    def _direction(self, p: _Point, step: _Step) -> tuple[np.ndarray, int]:
         """Newton direction and the number of factorizations it took."""
         factorizations = 0
         if self._clipped_left == 0:
-            fact = self.linear.factorize(self._hessian(p, directions, clipped=False))
+            fact = self.linear.factorize(self._hessian(p, step, clipped=False))
             factorizations += 1
             # Perturbed pivots mean a (nearly) singular tangent: not usable as exact.
             indefinite = bool(fact.n_negative) or fact.n_perturbed > 0
             if not indefinite:
-                step = fact.solve(-p.residual)
-                if np.dot(step, p.residual) < 0.0:
-                    return step, factorizations
+                direction = fact.solve(-p.residual)
+                if np.dot(direction, p.residual) < 0.0:
+                    return direction, factorizations
             self._clipped_left = _CLIPPED_AFTER_INDEFINITE
         self._clipped_left -= 1
-        fact = self.linear.factorize(self._hessian(p, directions, clipped=True))
+        fact = self.linear.factorize(self._hessian(p, step, clipped=True))
         return fact.solve(-p.residual), factorizations + 1
 
     # -- one step -----------------------------------------------------------------------------
+    def iteration_limit(self, n_free: int) -> int:
+        """Newton iterations allowed per step: the config's, else 50 (500 with free F)."""
+        return self.config.max_iterations or (_MAX_ITERATIONS_MIXED if n_free else _MAX_ITERATIONS)
+
     def solve(
         self,
         start: StepState,
@@ -229,33 +255,35 @@ class EquilibriumSolver:
             When Newton does not converge within the iteration limit, the line search
             cannot lower the potential, or the state becomes non-finite.
         """
-        dt = time - start.time
         n_free = len(directions)
-        limit = self.config.max_iterations or (
-            _MAX_ITERATIONS_MIXED if n_free else _MAX_ITERATIONS
-        )
-        z = np.concatenate([guess_inner.ravel(), guess_free])
-        p = self._evaluate(z, start, F_prescribed, directions, dt)
+        limit = self.iteration_limit(n_free)
+        step = self._context(start, time, F_prescribed, directions)
         history: list[float] = []
         factorizations = 0
         self._clipped_left = 0
-        for iteration in range(limit + 1):
-            if not np.all(np.isfinite(p.residual)):
-                raise StepFailed("non-finite residual", history)
-            ok, norm = self._converged(p, n_free)
-            history.append(norm)
-            if ok:
-                state = StepState(time, p.z[: 2 * self.n_inner].reshape(-1, 2), p.z[2 * self.n_inner:].copy(),
-                                  p.F, p.stretch, p.law.plastic_stretch)
-                return StepResult(state, p.law, p.force, p.kin, iteration, factorizations, norm, history)
-            if iteration == limit:
-                break
-            step, used = self._direction(p, directions)
-            factorizations += used
-            p = self._line_search(p, step, start, F_prescribed, directions, dt, history)
+        try:
+            p = self._evaluate(np.concatenate([guess_inner.ravel(), guess_free]), step)
+            for iteration in range(limit + 1):
+                ok, norm = self._converged(p, n_free)
+                history.append(norm)
+                if ok:
+                    n = 2 * self.n_inner
+                    state = StepState(time, p.z[:n].reshape(-1, 2), p.z[n:].copy(), p.F, p.law.plastic_stretch)
+                    return StepResult(state, p.law, p.force, p.kin, iteration, factorizations, norm, history)
+                if iteration == limit:
+                    break
+                direction, used = self._direction(p, step)
+                factorizations += used
+                p = self._line_search(p, direction, step)
+        except StepFailed as failure:
+            raise StepFailed(failure.reason, history) from None
+        except (SolverError, ValueError, ArithmeticError) as err:
+            # A singular factorization or a failed return mapping: the step is cut like any
+            # other failure.
+            raise StepFailed(f"{type(err).__name__}: {err}", history) from None
         raise StepFailed(f"no convergence in {limit} iterations", history)
 
-    def _line_search(self, p, step, start, F_prescribed, directions, dt, history) -> _Point:
+    def _line_search(self, p: _Point, direction: np.ndarray, step: _Step) -> _Point:
         """Step length along the Newton direction on the incremental potential Phi.
 
         Phi's derivative along the line, s(alpha) = r(z + alpha dz) . dz, costs one residual
@@ -265,20 +293,21 @@ class EquilibriumSolver:
         grew, the decrease of Phi itself is checked: its increment from the current iterate
         to the trial, by a 1-D quadrature of s along the line.
         """
-        s0 = float(np.dot(p.residual, step))
+        s0 = float(np.dot(p.residual, direction))
         lo, s_lo = 0.0, s0
         hi, s_hi = None, None
         best = None  # the trial at ``lo``: Phi still falls there
         alpha = 1.0
         for _ in range(_MAX_SEARCH):
-            trial = self._evaluate(p.z + alpha * step, start, F_prescribed, directions, dt)
-            if not np.all(np.isfinite(trial.residual)):
+            try:
+                trial = self._evaluate(p.z + alpha * direction, step)
+            except StepFailed:  # overshot into inadmissible states: shorten
                 hi, s_hi = alpha, None
                 alpha = lo + 0.1 * (alpha - lo)
                 continue
-            s = float(np.dot(trial.residual, step))
+            s = float(np.dot(trial.residual, direction))
             if (s <= 0.0 and alpha == 1.0) or abs(s) <= _SLOPE_RATIO * abs(s0):
-                if self._decreases(p, trial, step, alpha, s0, s, start, F_prescribed, directions, dt):
+                if self._decreases(p, trial, direction, alpha, s0, s, step):
                     return trial
                 hi, s_hi = alpha, None
             elif s > 0.0:
@@ -295,22 +324,22 @@ class EquilibriumSolver:
                 alpha = float(np.clip(guess, lo + 0.1 * width, hi - 0.1 * width))
             if hi is not None and hi - lo < _MIN_STEP:
                 break
-        if best is not None and self._decreases(p, best, step, lo, s0, s_lo, start, F_prescribed, directions, dt):
+        if best is not None and self._decreases(p, best, direction, lo, s0, s_lo, step):
             return best  # no better point found, but Phi falls up to it
-        raise StepFailed("line search could not lower the incremental potential", history)
+        raise StepFailed("line search could not lower the incremental potential", [])
 
-    def _decreases(self, p: _Point, trial: _Point, step: np.ndarray, alpha: float, s0: float,
-                   s_trial: float, start: StepState, F_prescribed, directions, dt: float) -> bool:
+    def _decreases(self, p: _Point, trial: _Point, direction: np.ndarray, alpha: float, s0: float,
+                   s_trial: float, step: _Step) -> bool:
         """Whether Phi(trial) < Phi(p); checked only when the residual grew.
 
         The increment of Phi along the line is the integral of its derivative s, continuous
         because the stress is: Simpson's rule with s at 0, alpha / 2 and alpha (one more
         residual evaluation).
         """
-        if np.linalg.norm(trial.residual) <= np.linalg.norm(p.residual):
+        if np.linalg.norm(step.weight * trial.residual) <= np.linalg.norm(step.weight * p.residual):
             return True
-        middle = self._evaluate(p.z + 0.5 * alpha * step, start, F_prescribed, directions, dt)
-        s_middle = float(np.dot(middle.residual, step))
+        middle = self._evaluate(p.z + 0.5 * alpha * direction, step)
+        s_middle = float(np.dot(middle.residual, direction))
         return alpha / 6.0 * (s0 + 4.0 * s_middle + s_trial) < 0.0
 
     def macroscopic_tangent(self, result: StepResult) -> np.ndarray:
@@ -328,10 +357,8 @@ class EquilibriumSolver:
         """
         kin = result.kinematics
         _, stiffness = axial_force_and_stiffness(result.law, self.area, self.l0)
-        transverse = np.where(kin.length > self.l0 * 1e-6, result.force / np.maximum(kin.length, 1e-300), 0.0)
-        K_II = self.asm.tangent("II", stiffness, transverse, kin)
-        K_IB = self.asm.tangent("IB", stiffness, transverse, kin)
-        K_BB = self.asm.tangent("BB", stiffness, transverse, kin)
+        axial, transverse = self._stiffness(result.force, stiffness, kin, clipped=False)
+        K_II, K_IB, K_BB = self.asm.tangents(("II", "IB", "BB"), axial, transverse, kin)
         # Border motion for a unit F_kL: x_b = e_k X_bL, flattened like the border DOF.
         X = self.border_reference
         modes = np.zeros((4, 2 * len(X)))

@@ -14,7 +14,7 @@ from espin.errors import ConfigError
 from espin.io.rve_file import load_rve
 from espin.linear_solvers import make_linear_solver
 from espin.rve import RVE, generate, resolve_config
-from espin.driver import SimulationResult, StepRecord, run_program
+from espin.driver import SimulationFailed, SimulationResult, StepRecord, run_program
 
 __all__ = ["simulate", "resolve_rve"]
 
@@ -77,8 +77,9 @@ def simulate(
     ------
     ConfigError
         For an invalid configuration (before any work starts).
-    SolverError
-        When a step cannot converge (which step, and the residual history).
+    SimulationFailed
+        When a step cannot converge (which step, and the residual history); the results
+        folder then holds the curve and results of the steps that converged.
     """
     flat = {key.replace("__", "."): value for key, value in overrides.items()}
     rve, generated = resolve_rve(source, flat)
@@ -101,8 +102,16 @@ def simulate(
             callback(record)
 
     linear = make_linear_solver(config.solver.linear)
-    with threadpool_limits(limits=threads):
-        result = run_program(rve.network, config, linear, on_step=step_done)
+    try:
+        with threadpool_limits(limits=threads):
+            result = run_program(rve.network, config, linear, on_step=step_done)
+    except SimulationFailed as failure:
+        if folder is not None and failure.partial is not None:
+            from espin.io.results_file import write_results
+
+            write_results(failure.partial, folder)  # the steps that converged are kept
+            log.error("wrote the %d converged steps to %s", len(failure.partial.time), folder)
+        raise
     if folder is not None:
         from espin.io.results_file import write_results
 
