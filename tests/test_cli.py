@@ -54,7 +54,8 @@ def test_config_command_prints_resolved_toml():
     result = runner.invoke(app, ["config", "plla", "--set", "rve.orientation={von_mises={kappa=3}}"])
     assert result.exit_code == 0
     data = tomllib.loads(result.output)
-    assert data["rve"]["seeding"] == "border" and data["rve"]["orientation"]["von_mises"]["kappa"] == 3
+    # An aligned mat gets the stationary seeding by default (SPEC 1), even from the plla preset.
+    assert data["rve"]["seeding"] == "lines" and data["rve"]["orientation"]["von_mises"]["kappa"] == 3
 
 
 def test_example_generate_plla(tmp_path, monkeypatch):

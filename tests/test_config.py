@@ -7,6 +7,7 @@ import pytest
 
 from espin.config import (
     Config,
+    apply_overrides,
     HoldSegment,
     LoadSegment,
     PoissonLateral,
@@ -41,7 +42,10 @@ def test_plla_preset_is_tables_2_and_3():
         ({"rve.diamter_um": 1}, ["rve.diamter_um", "unknown key"]),
         ({"fiber.slack_modulus_MPa": 4000}, ["taut_modulus_MPa", "slack_modulus_MPa"]),
         ({"rve.size_ratio": 4}, ["size_ratio", "segment_ratio"]),
-        ({"rve.size_um": 40}, ["size_ratio", "size_um", "not both"]),
+        ({"rve.size_ratio": 100, "rve.size_um": 40}, ["size_ratio", "size_um", "not both"]),
+        ({"rve.Layers": 3}, ["rve.Layers: unknown key"]),
+        ({"loading.program": [{"hold_s": -1}]}, ["loading.program.0.hold_s", "greater than 0"]),
+        ({"loading.program": [{"to_strain": 0.1}], "loading.steps": 5}, ["replaces the shorthand", "loading.steps"]),
         ({"rve.orientation": "isotropic"}, ["rve.orientation", "uniform"]),
         ({"rve.orientation": {"vonmises": {}}}, ["rve.orientation", "von_mises"]),
         ({"rve.orientation": {"von_mises": {"mean_deg": 180}}}, ["mean_deg", "less than 180"]),
@@ -91,6 +95,19 @@ def test_loading_program_forms():
     assert load_config(None).loading.segments == [LoadSegment(to_strain=0.3, rate_per_s=5e-3, steps=30)]
     lateral = load_config(None, {"loading.lateral": {"poisson_ratio": 0.4}}).loading.lateral
     assert lateral == PoissonLateral(poisson_ratio=0.4)
+
+
+def test_overrides_resolve_derived_values_anew(tmp_path):
+    plla = load_config("plla")
+    thin = apply_overrides(plla, {"rve.diameter_um": 0.04})
+    assert thin.rve.diameter_min_um == pytest.approx(0.004)
+    aligned = apply_overrides(plla, {"rve.orientation": {"von_mises": {"kappa": 2.0}}})
+    assert aligned.rve.seeding == "lines"
+    assert apply_overrides(plla, {"rve.size_um": 50.0}).rve.side_um == 50.0
+    program = apply_overrides(plla, {"loading.program": [{"to_strain": 0.1}, {"hold_s": 5}]})
+    assert len(program.loading.segments) == 2
+    # A resolved config with a program reads back (the shorthand is not written beside it).
+    assert load_config(write_config(program, tmp_path / "program.toml")) == program
 
 
 def test_round_trip_gives_the_same_run(tmp_path):

@@ -269,6 +269,19 @@ class HoldSegment(_Section):
     """Number of time steps, in [1, 100000]."""
 
 
+def _segment_tag(value: Any) -> str:
+    if isinstance(value, BaseModel):
+        return type(value).__name__
+    return "HoldSegment" if isinstance(value, dict) and "hold_s" in value else "LoadSegment"
+
+
+Segment = Annotated[
+    Annotated[LoadSegment, Tag("LoadSegment")] | Annotated[HoldSegment, Tag("HoldSegment")],
+    Discriminator(_segment_tag),
+]
+"""A program segment: a hold if it has ``hold_s``, else a load segment."""
+
+
 class PoissonLateral(_Section):
     poisson_ratio: Annotated[float, Field(ge=-1.0, le=50.0)]
     """Prescribed lateral contraction F'22 = 1 - nu * strain, nu in [-1, 50]."""
@@ -302,7 +315,7 @@ class LoadingConfig(_Section):
     """Loading axis of the uniaxial test [deg] from +x, in [0, 180)."""
     lateral: Lateral = "fixed"
     """Lateral condition of the uniaxial test."""
-    program: list[Annotated[LoadSegment | HoldSegment, Field(union_mode="left_to_right")]] | None = None
+    program: list[Segment] | None = None
     """Sequence of load / unload / hold segments; default one monotonic segment."""
     max_strain: Annotated[float, Field(gt=-1.0, le=10.0)] = 0.30
     """Shorthand for one monotonic segment: its target strain, in (-1, 10]."""
@@ -315,6 +328,12 @@ class LoadingConfig(_Section):
 
     @model_validator(mode="after")
     def _check(self) -> LoadingConfig:
+        shorthand = sorted(self.model_fields_set & {"max_strain", "strain_rate_per_s", "steps"})
+        if self.program is not None and shorthand:
+            raise ValueError(
+                f"loading.program replaces the shorthand loading.{', loading.'.join(shorthand)}: "
+                "give one or the other"
+            )
         if self.test == "path" and self.path_csv is None:
             raise ValueError('loading.path_csv is required when loading.test = "path"')
         if self.test != "path" and self.path_csv is not None:
@@ -386,10 +405,15 @@ class Config(_Section):
 # --------------------------------------------------------------------------------------------
 # reading and writing
 # --------------------------------------------------------------------------------------------
+_UNION_TAGS = {
+    "plain", "VonMises", "Histogram", "PoissonLateral", "TransverseCSVLateral", "LoadSegment", "HoldSegment",
+}
+
+
 def _format_validation_error(err: ValidationError, source: str) -> ConfigError:
     lines = []
     for e in err.errors(include_url=False):
-        loc = ".".join(str(p) for p in e["loc"] if not str(p)[:1].isupper() and str(p) != "plain")
+        loc = ".".join(str(p) for p in e["loc"] if str(p) not in _UNION_TAGS)
         msg = e["msg"].removeprefix("Value error, ")
         if e["type"] == "extra_forbidden":
             msg = "unknown key"
@@ -492,13 +516,19 @@ def _nest(flat: dict[str, Any]) -> dict[str, Any]:
 
 def apply_overrides(config: Config, overrides: dict[str, Any]) -> Config:
     """Return ``config`` with dotted-key ``overrides`` applied, validated again."""
-    data = _merge(config.model_dump(mode="json", exclude_none=True), _nest(overrides))
+    # Only what was given: derived values (seeding, diameter_min_um, ...) are resolved anew.
+    data = _merge(config.model_dump(mode="json", exclude_none=True, exclude_unset=True), _nest(overrides))
     return config_from_dict(data, "(with overrides)")
 
 
 def config_to_dict(config: Config) -> dict[str, Any]:
-    """The resolved configuration as plain TOML-ready data (None values left out)."""
-    return config.model_dump(mode="json", exclude_none=True)
+    """The resolved configuration as plain TOML-ready data (None values left out; the
+    loading shorthand left out when a program is given)."""
+    data = config.model_dump(mode="json", exclude_none=True)
+    if config.loading.program is not None:
+        for key in ("max_strain", "strain_rate_per_s", "steps"):
+            data["loading"].pop(key)
+    return data
 
 
 def config_to_toml(config: Config) -> str:

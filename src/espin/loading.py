@@ -205,7 +205,16 @@ def load_program(loading: LoadingConfig) -> LoadProgram:
     strains_arr = np.array(strains)
     if loading.test in ("equibiaxial", "pure_shear", "uniaxial") and strains_arr.min() <= -1.0:
         raise ConfigError("loading: the strain must stay above -1 (positive stretch)")
-    return LoadProgram(
+    program = LoadProgram(
         time=np.array(times), strain=strains_arr, segment=np.array(segments, dtype=np.int64),
         rotation=R, free_directions=free, test=loading.test, _lateral=lateral,
     )
+    det = np.array([np.linalg.det(program.prescribed_F(t)) for t in program.time])
+    if np.any(det <= 0.0):
+        k = int(np.argmax(det <= 0.0))
+        raise ConfigError(
+            f"loading.lateral: the prescribed lateral stretch is not positive at strain "
+            f"{program.strain[k]:.4g} (det F = {det[k]:.3g}); lower the Poisson ratio or the "
+            "strain, or extend the transverse-strain table"
+        )
+    return program

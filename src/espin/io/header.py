@@ -63,7 +63,11 @@ def open_checked(path: Path, schema: str, version: int, what: str) -> h5py.File:
     if found != schema:
         f.close()
         raise RVEFileError(f"{path} is not an espin {what} file (schema {found!r})")
-    stored = int(f.attrs["schema_version"])
+    stored = f.attrs.get("schema_version")
+    if stored is None:
+        f.close()
+        raise RVEFileError(f"{path} has no schema_version: not a complete espin {what} file")
+    stored = int(stored)
     if stored > version:
         f.close()
         raise RVEFileError(f"{path} has {what} schema version {stored}; this espin reads up to {version}")
