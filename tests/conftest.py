@@ -23,6 +23,17 @@ def make_mat(fibers: list[list[tuple[float, float]]], layers: list[int], size: f
     )
 
 
+def grid_network(n: int = 4, size: float = 10.0, diameter: float = 0.2):
+    """n horizontal and n vertical straight fibers crossing on a regular grid (one layer)."""
+    from espin.crosslinks import find_crosslinks
+    from espin.network import build_network
+
+    c = (np.arange(n) + 0.5) * size / n
+    fibers = [[(0.0, y), (size, y)] for y in c] + [[(x, 0.0), (x, size)] for x in c]
+    mat = make_mat(fibers, [0] * (2 * n), size=size, diameter=diameter)
+    return build_network(mat, find_crosslinks(mat), 1e-6)
+
+
 @pytest.fixture(scope="session")
 def small_rve():
     """A small plla-like RVE (L = 40 D, 3 layers), generated once per test session."""

@@ -7,15 +7,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from conftest import make_mat
+from conftest import grid_network
 from espin.config import apply_overrides, load_config
-from espin.crosslinks import find_crosslinks
 from espin.equilibrium import EquilibriumSolver, StepState
 from espin.errors import SolverError
 from espin.fiber_law import FiberLaw, elastic_stress
 from espin.homogenization import nominal_stress
 from espin.linear_solvers import make_linear_solver
-from espin.network import build_network
 from espin.driver import run_program
 from espin.single_fiber import pull_fiber
 
@@ -29,17 +27,10 @@ def _config(**overrides):
     return load_config("plla", {k.replace("__", "."): v for k, v in overrides.items()})
 
 
-def _grid(n=4, size=10.0, diameter=0.2):
-    c = (np.arange(n) + 0.5) * size / n
-    fibers = [[(0.0, y), (size, y)] for y in c] + [[(x, 0.0), (x, size)] for x in c]
-    mat = make_mat(fibers, [0] * (2 * n), size=size, diameter=diameter)
-    return build_network(mat, find_crosslinks(mat), 1e-6)
-
-
 def test_grid_reproduces_the_single_fiber_law(linear):
     """Straight fibers on a grid deform affinely: every horizontal element follows the
     single-fiber driver, and P11 = n A t L / V0 at every step, with no Newton iteration."""
-    net = _grid()
+    net = grid_network()
     config = _config(loading__max_strain=0.2, loading__steps=10)
     result = run_program(net, config, linear)
     law = FiberLaw.from_config(config.fiber)
@@ -257,3 +248,40 @@ def test_a_failed_step_keeps_the_converged_ones(small_rve, linear, tmp_path, mon
     assert len(err.value.partial.time) == 3  # steps 0, 1, 2
     curve = np.genfromtxt(tmp_path / "out" / "curve.csv", delimiter=",", names=True)
     assert list(curve["step"]) == [0, 1, 2]
+
+
+@pytest.mark.parametrize(
+    "test, extra",
+    [("simple_shear", {}), ("pure_shear", {}), ("equibiaxial", {}),
+     ("uniaxial", {"loading__lateral": {"poisson_ratio": 0.4}, "loading__direction_deg": 90.0})],
+)
+def test_grid_gives_the_exact_stress_of_every_test(linear, test, extra):
+    """On the straight-fiber grid every test is affine, so P follows from the single-fiber
+    law of the horizontal (X) and vertical (Y) fibers, with the plastic law, exactly."""
+    net = grid_network()
+    config = _config(loading__test=test, loading__max_strain=0.1, loading__steps=3, **extra)
+    result = run_program(net, config, linear)
+    assert result.iterations.sum() == 0  # the affine predictor is the equilibrium
+    law = FiberLaw.from_config(config.fiber)
+    F = result.F
+    stretch_h = np.hypot(F[:, 0, 0], F[:, 1, 0])  # |F e1|
+    stretch_v = np.hypot(F[:, 0, 1], F[:, 1, 1])  # |F e2|
+    t_h = pull_fiber(law, result.time, stretch_h).stress
+    t_v = pull_fiber(law, result.time, stretch_v).stress
+    scale = 4 * np.pi * 0.2**2 / 4 * 10.0 / net.reference_volume  # n A L / V0
+    expected = np.zeros_like(result.P)
+    expected[:, :, 0] = scale * (t_h / stretch_h)[:, None] * F[:, :, 0]  # T a (x) e1 L
+    expected[:, :, 1] = scale * (t_v / stretch_v)[:, None] * F[:, :, 1]
+    assert result.P == pytest.approx(expected, rel=1e-9, abs=1e-12)
+    if test == "pure_shear":
+        assert result.P[-1, 1, 1] < 0 < result.P[-1, 0, 0]  # vertical fibers compressed
+
+
+def test_superlu_gives_the_same_curves(small_rve, linear):
+    """The SuperLU backend inside the solver (its inertia from U) against the default."""
+    superlu = make_linear_solver("superlu")
+    for extra in ({}, {"loading__lateral": "free", "fiber__slack_modulus_MPa": 300.0}):
+        config = _config(loading__max_strain=0.04, loading__steps=2, **extra)
+        a = run_program(small_rve.network, config, linear)
+        b = run_program(small_rve.network, config, superlu)
+        assert b.P == pytest.approx(a.P, rel=1e-6, abs=1e-9)
