@@ -640,8 +640,7 @@ def network_statistics(
     # Samples.
     seg_vec = mat.vertices[mat.segment_start + 1] - mat.vertices[mat.segment_start]
     segment_orientation = np.mod(np.arctan2(seg_vec[:, 1], seg_vec[:, 0]), np.pi)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        element_tortuosity = np.asarray(network.element_tortuosity, dtype=float)
+    element_tortuosity = np.asarray(network.element_tortuosity, dtype=float)
     origin, side = centred_window(L, config.observation_window_um)
     window = window_tortuosity(mat.vertices, mat.fiber_offsets, origin, side)
 
