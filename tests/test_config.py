@@ -125,3 +125,13 @@ def test_config_is_immutable():
     c = Config()
     with pytest.raises(Exception):
         c.rve.layers = 3
+
+
+def test_override_reaches_inside_a_table():
+    from espin.config import apply_overrides, load_config
+
+    config = apply_overrides(load_config("plla"), {"rve.orientation.von_mises.kappa": 3.0})
+    assert config.rve.orientation.von_mises.kappa == 3.0
+    assert config.rve.orientation.von_mises.mean_deg == 0.0
+    again = apply_overrides(config, {"rve.orientation.von_mises.mean_deg": 30.0})
+    assert (again.rve.orientation.von_mises.kappa, again.rve.orientation.von_mises.mean_deg) == (3.0, 30.0)

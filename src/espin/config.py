@@ -11,6 +11,8 @@ Units inside espin: length um, stress MPa, force uN (= MPa um^2), time s, angles
 
 from __future__ import annotations
 
+import copy
+
 import tomllib
 from importlib import resources
 from pathlib import Path
@@ -456,13 +458,27 @@ def _read_toml(path: Path) -> dict[str, Any]:
         raise ConfigError(f"config file {path} is not valid TOML: {err}") from None
 
 
-def _merge(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
-    out = dict(base)
-    for key, value in update.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict) and key in Config.model_fields:
-            out[key] = {**out[key], **value}
-        else:
-            out[key] = value
+def _apply_dotted(data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    """``data`` with each ``section.key[.sub...]`` override set along its path.
+
+    A value replaces what is at its full path; deeper paths reach inside tables, e.g.
+    ``rve.orientation.von_mises.kappa`` (a non-table on the way, such as ``"uniform"``, is
+    replaced by a table).
+    """
+    out = copy.deepcopy(data)
+    for dotted, value in overrides.items():
+        parts = dotted.split(".")
+        if len(parts) < 2 or parts[0] not in Config.model_fields or not all(parts):
+            raise ConfigError(
+                f"override key {dotted!r} must be section.key (or section.key.sub...) with "
+                f"section one of {', '.join(Config.model_fields)}"
+            )
+        node = out
+        for part in parts[:-1]:
+            if not isinstance(node.get(part), dict):
+                node[part] = {}
+            node = node[part]
+        node[parts[-1]] = value
     return out
 
 
@@ -497,27 +513,14 @@ def load_config(source: str | Path | None = None, overrides: dict[str, Any] | No
         data = _read_toml(path)
         label = f"({path})"
     if overrides:
-        data = _merge(data, _nest(overrides))
+        data = _apply_dotted(data, overrides)
     return config_from_dict(data, label)
-
-
-def _nest(flat: dict[str, Any]) -> dict[str, Any]:
-    nested: dict[str, Any] = {}
-    for dotted, value in flat.items():
-        parts = dotted.split(".")
-        if len(parts) != 2 or parts[0] not in Config.model_fields:
-            raise ConfigError(
-                f"override key {dotted!r} must be section.key with section one of "
-                f"{', '.join(Config.model_fields)}"
-            )
-        nested.setdefault(parts[0], {})[parts[1]] = value
-    return nested
 
 
 def apply_overrides(config: Config, overrides: dict[str, Any]) -> Config:
     """Return ``config`` with dotted-key ``overrides`` applied, validated again."""
     # Only what was given: derived values (seeding, diameter_min_um, ...) are resolved anew.
-    data = _merge(config.model_dump(mode="json", exclude_none=True, exclude_unset=True), _nest(overrides))
+    data = _apply_dotted(config.model_dump(mode="json", exclude_none=True, exclude_unset=True), overrides)
     return config_from_dict(data, "(with overrides)")
 
 
