@@ -1,0 +1,193 @@
+"""The ``espin properties`` command: mechanical properties of measured or simulated curves.
+
+``register(app)`` adds the command to espin's typer app. Heavy imports happen inside the
+command, so ``espin --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Optional
+
+import typer
+
+if TYPE_CHECKING:  # pragma: no cover
+    from espin.experiments import AveragedCurve, Curve
+    from espin.properties import CurveProperties
+
+__all__ = ["register"]
+
+_DELIMITER_NAMES = {"tab": "\t", "\\t": "\t", "space": " ", "whitespace": " "}
+
+
+def _column(text: str | None) -> int | str | None:
+    """A column option: a 0-based index when it is a number, else a header name."""
+    if text is None:
+        return None
+    return int(text) if text.strip().isdigit() else text
+
+
+def _row(name: str, props: CurveProperties) -> list[str]:
+    yield_strain = f"{100 * props.yield_strain:.3g}" if props.has_yield else "-"
+    return [
+        name,
+        f"{props.modulus_MPa:.4g}",
+        f"{props.yield_stress_MPa:.4g}" if props.has_yield else "-",
+        yield_strain,
+        f"{props.post_yield_modulus_MPa:.4g}" if props.has_yield else "-",
+        f"{props.r_squared:.4f}",
+        props.note,
+    ]
+
+
+def _summary_row(summary: dict[str, dict[str, float]], n_curves: int) -> list[str]:
+    def cell(name: str, scale: float = 1.0) -> str:
+        s = summary[name]
+        if s["n"] == 0:
+            return "-"
+        sd = f" ± {scale * s['sd']:.2g}" if s["n"] > 1 else ""
+        return f"{scale * s['mean']:.4g}{sd}"
+
+    with_yield = summary["yield_stress_MPa"]["n"]
+    note = "" if with_yield == n_curves else f"yield in {with_yield} of {n_curves}"
+    return [f"mean ± sd (N = {n_curves})", cell("modulus_MPa"), cell("yield_stress_MPa"),
+            cell("yield_strain", 100.0), cell("post_yield_modulus_MPa"), cell("r_squared"), note]
+
+
+_HEADER = ["curve", "E [MPa]", "yield stress [MPa]", "yield strain [%]", "post-yield modulus [MPa]",
+           "R^2", "note"]
+
+
+def _write_table(records: list[dict], path: Path) -> Path:
+    """The properties as CSV, full precision, one row per curve (and summary rows)."""
+    import pandas as pd
+
+    from espin.io.atomic import atomic_write_bytes
+
+    text = pd.DataFrame(records).to_csv(index=False, float_format="%.10g")
+    return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def _summary_records(summary: dict[str, dict[str, float]], n_curves: int) -> list[dict]:
+    """Rows ``mean`` and ``sd`` over the specimens for properties.csv."""
+    with_yield = summary["yield_stress_MPa"]["n"]
+    note = f"yield quantities over the {with_yield} of {n_curves} specimens with a yield"
+    return [{"curve": stat} | {name: s[stat] for name, s in summary.items()} | {"note": note}
+            for stat in ("mean", "sd")]
+
+
+@dataclass
+class _Analysis:
+    """What the command computed: curves, their properties, the average and the table."""
+
+    names: list[str]
+    curves: list[Curve]
+    fitted: list[CurveProperties]
+    average: AveragedCurve | None
+    average_props: CurveProperties | None
+    rows: list[list[str]]
+    records: list[dict]
+
+
+def _analyse(curves: list[Curve]) -> _Analysis:
+    """Fit each curve; with several, summarize them and fit their average."""
+    from espin.experiments import average_curves
+    from espin.properties import curve_properties, summarize_properties
+
+    short = [Path(c.source).name for c in curves]
+    names = short if len(set(short)) == len(short) else [c.source for c in curves]
+    fitted = [curve_properties(c.strain, c.stress_MPa) for c in curves]
+    rows = [_row(name, props) for name, props in zip(names, fitted)]
+    records = [{"curve": c.source} | p.as_dict() for c, p in zip(curves, fitted)]
+    average = average_props = None
+    if len(curves) > 1:
+        summary = summarize_properties(fitted)
+        rows.append(_summary_row(summary, len(curves)))
+        records += _summary_records(summary, len(curves))
+        average = average_curves(curves)
+        average_props = curve_properties(average.strain, average.mean_MPa)
+        rows.append(_row("average curve", average_props))
+        records.append({"curve": "average"} | average_props.as_dict())
+    return _Analysis(names, curves, fitted, average, average_props, rows, records)
+
+
+def _write_outputs(analysis: _Analysis, folder: Path) -> list[Path]:
+    """properties.csv, average_curve.csv (several curves) and properties.png in ``folder``."""
+    from espin.properties import plot_bilinear_fits
+
+    written = [_write_table(analysis.records, folder / "properties.csv")]
+    plotted = [(name, c.strain, c.stress_MPa, p)
+               for name, c, p in zip(analysis.names, analysis.curves, analysis.fitted)]
+    band = None
+    average = analysis.average
+    if average is not None:
+        written.append(average.to_csv(folder / "average_curve.csv"))
+        plotted.append(("average", average.strain, average.mean_MPa, analysis.average_props))
+        band = (average.strain, average.mean_MPa, average.sd_MPa)
+    written.append(plot_bilinear_fits(plotted, folder / "properties.png", band=band))
+    return written
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``properties`` command to ``app``."""
+
+    @app.command("properties")
+    def properties(
+        curves: Annotated[
+            list[Path],
+            typer.Argument(help="CSV files of stress-strain curves (specimens, or espin's curve.csv)."),
+        ],
+        strain_column: Annotated[
+            Optional[str],
+            typer.Option(help="Strain column: 0-based index or header name. Default: 'strain' "
+                              "if the header has it, else 0."),
+        ] = None,
+        stress_column: Annotated[
+            Optional[str],
+            typer.Option(help="Stress column [MPa]: 0-based index or header name. Default: "
+                              "'stress_MPa' or 'mean_MPa' if the header has it, else 1."),
+        ] = None,
+        percent_strain: Annotated[bool, typer.Option(help="The strain column is in percent.")] = False,
+        delimiter: Annotated[
+            Optional[str],
+            typer.Option(help="Field separator (',', ';', tab, space). Default: detected."),
+        ] = None,
+        skip_rows: Annotated[int, typer.Option(help="Lines to skip at the top of each file.")] = 0,
+        out: Annotated[
+            Optional[Path],
+            typer.Option("--out", "-o", help="Folder for properties.csv, the averaged curve "
+                                             "(average_curve.csv, 2+ curves) and properties.png."),
+        ] = None,
+    ) -> None:
+        """Elastic modulus, yield and post-yield modulus of curves by a bilinear fit (SPEC 7).
+
+        With several curves (specimens) also their mean ± sd and the properties of their
+        average curve.
+        """
+        from rich.console import Console
+        from rich.table import Table
+
+        from espin.cli import _fail
+        from espin.errors import EspinError
+        from espin.experiments import read_curve
+
+        options = {
+            "strain_column": _column(strain_column),
+            "stress_column": _column(stress_column),
+            "percent_strain": percent_strain,
+            "delimiter": _DELIMITER_NAMES.get(delimiter.lower(), delimiter) if delimiter else None,
+            "skip_rows": skip_rows,
+        }
+        try:
+            analysis = _analyse([read_curve(path, **options) for path in curves])
+            written = [] if out is None else _write_outputs(analysis, out)
+        except EspinError as err:
+            _fail(str(err))
+        table = Table(*_HEADER, title="bilinear fit: E = initial slope, yield = intersection of the lines")
+        for row in analysis.rows:
+            table.add_row(*row)
+        console = Console(width=140)
+        console.print(table)
+        if out is not None:
+            console.print(f"wrote {out}/: " + ", ".join(p.name for p in written), highlight=False)

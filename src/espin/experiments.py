@@ -1,0 +1,330 @@
+"""Experimental stress-strain curves from CSV files, and the average of several specimens.
+
+File format
+-----------
+A text table, one point per line: any number of columns, separated by commas, semicolons,
+tabs or whitespace (detected from the first line unless ``delimiter`` is given). Blank lines
+and lines starting with ``#`` are ignored, as are the first ``skip_rows`` lines (an instrument's
+preamble). The first remaining line is a header when none of its fields is a number; columns
+can then be chosen by name as well as by 0-based index. Strain is engineering strain
+(0.01 = 1 %; ``percent_strain=True`` reads percent), stress is in MPa. The strain must
+increase from line to line (a monotonic loading: cut unloading parts and repeated points).
+
+Without explicit columns, a header with a ``strain`` column and a ``stress_MPa`` (espin's own
+``curve.csv``) or ``mean_MPa`` column (an averaged curve written by
+:meth:`AveragedCurve.to_csv`) is read by those names; any other file by columns 0 and 1.
+
+A bad file raises :class:`CurveFileError` naming the file and the line.
+
+Averaging
+---------
+Specimens are interpolated linearly onto a common strain grid; at each grid strain the mean,
+the sample standard deviation (ddof = 1, as for the paper's N = 3 specimens) and the number of
+specimens whose strain range covers it are reported. The default grid runs from 0 (or the
+latest first strain of the specimens) to the smallest of their last strains, so every
+specimen covers every point; a user grid may reach further, where fewer specimens count.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from espin.errors import EspinError
+from espin.io.atomic import atomic_write_bytes
+
+__all__ = ["CurveFileError", "Curve", "AveragedCurve", "read_curve", "average_curves"]
+
+_STRAIN_NAMES = ("strain",)
+_STRESS_NAMES = ("stress_MPa", "mean_MPa")
+_DELIMITERS = ("\t", ";", ",")
+
+
+class CurveFileError(EspinError, ValueError):
+    """A curve file cannot be read (the message names the file and line), or curves cannot be
+    averaged."""
+
+
+@dataclass(frozen=True, eq=False)
+class Curve:
+    """One measured (or simulated) stress-strain curve.
+
+    Attributes
+    ----------
+    strain : (n,) float64
+        Engineering strain, increasing.
+    stress_MPa : (n,) float64 [MPa]
+        Stress at each strain.
+    source : str
+        Where the curve came from (the file path).
+    """
+
+    strain: np.ndarray
+    stress_MPa: np.ndarray
+    source: str
+
+
+@dataclass(frozen=True, eq=False)
+class AveragedCurve:
+    """Mean and spread of several specimens on a common strain grid.
+
+    Attributes
+    ----------
+    strain : (m,) float64
+        The grid of engineering strains.
+    mean_MPa : (m,) float64 [MPa]
+        Mean stress over the specimens covering each strain.
+    sd_MPa : (m,) float64 [MPa]
+        Their sample standard deviation (ddof = 1); NaN where fewer than two cover it.
+    n : (m,) int64
+        Number of specimens covering each strain.
+    sources : tuple of str
+        The specimens' sources.
+    """
+
+    strain: np.ndarray
+    mean_MPa: np.ndarray
+    sd_MPa: np.ndarray
+    n: np.ndarray
+    sources: tuple[str, ...]
+
+    def to_csv(self, path: str | Path) -> Path:
+        """Write ``strain,mean_MPa,sd_MPa,n`` (header, then one row per grid strain) atomically.
+
+        The file reads back with :func:`read_curve` (columns ``strain`` and ``mean_MPa``).
+        """
+        buffer = io.StringIO()
+        buffer.write("strain,mean_MPa,sd_MPa,n\n")
+        for row in zip(self.strain, self.mean_MPa, self.sd_MPa, self.n):
+            buffer.write(f"{row[0]:.17g},{row[1]:.17g},{row[2]:.17g},{int(row[3])}\n")
+        return atomic_write_bytes(path, buffer.getvalue().encode("utf-8"))
+
+
+# --------------------------------------------------------------------------------------------
+# Reading
+# --------------------------------------------------------------------------------------------
+def _data_lines(path: Path, skip_rows: int) -> list[tuple[int, str]]:
+    """(1-based line number, text) of the lines that carry a header or data."""
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except OSError as err:
+        raise CurveFileError(f"{path}: cannot read the file ({err.strerror or err})") from None
+    except UnicodeDecodeError:
+        raise CurveFileError(f"{path}: not a UTF-8 text file") from None
+    lines = [(k + 1, line) for k, line in enumerate(text.splitlines()) if k >= skip_rows]
+    kept = [(k, line) for k, line in lines if line.strip() and not line.lstrip().startswith("#")]
+    if not kept:
+        raise CurveFileError(f"{path}: no data (the file is empty after {skip_rows} skipped rows)")
+    return kept
+
+
+def _split(lines: list[tuple[int, str]], delimiter: str | None) -> list[tuple[int, list[str]]]:
+    """Fields of each line; the delimiter is detected from the first line when None."""
+    if delimiter is None:
+        first = lines[0][1]
+        delimiter = next((d for d in _DELIMITERS if d in first), " ")
+    if delimiter.strip() == "":
+        return [(k, line.split()) for k, line in lines]
+    rows = csv.reader([line for _, line in lines], delimiter=delimiter)
+    return [(k, [field.strip() for field in row]) for (k, _), row in zip(lines, rows)]
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _column_index(path: Path, column: int | str | None, header: list[str] | None, line: int | None,
+                  defaults: tuple[str, ...], fallback: int, what: str) -> int:
+    """0-based index of a column given by index, by name, or by default (module docs)."""
+    if column is None:
+        if header is not None:
+            found = [header.index(name) for name in defaults if name in header]
+            if found:
+                return found[0]
+        return fallback
+    if isinstance(column, int):
+        if column < 0:
+            raise CurveFileError(f"{path}: {what} column index must be >= 0, got {column}")
+        return column
+    if header is None:
+        raise CurveFileError(f"{path}: {what} column {column!r} is a name, but the file has no header line")
+    lowered = [name.lower() for name in header]
+    if column.lower() not in lowered:
+        raise CurveFileError(
+            f"{path}, line {line}: no {what} column named {column!r} in the header "
+            f"(columns: {', '.join(header)})"
+        )
+    return lowered.index(column.lower())
+
+
+def _label(header: list[str] | None, index: int, what: str) -> str:
+    """How an error message names a column: by its header name, else by its index."""
+    name = repr(header[index]) if header is not None and index < len(header) else str(index)
+    return f"{what} column {name}"
+
+
+def _value(path: Path, line: int, fields: list[str], index: int, label: str) -> float:
+    if index >= len(fields):
+        raise CurveFileError(
+            f"{path}, line {line}: {len(fields)} field(s), but the {label} is field {index + 1}"
+        )
+    text = fields[index]
+    try:
+        value = float(text)
+    except ValueError:
+        raise CurveFileError(f"{path}, line {line}: {label}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise CurveFileError(f"{path}, line {line}: {label}: {text!r} is not a finite number")
+    return value
+
+
+def _check_increasing(path: Path, lines: list[int], strain: np.ndarray) -> None:
+    step = np.diff(strain)
+    if np.any(step <= 0.0):
+        k = int(np.flatnonzero(step <= 0.0)[0])
+        raise CurveFileError(
+            f"{path}, line {lines[k + 1]}: strain {strain[k + 1]:.6g} does not increase from "
+            f"{strain[k]:.6g} on line {lines[k]} (a curve must be a monotonic loading: cut "
+            "unloading parts and repeated points)"
+        )
+
+
+def read_curve(
+    path: str | Path,
+    *,
+    strain_column: int | str | None = None,
+    stress_column: int | str | None = None,
+    percent_strain: bool = False,
+    delimiter: str | None = None,
+    skip_rows: int = 0,
+) -> Curve:
+    """Read a stress-strain curve from a CSV (or other delimited text) file.
+
+    Parameters
+    ----------
+    path
+        The file (format in the module docs).
+    strain_column, stress_column
+        0-based index or header name of the strain and stress [MPa] columns. Default: the
+        ``strain`` and ``stress_MPa`` / ``mean_MPa`` columns of a file with such a header
+        (espin's ``curve.csv``, an averaged curve), else columns 0 and 1.
+    percent_strain
+        The strain column is in percent.
+    delimiter
+        Field separator; default detected from the first line (tab, ``;``, ``,``, else
+        whitespace). ``" "`` means any run of whitespace.
+    skip_rows
+        Lines to skip at the top of the file before the header or data (>= 0).
+
+    Returns
+    -------
+    Curve
+        Strain as a fraction (percent divided by 100), stress in MPa.
+
+    Raises
+    ------
+    CurveFileError
+        If the file cannot be read or is empty, a column is missing, a value is not a finite
+        number, or the strain does not increase; the message names the file and the line.
+    """
+    path = Path(path)
+    if skip_rows < 0:
+        raise CurveFileError(f"{path}: skip_rows must be >= 0, got {skip_rows}")
+    rows = _split(_data_lines(path, skip_rows), delimiter)
+    header_line, first = rows[0]
+    header = None
+    if not any(_is_number(field) for field in first):
+        header = first
+        rows = rows[1:]
+    x_col = _column_index(path, strain_column, header, header_line, _STRAIN_NAMES, 0, "strain")
+    y_col = _column_index(path, stress_column, header, header_line, _STRESS_NAMES, 1, "stress")
+    if len(rows) < 2:
+        raise CurveFileError(f"{path}: {len(rows)} data line(s); a curve needs at least 2")
+    x_label, y_label = _label(header, x_col, "strain"), _label(header, y_col, "stress")
+    lines = [line for line, _ in rows]
+    points = [(_value(path, k, fields, x_col, x_label), _value(path, k, fields, y_col, y_label))
+              for k, fields in rows]
+    strain, stress = np.array(points).T
+    _check_increasing(path, lines, strain)
+    if percent_strain:
+        strain = strain / 100.0
+    return Curve(strain=strain, stress_MPa=stress, source=str(path))
+
+
+# --------------------------------------------------------------------------------------------
+# Averaging
+# --------------------------------------------------------------------------------------------
+def _default_grid(curves: Sequence[Curve], n_points: int) -> np.ndarray:
+    start = max(0.0, max(float(c.strain[0]) for c in curves))
+    end = min(float(c.strain[-1]) for c in curves)
+    if end <= start:
+        shortest = min(curves, key=lambda c: c.strain[-1])
+        raise CurveFileError(
+            f"the specimens share no strain range: {shortest.source} ends at strain {end:.6g}, "
+            f"before {start:.6g} where the last of them starts"
+        )
+    return np.linspace(start, end, n_points)
+
+
+def average_curves(
+    curves: Sequence[Curve], grid: ArrayLike | None = None, n_points: int = 101
+) -> AveragedCurve:
+    """Mean, sample sd and count of several specimens' stress on a common strain grid.
+
+    Parameters
+    ----------
+    curves
+        The specimens (at least one).
+    grid : (m,) array_like, optional
+        Increasing strains to average at; default ``n_points`` strains from 0 (or the latest
+        first strain) to the smallest last strain of the specimens.
+    n_points
+        Size of the default grid (>= 2).
+
+    Returns
+    -------
+    AveragedCurve
+
+    Raises
+    ------
+    CurveFileError
+        If there are no curves, the specimens share no strain range (default grid), or a grid
+        strain lies outside every specimen.
+    """
+    if not curves:
+        raise CurveFileError("no curves to average")
+    if grid is None:
+        if n_points < 2:
+            raise CurveFileError(f"n_points must be >= 2, got {n_points}")
+        strain = _default_grid(curves, n_points)
+    else:
+        strain = np.asarray(grid, dtype=float).ravel()
+        if len(strain) < 1 or not np.all(np.isfinite(strain)) or np.any(np.diff(strain) <= 0):
+            raise CurveFileError("the averaging grid must be finite, increasing strains")
+    stress = np.full((len(curves), len(strain)), np.nan)
+    for row, curve in zip(stress, curves):
+        covered = (strain >= curve.strain[0]) & (strain <= curve.strain[-1])
+        row[covered] = np.interp(strain[covered], curve.strain, curve.stress_MPa)
+    covered = np.isfinite(stress)
+    n = covered.sum(axis=0)
+    if np.any(n == 0):
+        outside = strain[n == 0][0]
+        raise CurveFileError(f"grid strain {outside:.6g} lies outside every specimen's strain range")
+    values = np.where(covered, stress, 0.0)
+    mean = values.sum(axis=0) / n
+    squares = np.where(covered, (stress - mean) ** 2, 0.0).sum(axis=0)
+    sd = np.sqrt(squares / np.maximum(n - 1, 1))
+    sd[n < 2] = np.nan
+    return AveragedCurve(strain=strain, mean_MPa=mean, sd_MPa=sd, n=n.astype(np.int64),
+                         sources=tuple(c.source for c in curves))
