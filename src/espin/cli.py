@@ -225,5 +225,16 @@ def show_config(source: SourceArg = None, set_: SetOpt = None) -> None:
     sys.stdout.write(config_to_toml(config))
 
 
+def _register_command_groups() -> None:
+    """Commands that live in their own modules (studies, calibrations, images)."""
+    from espin import cli_calibrate_geometry, cli_properties, cli_studies
+
+    cli_properties.register(app)
+    cli_studies.register(app)
+    cli_calibrate_geometry.register(app)
+
+
+_register_command_groups()
+
 if __name__ == "__main__":  # pragma: no cover
     app()

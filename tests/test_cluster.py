@@ -1,0 +1,42 @@
+"""The batch job script that dask-jobqueue generates for espin workers (no job is submitted)."""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+
+from espin.cluster import THREAD_VARIABLES, jobqueue_cluster
+from espin.errors import ConfigError
+
+
+@pytest.mark.parametrize("system, directives", [
+    ("slurm", ["#SBATCH -p normal", "#SBATCH -A proj42", "#SBATCH --cpus-per-task=4", "#SBATCH -t 02:00:00"]),
+    ("pbs", ["#PBS -q normal", "#PBS -A proj42", "#PBS -l walltime=02:00:00"]),
+])
+def test_job_script(system, directives):
+    cluster = jobqueue_cluster(system, workers_per_job=4, memory_per_worker="3GB", walltime="02:00:00",
+                               queue="normal", account="proj42", prologue=["source /opt/espin/.venv/bin/activate"])
+    try:
+        script = cluster.job_script()
+    finally:
+        cluster.close()
+    for line in directives:
+        assert line in script, line
+    for variable in THREAD_VARIABLES:
+        assert f"export {variable}=1" in script
+    assert script.index("source /opt/espin/.venv/bin/activate") < script.index("dask_worker")
+    assert f"{sys.executable} -m distributed.cli.dask_worker" in script
+    assert "--nthreads 1" in script and "--nworkers 4" in script
+    assert len(cluster.worker_spec) == 0  # nothing submitted
+
+
+@pytest.mark.parametrize("kwargs, key", [
+    ({"system": "lsf"}, "system"),
+    ({"system": "slurm", "workers_per_job": 0}, "workers_per_job"),
+    ({"system": "slurm", "memory_per_worker": "lots"}, "memory_per_worker"),
+    ({"system": "slurm", "walltime": "2h"}, "walltime"),
+])
+def test_bad_options_named(kwargs, key):
+    with pytest.raises(ConfigError, match=key):
+        jobqueue_cluster(**kwargs)
