@@ -111,3 +111,19 @@ def test_example_tensile_plla(tmp_path, monkeypatch):
     assert np.all(slopes > 0)  # but still hardening
     assert result.yielded_fraction[2] < 0.1 < result.yielded_fraction[-1]
     assert (tmp_path / "small_test" / "curve.csv").exists()
+
+
+def test_example_reproduce_paper_quick(tmp_path, monkeypatch):
+    """The paper-reproduction example, reduced: every step runs and gives sane numbers."""
+    monkeypatch.chdir(tmp_path)
+    module = runpy.run_path(str(EXAMPLES / "reproduce_paper.py"))
+    out = module["main"]("paper", quick=True, workers=1)
+    props = out["properties"]
+    assert props.has_yield and 0.01 < props.yield_strain < 0.06  # paper: yield near 3 %
+    assert props.modulus_MPa > 10 * props.post_yield_modulus_MPa > 0
+    summary = out["rve_size"].summary
+    assert len(summary) == 3 and (summary["n"] == 2).all()
+    assert (out["dof"]["ratio"] > 1).all()
+    for name in ("rve/rve.h5", "tensile/curve.csv", "rve_size/summary.csv", "rve_size/rve_size_modulus.png",
+                 "dof/dof.png", "dof/dof.csv"):
+        assert (tmp_path / "paper" / name).is_file(), name
