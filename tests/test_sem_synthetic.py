@@ -1,0 +1,95 @@
+"""Accuracy of espin measure on SEM-like images rendered from espin's own mats.
+
+Tolerances (from the acceptance criteria): mean diameter within 10 % or 1 px, whichever is
+larger; dominant direction within 5 deg on aligned mats; mean tortuosity within 0.02 on wavy
+mats. The measured errors are listed in docs/sem.md.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import espin.rve
+from espin.errors import ConfigError
+from espin.sem import measure, render_sem
+
+D = 0.45  # um, plla diameter
+SEEDS = (1, 2, 3)
+
+
+def _mat(seed: int, **overrides):
+    return espin.rve.generate("plla", rve__size_ratio=100, rve__layers=4, rve__seed=seed,
+                              **overrides).mat
+
+
+@pytest.fixture(scope="module")
+def wavy():
+    """Wavy uniform mats (max deviation 20 deg), 3 layers drawn, 60 D window, 8 px per D."""
+    out = []
+    for seed in SEEDS:
+        image = render_sem(_mat(seed, rve__max_deviation_deg=20.0), side_um=60 * D, seed=seed)
+        out.append((image, measure(image.image, um_per_px=image.um_per_px)))
+    return out
+
+
+def test_rendered_image_and_ground_truth():
+    mat = _mat(1, rve__max_deviation_deg=20.0)
+    image = render_sem(mat, side_um=60 * D, layers=2, seed=0)
+    assert image.image.shape == (480, 480)
+    assert image.image.min() >= 0 and image.image.max() <= 1
+    assert image.um_per_px == pytest.approx(D / 8)
+    top_two = {mat.n_layers - 1, mat.n_layers - 2}
+    assert set(mat.fiber_layer[image.visible.fiber]) <= top_two
+    assert np.all(image.visible.tortuosity >= 1.0)
+    assert np.all(image.visible.chord_length >= 3 * D)
+    np.testing.assert_array_equal(image.diameter_um, mat.fiber_diameter[image.fiber])
+    # Depth dimming: with no noise, the brightest pixels belong to the top layer (~1.15 at its
+    # edges) and a one-layer render has no grey level above the top fibers'.
+    clean = render_sem(mat, side_um=60 * D, layers=1, noise_sd=0, illumination=0)
+    assert 0.95 < clean.image.max() <= 1.0
+
+
+def test_render_options_are_checked():
+    mat = _mat(1)
+    with pytest.raises(ConfigError, match="layers"):
+        render_sem(mat, layers=99)
+    with pytest.raises(ConfigError, match="depth_dimming"):
+        render_sem(mat, depth_dimming=1.0)
+
+
+def test_mean_diameter_within_10_percent_or_1_px(wavy):
+    for image, m in wavy:
+        true = float(np.mean(image.diameter_um))
+        tolerance = max(0.10 * true, image.um_per_px)
+        assert abs(m.fits.diameter_mean_um - true) <= tolerance
+        assert abs(np.median(m.widths_um) - true) <= tolerance
+
+
+def test_mean_tortuosity_within_0_02_on_wavy_mats(wavy):
+    measured = np.concatenate([m.fibers["tortuosity"].to_numpy() for _, m in wavy])
+    true = np.concatenate([image.visible.tortuosity for image, _ in wavy])
+    assert true.mean() > 1.02  # wavy enough for the test to mean something
+    assert abs(measured.mean() - true.mean()) <= 0.02
+    for image, m in wavy:  # and image by image
+        assert abs(m.fibers["tortuosity"].mean() - image.visible.tortuosity.mean()) <= 0.02
+
+
+@pytest.mark.parametrize("kappa, mean_deg", [(10.0, 30.0), (20.0, 150.0)])
+def test_dominant_direction_within_5_deg_on_aligned_mats(kappa, mean_deg):
+    orientation = {"von_mises": {"mean_deg": mean_deg, "kappa": kappa}}
+    for seed in SEEDS:
+        mat = _mat(seed, rve__max_deviation_deg=10.0, rve__orientation=orientation)
+        image = render_sem(mat, side_um=80 * D, um_per_px=D / 7, seed=seed)
+        m = measure(image.image, um_per_px=image.um_per_px)
+        v = image.visible
+        true = np.degrees(np.angle(np.sum(v.contour_length * np.exp(2j * v.orientation))) / 2)
+        error = (m.dominant_direction_deg - true + 90.0) % 180.0 - 90.0
+        assert abs(error) <= 5.0
+        assert m.coherency > 0.3  # aligned: clearly anisotropic
+        assert m.fits.orientation_model == "von_mises"
+
+
+def test_uniform_mat_is_nearly_isotropic(wavy):
+    for _, m in wavy:
+        assert m.coherency < 0.35
