@@ -127,3 +127,38 @@ def test_example_reproduce_paper_quick(tmp_path, monkeypatch):
     for name in ("rve/rve.h5", "tensile/curve.csv", "rve_size/summary.csv", "rve_size/rve_size_modulus.png",
                  "dof/dof.png", "dof/dof.csv"):
         assert (tmp_path / "paper" / name).is_file(), name
+
+
+def test_image_to_mechanics_end_to_end(tmp_path):
+    """espin measure -> calibrate-geometry -> generate -> simulate, as a user runs it."""
+    from PIL import Image
+
+    import espin.rve
+    from espin.sem import render_sem
+
+    mat = espin.rve.generate("plla", rve__size_ratio=60, rve__layers=3, rve__seed=4,
+                             rve__max_deviation_deg=20.0).mat
+    sem = render_sem(mat, side_um=40 * 0.45, layers=2, seed=4)
+    image = tmp_path / "mat.png"
+    Image.fromarray(np.round(255 * sem.image).astype(np.uint8)).save(image)
+
+    steps = [
+        ["measure", str(image), "--um-per-px", f"{sem.um_per_px!r}", "-o", str(tmp_path / "measured"), "-q"],
+        ["calibrate-geometry", str(tmp_path / "measured"), "--seeds", "2", "-o", str(tmp_path / "mat.toml")],
+        ["generate", str(tmp_path / "mat.toml"), "--size-ratio", "30", "--layers", "2", "--no-figures",
+         "--no-vtk", "-o", str(tmp_path / "rve"), "-q"],
+        ["simulate", str(tmp_path / "rve" / "rve.h5"), "--max-strain", "0.04", "--steps", "4",
+         "-o", str(tmp_path / "test"), "-q"],
+    ]
+    for args in steps:
+        result = runner.invoke(app, args)
+        assert result.exit_code == 0, (args[0], result.output)
+        if args[0] == "calibrate-geometry":
+            assert "espin fit" in result.output  # the mechanics must be fitted again
+    measured = tomllib.loads((tmp_path / "measured" / "measurement.toml").read_text())
+    calibrated = tomllib.loads((tmp_path / "mat.toml").read_text())
+    # the generator gets the measured diameter and a wavy walk (the image's mat had 20 deg turns)
+    assert calibrated["rve"]["diameter_um"] == pytest.approx(measured["diameter"]["mean_um"], rel=0.05)
+    assert calibrated["rve"]["max_deviation_deg"] > 5.0
+    curve = np.genfromtxt(tmp_path / "test" / "curve.csv", delimiter=",", names=True)
+    assert curve["stress_MPa"][-1] > 0
