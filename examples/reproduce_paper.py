@@ -23,7 +23,7 @@ import argparse
 from pathlib import Path
 
 import espin
-from espin.dof_study import dof_fit, dof_study, plot_dof_study
+from espin.dof_study import dof_fit_table, dof_study, plot_dof_study
 from espin.io.atomic import atomic_write
 from espin.properties import simulation_properties
 from espin.studies import rve_size_study
@@ -72,8 +72,9 @@ def main(out: str = "paper", quick: bool = False, workers: int | None = None) ->
     plot_dof_study(dof, folder / "dof" / "dof.png")
     atomic_write(folder / "dof" / "dof.csv", lambda tmp: dof.to_csv(tmp, index=False))
     print(dof.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
-    fit = dof_fit(dof, "espin_dof").coef
-    print(f"   espin DOF = {fit[0]:.4g} + {fit[1]:.4g} L + {fit[2]:.4g} L^2 (L = L/D, N_l = {plan['dof_layers']})")
+    fits = dof_fit_table(dof)
+    print(fits.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    print(f"   (quadratic fits DOF = c0 + c1 L + c2 L^2, L = L/D, N_l = {plan['dof_layers']})")
     print(f"\nwrote {folder}/")
     return {"statistics": stats, "result": result, "properties": props, "rve_size": size_study, "dof": dof}
 

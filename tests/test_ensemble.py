@@ -80,6 +80,7 @@ def test_serial_processes_and_dask_agree_exactly():
     reference = runs[0].records
     assert len(reference) == 2
     for other in runs[1:]:
+        assert len(other.records) == 2 and not other.failures
         for a, b in zip(reference, other.records):
             assert a["seed"] == b["seed"]
             assert a["stress_MPa"] == b["stress_MPa"]  # one BLAS thread everywhere: same arithmetic
@@ -92,3 +93,13 @@ def test_tensile_task_record():
     assert record["seed"] == 4 and record["n_dof"] > 0
     assert len(record["strain"]) == len(record["stress_MPa"]) == 9
     assert record["modulus_MPa"] > 0
+
+
+def test_curve_without_properties_is_kept():
+    """A program that unloads has no bilinear properties; the task keeps its curve and says why."""
+    program = [{"to_strain": 0.04, "rate_per_s": 5e-3, "steps": 4}, {"to_strain": 0.02, "rate_per_s": 5e-3, "steps": 2}]
+    base = resolve_config("plla", rve__size_ratio=30, rve__layers=2)
+    task = plan_tasks(base, [{"loading.program": program}], [1])[0]
+    record = run_tensile(task)
+    assert len(record["stress_MPa"]) == 7
+    assert record["modulus_MPa"] is None and "no properties" in record["note"]

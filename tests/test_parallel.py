@@ -14,10 +14,36 @@ def square_or_fail(x: int) -> int:
     return x * x
 
 
-def blas_thread_count(_: object) -> int:
+def thread_counts(_: object) -> dict[str, int]:
+    """Threads of every BLAS / MKL / OpenMP library loaded in the worker, as a task sees them."""
     from threadpoolctl import threadpool_info
 
-    return max((pool["num_threads"] for pool in threadpool_info()), default=1)
+    from espin.errors import EspinError
+    from espin.linear_solvers import _load_mkl
+
+    try:
+        _load_mkl()  # what a tensile task loads (PARDISO), loaded here inside the task
+    except EspinError:
+        pass
+    return {pool["internal_api"]: pool["num_threads"] for pool in threadpool_info()}
+
+
+def die_on_one(x: int) -> int:
+    import os
+    import time
+
+    if x == 1:
+        os._exit(9)  # a worker killed from outside (out of memory, say)
+    time.sleep(0.2)
+    return x
+
+
+def sleep_unless_zero(x: int) -> int:
+    import time
+
+    if x:
+        time.sleep(60)
+    return x
 
 
 @pytest.mark.parametrize("options", [
@@ -35,9 +61,29 @@ def test_outcomes_in_order_and_failure_isolated(options):
     assert "square_or_fail" in failed[0].traceback
 
 
-def test_one_blas_thread_per_worker():
-    counts = [o.value for o in parallel_map(blas_thread_count, range(2), workers=2)]
-    assert counts == [1, 1]
+def test_one_blas_thread_per_worker_from_the_first_task():
+    outcomes = parallel_map(thread_counts, range(4), workers=2)
+    assert all(o.ok for o in outcomes)
+    for outcome in outcomes:  # the first task of each worker included
+        assert outcome.value and set(outcome.value.values()) == {1}, outcome.value
+
+
+def test_a_dying_worker_fails_only_its_task():
+    outcomes = parallel_map(die_on_one, range(6), workers=2)
+    assert [o.index for o in outcomes if not o.ok] == [1]
+    assert "worker process died" in outcomes[1].error
+    assert [o.value for o in outcomes if o.ok] == [0, 2, 3, 4, 5]
+
+
+def test_abandoned_run_stops_its_workers():
+    import time
+
+    with TaskPool(workers=2) as pool:
+        outcomes = pool.map(sleep_unless_zero, [0, 1, 2, 3])
+        assert next(outcomes).value == 0
+        start = time.perf_counter()
+        outcomes.close()  # as on Ctrl-C: the 60 s tasks are killed, not awaited
+    assert time.perf_counter() - start < 10
 
 
 def test_pool_reused_across_maps():

@@ -49,6 +49,28 @@ def test_sweep_grid_table_and_parquet(tmp_path):
     assert len(result.summary) == 4
 
 
+def test_sweep_text_values_and_numpy_grid(tmp_path):
+    grid = {"rve.seeding": ["lines", "border"], "rve.volume_fraction": np.array([0.15, 0.25])}
+    result = sweep("plla", grid, folder=tmp_path, workers=1, rve__size_ratio=30, rve__layers=2, **TINY)
+    assert len(result.table) == 4 and (tmp_path / "sweep_modulus.png").is_file()
+    assert set(result.table["rve.seeding"]) == {"lines", "border"}
+
+
+def test_rerun_with_a_grown_grid_reuses_tasks_under_the_new_names(tmp_path):
+    base = {"rve__size_ratio": 30, "rve__layers": 2, **TINY}
+    sweep("plla", {"rve.volume_fraction": [0.15, 0.2]}, folder=tmp_path, workers=1, **base)
+    grown = sweep("plla", {"rve.volume_fraction": [0.15, 0.2], "rve.layers": [2, 3]}, folder=tmp_path,
+                  workers=1, **{k: v for k, v in base.items() if k != "rve__layers"})
+    assert grown.ensemble.skipped == 2  # layers = 2 was the base value: the same configs
+    assert grown.table["rve.layers"].notna().all()
+    assert sorted(grown.summary["rve.layers"]) == [2, 2, 3, 3]
+
+
+def test_rve_size_refuses_size_overrides():
+    with pytest.raises(ConfigError, match="rve.layers"):
+        rve_size_study("plla", rve__layers=3)
+
+
 def test_sweep_bad_grid_named_before_work(tmp_path):
     with pytest.raises(ConfigError, match="rve.layers"):
         sweep("plla", {"rve.layers": [2, 0]}, folder=tmp_path, workers=1)
@@ -77,6 +99,6 @@ def test_study_sweep_command_resumes(tmp_path):
             "--set", "loading.max_strain=0.08", "--set", "loading.steps=8"]
     first = CliRunner().invoke(app, args)
     assert first.exit_code == 0, first.output
-    assert (tmp_path / "sweep.csv").is_file()
+    assert len((tmp_path / "results.csv").read_text().splitlines()) == 3
     second = CliRunner().invoke(app, args)
-    assert second.exit_code == 0 and "2 tasks were already finished" in second.output
+    assert second.exit_code == 0 and "2 task(s) were already finished" in second.output

@@ -81,14 +81,14 @@ def _overrides(set_: list[str] | None) -> dict[str, Any]:
 
 
 def _run_with_progress(run, n_tasks: int, quiet: bool):
-    """Call ``run(on_outcome)`` under a progress bar; report failures with parameters and seed."""
+    """Call ``run(on_outcome)`` under a progress bar (on stderr)."""
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     console = Console(stderr=True, quiet=quiet)
     failed = 0
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=console) as bar:
+                  console=console, transient=True) as bar:
         task_id = bar.add_task("tensile tests", total=n_tasks)
 
         def on_outcome(outcome, task) -> None:
@@ -96,26 +96,41 @@ def _run_with_progress(run, n_tasks: int, quiet: bool):
             failed += not outcome.ok
             bar.update(task_id, advance=1, description=f"tensile tests ({failed} failed)" if failed else "tensile tests")
 
-        result = run(on_outcome)
-    bar.update(task_id, completed=n_tasks)
-    return console, result
+        return run(on_outcome)
 
 
-def _report(console, result, folder: Path, skipped_note: bool = True) -> None:
+def _report(result, folder: Path, columns: list[str], quiet: bool) -> None:
+    """Summary table on stdout; notes, failures and the files written on stderr."""
+    from rich.console import Console
+
+    console = Console(stderr=True, quiet=quiet)
     ensemble = result.ensemble
     if ensemble.skipped:
-        console.print(f"{ensemble.skipped} tasks were already finished in {folder}/ and were not run again",
+        console.print(f"{ensemble.skipped} task(s) were already finished in {folder}/ and were not run again",
                       highlight=False)
-    with_columns = [c for c in result.summary.columns if not c.endswith("_rsd") and "yield_strain" not in c]
-    console.print(result.summary[with_columns].to_string(index=False, float_format=lambda v: f"{v:.4g}"),
-                  highlight=False)
-    console.print(f"wrote {folder}/: " + ", ".join(p.name for p in result.files.values()), highlight=False)
+    if ensemble.unplanned:
+        console.print(f"{ensemble.unplanned} finished task(s) in {folder}/tasks/ belong to other settings "
+                      "(kept, not used)", highlight=False)
+    if ensemble.records:
+        table = result.summary[[c for c in result.summary.columns if c in columns or c.startswith("rve.")
+                                or c.startswith(("fiber.", "loading.", "solver.")) or c in ("n", "n_yield")]]
+        if not quiet:
+            typer.echo(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+        console.print(f"wrote {folder}/: " + ", ".join(p.name for p in result.files.values()), highlight=False)
+    else:
+        console.print("no task finished", highlight=False)
     if ensemble.failures:
         for failure in ensemble.failures:
-            console.print(f"[red]failed[/red] {failure['parameters']} seed {failure['seed']}: {failure['error']}")
-        console.print(f"{len(ensemble.failures)} task(s) failed (details in {folder}/failed/); "
-                      "rerun the same command to retry them: finished tasks are skipped")
+            first_line = (failure["error"] or "").splitlines()[0][:200]
+            console.print(f"[red]failed[/red] {failure['parameters']} seed {failure['seed']}: {first_line}")
+        console.print(f"{len(ensemble.failures)} task(s) failed (tracebacks in {folder}/failed/); rerun the "
+                      "same command to retry them: finished tasks are skipped")
         raise typer.Exit(code=1)
+
+
+_MEANS = [f"{p}_mean" for p in ("modulus_MPa", "yield_stress_MPa", "post_yield_modulus_MPa")]
+_SDS = [f"{p}_sd" for p in ("modulus_MPa", "yield_stress_MPa", "post_yield_modulus_MPa")]
+_RSDS = [f"{p}_rsd" for p in ("modulus_MPa", "yield_stress_MPa", "post_yield_modulus_MPa")]
 
 
 @study_app.command("rve-size")
@@ -143,13 +158,10 @@ def rve_size(
     from espin.studies import rve_size_study
 
     try:
-        sizes = [float(v) for v in size_ratios.split(",") if v.strip()]
-        layers = [int(v) for v in layer_counts.split(",") if v.strip()]
-    except ValueError:
-        _fail("--size-ratios / --layer-counts: comma-separated numbers (integers for layers)")
-    n_points = len({*((s, layers_for_sizes) for s in sizes), *((size_for_layers, n) for n in layers)})
-    try:
-        console, result = _run_with_progress(
+        sizes = _numbers("--size-ratios", size_ratios, float)
+        layers = _numbers("--layer-counts", layer_counts, int)
+        n_points = len({*((s, layers_for_sizes) for s in sizes), *((size_for_layers, n) for n in layers)})
+        result = _run_with_progress(
             lambda on_outcome: rve_size_study(
                 base, size_ratios=sizes, layer_counts=layers, layers_for_sizes=layers_for_sizes,
                 size_for_layers=size_for_layers, realizations=realizations, seed_start=seed_start,
@@ -158,7 +170,7 @@ def rve_size(
             n_points * realizations, quiet)
     except EspinError as err:
         _fail(str(err))
-    _report(console, result, out)
+    _report(result, out, _MEANS + _RSDS, quiet)
 
 
 @study_app.command("sweep")
@@ -194,7 +206,7 @@ def sweep(
     try:
         parsed = parse_grid(grid)
         n_points = len(list(itertools.product(*parsed.values()))) if parsed else 1
-        console, result = _run_with_progress(
+        result = _run_with_progress(
             lambda on_outcome: run_sweep(
                 base, parsed, realizations=realizations, seed_start=seed_start, folder=out,
                 table_format=table_format, workers=workers, scheduler=scheduler, blas_threads=blas_threads,
@@ -202,7 +214,7 @@ def sweep(
             n_points * realizations, quiet)
     except EspinError as err:
         _fail(str(err))
-    _report(console, result, out)
+    _report(result, out, _MEANS + _SDS, quiet)
 
 
 @study_app.command("dof")
@@ -210,52 +222,57 @@ def dof(
     base: BaseArg = None,
     size_ratios: Annotated[str, typer.Option(help="L/D values, comma-separated.")] = "50,100,150,200,250,300",
     layers: Annotated[str, typer.Option(help="N_l values, comma-separated.")] = "15",
-    seeds: Annotated[str, typer.Option(help="RVE seeds, comma-separated.")] = "1",
+    realizations: RealizationsOpt = 1,
+    seed_start: SeedStartOpt = None,
     elements_per_segment: Annotated[
         int, typer.Option(help="Beam elements per piece of fiber between nodes of the beam model.")
     ] = 1,
     out: Annotated[Path, typer.Option("--out", "-o", help="Results folder.")] = Path("dof_study"),
+    set_: SetOpt = None,
     quiet: QuietOpt = False,
 ) -> None:
     """DOF of espin's model versus RVE size beside a beam finite-element model (paper Fig. 14).
 
     Writes dof.csv, dof.png and the quadratic fits DOF = c0 + c1 L + c2 L^2 (dof_fit.csv).
     """
-    import pandas as pd
     from rich.console import Console
 
     from espin.cli import _fail
-    from espin.dof_study import dof_fit, dof_study, plot_dof_study
+    from espin.dof_study import dof_fit_table, dof_study, plot_dof_study
     from espin.errors import EspinError
     from espin.io.atomic import atomic_write
+    from espin.rve import resolve_config
+    from espin.studies import realization_seeds
 
-    console = Console(stderr=True, quiet=quiet)
     try:
-        sizes = [float(v) for v in size_ratios.split(",") if v.strip()]
-        layer_list = [int(v) for v in layers.split(",") if v.strip()]
-        seed_list = [int(v) for v in seeds.split(",") if v.strip()]
-    except ValueError:
-        _fail("--size-ratios / --layers / --seeds: comma-separated numbers (integers for layers and seeds)")
-    try:
-        table = dof_study(sizes, layer_list, base=base or "plla", seeds=seed_list,
+        sizes = _numbers("--size-ratios", size_ratios, float)
+        layer_list = _numbers("--layers", layers, int)
+        config = resolve_config(base, **_overrides(set_))
+        table = dof_study(sizes, layer_list, base=config, seeds=realization_seeds(config, realizations, seed_start),
                           elements_per_segment=elements_per_segment)
-        fits = []
-        if len(set(sizes)) >= 3:
-            for n in layer_list:
-                for column in ("espin_dof", "beam_dof"):
-                    c0, c1, c2 = dof_fit(table, column, n).coef
-                    fits.append({"layers": n, "model": column.removesuffix("_dof"), "c0": c0, "c1": c1, "c2": c2})
-        fit_table = pd.DataFrame(fits)
+        fits = dof_fit_table(table)
         files = [atomic_write(out / "dof.csv", lambda tmp: table.to_csv(tmp, index=False)),
-                 plot_dof_study(table, out / "dof.png")]
-        if fits:
-            files.append(atomic_write(out / "dof_fit.csv", lambda tmp: fit_table.to_csv(tmp, index=False)))
+                 plot_dof_study(table, out / "dof.png"),
+                 atomic_write(out / "dof_fit.csv", lambda tmp: fits.to_csv(tmp, index=False))]
     except EspinError as err:
         _fail(str(err))
-    console.print(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"), highlight=False)
-    if fits:
-        console.print(fit_table.to_string(index=False, float_format=lambda v: f"{v:.4g}"), highlight=False)
-    console.print(f"wrote {out}/: " + ", ".join(p.name for p in files), highlight=False)
+    if not quiet:
+        typer.echo(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+        typer.echo(fits.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    Console(stderr=True, quiet=quiet).print(f"wrote {out}/: " + ", ".join(p.name for p in files), highlight=False)
+
+
+def _numbers(option: str, text: str, kind: type) -> list:
+    """A comma-separated list of numbers, or an error naming the option."""
+    from espin.errors import ConfigError
+
+    try:
+        values = [kind(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise ConfigError(f"{option}: comma-separated {'integers' if kind is int else 'numbers'} (got {text!r})") from None
+    if not values:
+        raise ConfigError(f"{option}: give at least one value")
+    return values
 
 
 def register(app: typer.Typer) -> None:

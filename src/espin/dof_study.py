@@ -44,12 +44,13 @@ import numpy as np
 import pandas as pd
 from numpy.polynomial import Polynomial
 
+from espin.config import Config
 from espin.crosslinks import Crosslinks
 from espin.errors import ConfigError
 from espin.mat import FiberMat
 from espin.network import Network
 
-__all__ = ["DofCount", "count_dof", "dof_study", "dof_fit", "plot_dof_study"]
+__all__ = ["DofCount", "count_dof", "dof_study", "dof_fit", "dof_fit_table", "plot_dof_study"]
 
 BEAM_DOF_PER_NODE = 6
 """Three translations and three rotations per node of a 3-D beam model."""
@@ -151,7 +152,7 @@ def dof_study(
     size_ratios: Iterable[float],
     layers: int | Iterable[int],
     *,
-    base: str = "plla",
+    base: Config | str = "plla",
     seeds: Iterable[int] = (1,),
     elements_per_segment: int = 1,
 ) -> pd.DataFrame:
@@ -167,7 +168,7 @@ def dof_study(
     layers
         Number(s) of layers N_l.
     base
-        Preset or TOML config the other keys come from.
+        Config, preset or TOML config the other keys come from.
     seeds
         Random seeds; one realization each.
     elements_per_segment
@@ -225,6 +226,21 @@ def dof_fit(table: pd.DataFrame, column: str = "espin_dof", layers: int | None =
     if rows["size_ratio"].nunique() < 3:
         raise ConfigError("a quadratic fit needs at least 3 distinct size ratios")
     return Polynomial.fit(rows["size_ratio"], rows[column], 2).convert()
+
+
+def dof_fit_table(table: pd.DataFrame) -> pd.DataFrame:
+    """Quadratic fits DOF = c0 + c1 L + c2 L^2 of both models, one row per (layers, model).
+
+    Numbers of layers with fewer than 3 distinct size ratios are left out (no quadratic fit).
+    """
+    rows = []
+    for n_layers, group in table.groupby("layers"):
+        if group["size_ratio"].nunique() < 3:
+            continue
+        for column in ("espin_dof", "beam_dof"):
+            c0, c1, c2 = dof_fit(group, column, int(n_layers)).coef
+            rows.append({"layers": int(n_layers), "model": column.removesuffix("_dof"), "c0": c0, "c1": c1, "c2": c2})
+    return pd.DataFrame(rows, columns=["layers", "model", "c0", "c1", "c2"])
 
 
 def plot_dof_study(table: pd.DataFrame, path: str | Path, *, dpi: float = 150.0) -> Path:

@@ -106,12 +106,13 @@ def run_tensile(task: TensileTask) -> dict[str, Any]:
     Returns
     -------
     dict
-        ``key``, ``parameters``, ``seed``, the properties of :data:`PROPERTIES` and
-        ``has_yield``, ``n_dof``, ``n_fibers``, ``n_crosslinks``, ``iterations``, ``seconds``
+        ``key``, ``parameters``, ``seed``, the properties of :data:`PROPERTIES` (None where
+        the curve has none), ``has_yield``, ``r_squared`` and ``note`` of the bilinear fit,
+        ``n_dof``, ``n_fibers``, ``n_crosslinks``, ``iterations``, ``seconds``
         and the curve (``strain``, ``stress_MPa``: the configured stress measure along the
         loading axis).
     """
-    from espin.properties import curve_properties
+    from espin.properties import CurveError, curve_properties
     from espin.rve import generate
     from espin.run import simulate
 
@@ -119,13 +120,20 @@ def run_tensile(task: TensileTask) -> dict[str, Any]:
     rve = generate(task.config)
     result = simulate(rve)
     strain, stress = np.asarray(result.strain), np.asarray(result.stress())
-    props = curve_properties(strain, stress)
+    try:
+        props = curve_properties(strain, stress)
+        values = {name: _json_float(getattr(props, name)) for name in PROPERTIES}
+        has_yield, r_squared, note = bool(props.has_yield), _json_float(props.r_squared), props.note
+    except CurveError as err:  # e.g. a loading program that unloads: the curve is kept
+        values, has_yield, r_squared, note = dict.fromkeys(PROPERTIES), False, None, f"no properties: {err}"
     return {
         "key": task.key,
         "parameters": task.parameters,
         "seed": task.seed,
-        **{name: _json_float(getattr(props, name)) for name in PROPERTIES},
-        "has_yield": bool(props.has_yield),
+        **values,
+        "has_yield": has_yield,
+        "r_squared": r_squared,
+        "note": note,
         "n_dof": int(rve.network.n_dof),
         "n_fibers": int(rve.mat.n_fibers),
         "n_crosslinks": int(rve.crosslinks.n),
@@ -150,6 +158,8 @@ class Ensemble:
         The dotted keys that vary between points.
     skipped : int
         Tasks found finished in the results folder and not run again.
+    unplanned : int
+        Finished tasks in the folder that belong to other settings (kept on disk, not used).
     folder : Path or None
         Where the results were written.
     """
@@ -158,6 +168,7 @@ class Ensemble:
     failures: list[dict[str, Any]] = field(default_factory=list)
     parameter_names: list[str] = field(default_factory=list)
     skipped: int = 0
+    unplanned: int = 0
     folder: Path | None = None
 
     def table(self) -> pd.DataFrame:
@@ -167,8 +178,8 @@ class Ensemble:
             row = {name: record["parameters"].get(name) for name in self.parameter_names}
             row.update({k: v for k, v in record.items() if k not in ("parameters", "strain", "stress_MPa")})
             rows.append(row)
-        columns = [*self.parameter_names, "seed", *PROPERTIES, "has_yield", "n_dof", "n_fibers",
-                   "n_crosslinks", "iterations", "seconds", "key"]
+        columns = [*self.parameter_names, "seed", *PROPERTIES, "has_yield", "r_squared", "note", "n_dof",
+                   "n_fibers", "n_crosslinks", "iterations", "seconds", "key"]
         return pd.DataFrame(rows, columns=columns)
 
     def summary(self) -> pd.DataFrame:
@@ -260,8 +271,8 @@ def run_ensemble(
                         (folder / "failed" / f"{task.key}.json").unlink(missing_ok=True)
                 else:
                     failures[task.key] = _failure(task, outcome)
-                    log.error("task %s (%s, seed %d) failed: %s", task.key, task.parameters, task.seed,
-                              outcome.error)
+                    log.info("task %s (%s, seed %d) failed: %s", task.key, task.parameters, task.seed,
+                             outcome.error)
                     if folder is not None:
                         _write_json(folder / "failed" / f"{task.key}.json", failures[task.key])
                 ensemble = _collect(tasks, done, failures, names, len(tasks) - len(todo), folder)
@@ -277,8 +288,12 @@ def run_ensemble(
 
 def _collect(tasks: Sequence[TensileTask], done: dict[str, dict[str, Any]], failures: dict[str, dict[str, Any]],
              names: list[str], skipped: int, folder: Path | None) -> Ensemble:
+    unplanned = 0
+    if folder is not None and (folder / "tasks").is_dir():
+        planned = {t.key for t in tasks}
+        unplanned = sum(path.stem not in planned for path in (folder / "tasks").glob("*.json"))
     return Ensemble([done[t.key] for t in tasks if t.key in done],
-                    [failures[t.key] for t in tasks if t.key in failures], names, skipped, folder)
+                    [failures[t.key] for t in tasks if t.key in failures], names, skipped, unplanned, folder)
 
 
 def _finished_records(folder: Path, tasks: Sequence[TensileTask]) -> dict[str, dict[str, Any]]:
@@ -288,9 +303,12 @@ def _finished_records(folder: Path, tasks: Sequence[TensileTask]) -> dict[str, d
         path = folder / "tasks" / f"{task.key}.json"
         if path.is_file():
             try:
-                done[task.key] = json.loads(path.read_text())
+                record = json.loads(path.read_text())
             except (OSError, json.JSONDecodeError):
                 log.warning("%s is unreadable; the task runs again", path)
+                continue
+            # The key fixes the whole config; the names of what varies come from this plan.
+            done[task.key] = {**record, "parameters": task.parameters, "seed": task.seed}
     return done
 
 

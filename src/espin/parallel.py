@@ -12,6 +12,7 @@ others go on.
 
 from __future__ import annotations
 
+import logging
 import os
 import time
 import traceback
@@ -22,6 +23,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from espin.errors import ConfigError
+
+log = logging.getLogger(__name__)
 
 __all__ = ["TaskOutcome", "TaskPool", "parallel_map", "default_workers"]
 
@@ -64,19 +67,39 @@ def default_workers() -> int:
         return os.cpu_count() or 1
 
 
-def _limit_threads(blas_threads: int | None) -> None:
-    """Process initializer: cap BLAS / OpenMP / MKL threads for the life of the worker."""
-    if blas_threads is None:
-        return
-    from threadpoolctl import threadpool_limits
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 
-    threadpool_limits(limits=blas_threads)
+
+def _limit_threads(blas_threads: int | None) -> None:
+    """Process initializer: thread caps in the environment, read by BLAS / MKL / OpenMP at load."""
+    if blas_threads is not None:
+        for variable in THREAD_VARIABLES:
+            os.environ[variable] = str(blas_threads)
+
+
+def _load_threaded_libraries() -> None:
+    """Load numpy's BLAS and MKL (PARDISO) now, so that a thread limit reaches them.
+
+    ``threadpoolctl`` only limits libraries already loaded; MKL is otherwise loaded inside the
+    first task, which would then run with all cores.
+    """
+    import numpy  # noqa: F401 - loads its BLAS
+
+    from espin.errors import EspinError
+    from espin.linear_solvers import _load_mkl
+
+    try:
+        _load_mkl()
+    except EspinError:  # no MKL on this machine: SuperLU needs no threads
+        pass
 
 
 def _call(fn: Callable[[Any], Any], item: Any, blas_threads: int | None) -> tuple[Any, str | None, str | None, float]:
     """Run one task in a worker; exceptions come back as text, never as a raised error."""
     from threadpoolctl import threadpool_limits
 
+    if blas_threads is not None:
+        _load_threaded_libraries()
     start = time.perf_counter()
     try:
         with threadpool_limits(limits=blas_threads):
@@ -182,34 +205,98 @@ class TaskPool:
         """Run ``fn(item)`` for every item; yield outcomes as tasks finish (any order).
 
         ``fn`` must be a module-level function (it is pickled to the workers) unless the pool
-        is serial.
+        is serial. If a local worker process dies (killed, out of memory), the tasks it took
+        down with the pool run again, each in a process of its own, so that only the task that
+        kills its worker fails. An interrupt (Ctrl-C) or an abandoned iteration stops the
+        workers at once.
         """
         items = list(items)
         if self.serial:
             for index, item in enumerate(items):
                 yield TaskOutcome(index, *_call(fn, item, self.blas_threads))
             return
+        suspects: list[int] = []
+        try:
+            yield from self._run_pooled(fn, items, suspects)
+            if suspects:
+                log.warning("a worker process died; running its %d unfinished task(s) one process each",
+                            len(suspects))
+                yield from self._run_isolated(fn, items, suspects)
+        except BaseException:
+            self._abort()
+            raise
+
+    def _run_pooled(self, fn: Callable[[Any], Any], items: list[Any], suspects: list[int]) -> Iterator[TaskOutcome]:
+        """All items through the shared executor; indices lost to a broken pool go to ``suspects``."""
         executor = self._get_executor()
         futures: dict[Future, int] = {
             executor.submit(_call, fn, item, self.blas_threads): index for index, item in enumerate(items)
         }
+        for future in as_completed(futures):
+            index = futures[future]
+            try:
+                value, error, tb, seconds = future.result()
+            except BrokenProcessPool:
+                suspects.append(index)
+                continue
+            except Exception as exc:  # noqa: BLE001 - e.g. a Dask worker lost for good
+                yield TaskOutcome(index, None, f"{type(exc).__name__}: {exc}", traceback.format_exc())
+                continue
+            yield TaskOutcome(index, value, error, tb, seconds)
+        if suspects:
+            self._abort()  # the broken pool; a new one is made when needed
+
+    def _run_isolated(self, fn: Callable[[Any], Any], items: list[Any], indices: list[int]) -> Iterator[TaskOutcome]:
+        """Each item in a fresh single-process executor, ``workers`` at a time."""
+        import multiprocessing
+        from concurrent.futures import FIRST_COMPLETED, wait
+
+        context = multiprocessing.get_context("spawn")
+        queue = list(indices)
+        running: dict[Future, tuple[int, ProcessPoolExecutor]] = {}
         try:
-            for future in as_completed(futures):
-                index = futures[future]
-                try:
-                    value, error, tb, seconds = future.result()
-                except BrokenProcessPool as exc:
-                    # A worker died (killed, out of memory): its tasks fail, the pool is rebuilt.
-                    self._executor = None
-                    yield TaskOutcome(index, None, f"worker process died: {exc}", None)
-                    continue
-                except Exception as exc:  # noqa: BLE001 - a lost Dask worker, say
-                    yield TaskOutcome(index, None, f"{type(exc).__name__}: {exc}", traceback.format_exc())
-                    continue
-                yield TaskOutcome(index, value, error, tb, seconds)
+            while queue or running:
+                while queue and len(running) < self.workers:
+                    index = queue.pop(0)
+                    solo = ProcessPoolExecutor(1, mp_context=context, initializer=_limit_threads,
+                                               initargs=(self.blas_threads,))
+                    running[solo.submit(_call, fn, items[index], self.blas_threads)] = (index, solo)
+                done, _ = wait(running, return_when=FIRST_COMPLETED)
+                for future in done:
+                    index, solo = running.pop(future)
+                    solo.shutdown(wait=False)
+                    try:
+                        value, error, tb, seconds = future.result()
+                    except BrokenProcessPool:
+                        yield TaskOutcome(index, None, WORKER_DIED, None)
+                        continue
+                    yield TaskOutcome(index, value, error, tb, seconds)
         finally:
-            for future in futures:
-                future.cancel()
+            for _, solo in running.values():
+                _terminate(solo)
+
+    def _abort(self) -> None:
+        """Stop the workers now: queued tasks are cancelled, running ones are killed."""
+        if self._executor is not None:
+            _terminate(self._executor)
+            self._executor = None
+
+
+WORKER_DIED = (
+    "worker process died while running this task (killed, or out of memory?); in a script, "
+    "start studies under `if __name__ == \"__main__\":` (worker processes import the script)"
+)
+
+
+def _terminate(executor: Executor) -> None:
+    """Shut an executor down without waiting; kill the processes of a local pool."""
+    processes = list((getattr(executor, "_processes", None) or {}).values())
+    if isinstance(executor, ProcessPoolExecutor):
+        executor.shutdown(wait=False, cancel_futures=True)
+    else:  # Dask's ClientExecutor
+        executor.shutdown(wait=False)
+    for process in processes:
+        process.terminate()
 
 
 def parallel_map(

@@ -8,7 +8,8 @@ table, a per-point summary (mean, sd, RSD of each property) and figures.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable, Mapping, Sequence
+import json
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -18,7 +19,7 @@ import pandas as pd
 from espin.config import Config, write_config
 from espin.ensemble import Ensemble, TensileTask, plan_tasks, run_ensemble
 from espin.errors import ConfigError
-from espin.io.atomic import atomic_write
+from espin.io.atomic import atomic_write, atomic_write_bytes
 from espin.parallel import TaskOutcome
 from espin.rve import resolve_config
 
@@ -88,8 +89,8 @@ def rve_size_study(
     base
         Config, preset or TOML file (default ``plla``); ``**overrides`` as ``section__key``.
     folder
-        Results folder: ``results.csv``, ``summary.csv``, ``study.toml`` (the base config),
-        ``tasks/``, and the figures ``rve_size_<property>.png`` (Figs. A.15-A.17) and
+        Results folder: ``results.csv``, ``summary.csv``, ``study.toml`` (the base config) and
+        ``plan.json`` (sizes and seeds; both written before any work), ``tasks/``, and the figures ``rve_size_<property>.png`` (Figs. A.15-A.17) and
         ``rve_size_curves.png`` (Fig. A.18, at the largest RVE).
     workers, scheduler, blas_threads
         Where the tasks run (:class:`espin.parallel.TaskPool`).
@@ -98,21 +99,26 @@ def rve_size_study(
     -------
     StudyResult
     """
+    fixed = sorted(k.replace("__", ".") for k in overrides if k in ("rve__size_ratio", "rve__size_um", "rve__layers"))
+    if fixed:
+        raise ConfigError(f"{', '.join(fixed)}: set by the study's sizes (size_ratios, layer_counts, "
+                          "layers_for_sizes, size_for_layers), not as an override")
     base = resolve_config(base, **overrides)
     if not size_ratios and not layer_counts:
         raise ConfigError("size_ratios, layer_counts: give at least one RVE size")
     points = [{"rve.size_ratio": float(s), "rve.layers": int(layers_for_sizes)} for s in size_ratios]
     points += [{"rve.size_ratio": float(size_for_layers), "rve.layers": int(n)} for n in layer_counts]
     points = list({tuple(p.items()): p for p in points}.values())  # the shared point once
-    tasks = plan_tasks(base, points, realization_seeds(base, realizations, seed_start))
-    ensemble = run_ensemble(tasks, folder, workers=workers, scheduler=scheduler,
-                            blas_threads=blas_threads, on_outcome=on_outcome)
-    result = StudyResult(ensemble, ensemble.summary())
+    seeds = realization_seeds(base, realizations, seed_start)
+    tasks = plan_tasks(base, points, seeds)
+    plan = {"study": "rve-size", "size_ratios": list(size_ratios), "layer_counts": list(layer_counts),
+            "layers_for_sizes": layers_for_sizes, "size_for_layers": size_for_layers, "seeds": seeds}
+    result = _run(tasks, base, plan, folder, workers, scheduler, blas_threads, on_outcome)
+    ensemble = result.ensemble
     if folder is not None and ensemble.records:
         from espin.figures.studies import plot_curve_band, plot_rve_size
 
         folder = Path(folder)
-        result.files = _write_common(result, base, folder)
         for name, path in plot_rve_size(result.summary, folder, layers_for_sizes=int(layers_for_sizes),
                                         size_for_layers=float(size_for_layers)).items():
             result.files[name] = path
@@ -148,9 +154,10 @@ def sweep(
         "rve.max_deviation_deg": [5, 15], "rve.orientation.von_mises.kappa": [0, 2, 8]}``.
         None or empty: an ensemble of ``realizations`` RVEs of the base config.
     folder
-        Results folder: ``results.csv`` (always, updated as tasks finish), the tidy table
-        ``sweep.csv`` or ``sweep.parquet``, ``summary.csv``, ``study.toml``, ``tasks/`` and
-        ``sweep_<property>.png`` (property versus each parameter).
+        Results folder: the tidy table ``results.csv`` (one row per realization, rewritten as
+        tasks finish) and, with ``table_format="parquet"``, ``sweep.parquet``; ``summary.csv``,
+        ``study.toml`` (the base config) and ``plan.json`` (grid and seeds, written before any
+        work), ``tasks/`` and ``sweep_<property>.png`` (property versus each parameter).
     table_format
         ``"csv"`` or ``"parquet"`` (needs pyarrow: ``pip install "espin[parquet]"``).
 
@@ -166,36 +173,49 @@ def sweep(
             import pyarrow  # noqa: F401
         except ImportError:
             raise ConfigError('table_format: parquet needs pyarrow (pip install "espin[parquet]")') from None
-    grid = dict(grid or {})
-    for key, values in grid.items():
-        if isinstance(values, (str, bytes)) or not isinstance(values, Sequence) or len(values) == 0:
-            raise ConfigError(f"grid {key}: give a non-empty list of values (got {values!r})")
+    grid = {key: _grid_values(key, values) for key, values in (grid or {}).items()}
     keys = list(grid)
     points = [dict(zip(keys, combo)) for combo in itertools.product(*grid.values())] if keys else [{}]
-    tasks = plan_tasks(base, points, realization_seeds(base, realizations, seed_start))
-    ensemble = run_ensemble(tasks, folder, workers=workers, scheduler=scheduler,
-                            blas_threads=blas_threads, on_outcome=on_outcome)
-    result = StudyResult(ensemble, ensemble.summary())
-    if folder is not None and ensemble.records:
+    seeds = realization_seeds(base, realizations, seed_start)
+    tasks = plan_tasks(base, points, seeds)
+    result = _run(tasks, base, {"study": "sweep", "grid": grid, "seeds": seeds}, folder, workers, scheduler,
+                  blas_threads, on_outcome)
+    if folder is not None and result.ensemble.records:
         from espin.figures.studies import plot_sweep
 
         folder = Path(folder)
-        result.files = _write_common(result, base, folder)
-        table = result.table
         if table_format == "parquet":
-            path = atomic_write(folder / "sweep.parquet", lambda tmp: table.to_parquet(tmp, index=False))
-        else:
-            path = atomic_write(folder / "sweep.csv", lambda tmp: table.to_csv(tmp, index=False))
-        result.files["table"] = path
+            table = result.table
+            result.files["table"] = atomic_write(folder / "sweep.parquet", lambda tmp: table.to_parquet(tmp, index=False))
         if keys:
             result.files.update(plot_sweep(result.summary, keys, folder))
     return result
 
 
-def _write_common(result: StudyResult, base: Config, folder: Path) -> dict[str, Path]:
-    summary = result.summary
-    return {
-        "config": write_config(base, folder / "study.toml"),
-        "results": folder / "results.csv",
-        "summary": atomic_write(folder / "summary.csv", lambda tmp: summary.to_csv(tmp, index=False)),
-    }
+def _grid_values(key: str, values: Any) -> list[Any]:
+    """The values of one grid key as a list of plain Python scalars (numpy arrays welcome)."""
+    if isinstance(values, (str, bytes, Mapping)) or not isinstance(values, Iterable):
+        raise ConfigError(f"grid {key}: give a non-empty list of values (got {values!r})")
+    values = [v.item() if hasattr(v, "item") else v for v in values]
+    if not values:
+        raise ConfigError(f"grid {key}: give a non-empty list of values (got none)")
+    if len(set(map(repr, values))) != len(values):
+        raise ConfigError(f"grid {key}: repeated values in {values}")
+    return values
+
+
+def _run(tasks: list[TensileTask], base: Config, plan: dict[str, Any], folder: str | Path | None,
+         workers: int | None, scheduler: Any, blas_threads: int | None, on_outcome: OnOutcome | None) -> StudyResult:
+    """Write the plan (before any work), run the ensemble, write the summary."""
+    files: dict[str, Path] = {}
+    if folder is not None:
+        folder = Path(folder)
+        files["config"] = write_config(base, folder / "study.toml")
+        files["plan"] = atomic_write_bytes(folder / "plan.json", json.dumps(plan, indent=1).encode())
+    ensemble = run_ensemble(tasks, folder, workers=workers, scheduler=scheduler,
+                            blas_threads=blas_threads, on_outcome=on_outcome)
+    summary = ensemble.summary()
+    if folder is not None:
+        files["results"] = folder / "results.csv"
+        files["summary"] = atomic_write(folder / "summary.csv", lambda tmp: summary.to_csv(tmp, index=False))
+    return StudyResult(ensemble, summary, files)

@@ -110,7 +110,7 @@ def plot_sweep(summary: pd.DataFrame, parameters: list[str], folder: str | Path,
                 for values, group in groups:
                     values = values if isinstance(values, tuple) else (values,)
                     group = group.sort_values(parameter)
-                    label = ", ".join(f"{p.split('.')[-1]} = {v:g}" for p, v in zip(others, values)) or None
+                    label = ", ".join(f"{p.split('.')[-1]} = {_format(v)}" for p, v in zip(others, values)) or None
                     ax.errorbar(group[parameter], group[f"{name}_mean"], yerr=group[f"{name}_sd"].fillna(0.0),
                                 marker="o", capsize=3, label=label)
             ax.set_xlabel(parameter)
@@ -120,3 +120,8 @@ def plot_sweep(summary: pd.DataFrame, parameters: list[str], folder: str | Path,
         fig.suptitle(f"{title} versus swept parameters")
         files[f"sweep_{name}"] = save_figure(fig, Path(folder) / f"sweep_{name.removesuffix('_MPa')}.png", dpi)
     return files
+
+
+def _format(value: object) -> str:
+    """A grid value for a legend: numbers compactly, anything else as text."""
+    return f"{value:g}" if isinstance(value, (int, float)) and not isinstance(value, bool) else str(value)
