@@ -227,10 +227,11 @@ def show_config(source: SourceArg = None, set_: SetOpt = None) -> None:
 
 def _register_command_groups() -> None:
     """Commands that live in their own modules (studies, calibrations, images)."""
-    from espin import cli_calibrate_geometry, cli_measure, cli_properties, cli_studies
+    from espin import cli_calibrate_geometry, cli_fit, cli_measure, cli_properties, cli_studies
 
     cli_measure.register(app)
     cli_properties.register(app)
+    cli_fit.register(app)
     cli_studies.register(app)
     cli_calibrate_geometry.register(app)
 

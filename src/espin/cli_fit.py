@@ -1,0 +1,228 @@
+"""The ``espin fit`` command: calibrate eta and fiber-law parameters to measured curves.
+
+``register(app)`` adds the command to espin's typer app. Heavy imports happen inside the
+command, so ``espin --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any, Optional
+
+import typer
+
+if TYPE_CHECKING:  # pragma: no cover
+    from espin.calibration import FitResult
+
+__all__ = ["register"]
+
+_DELIMITER_NAMES = {"tab": "\t", "\\t": "\t", "space": " ", "whitespace": " "}
+
+
+def _number(text: str, what: str) -> float:
+    from espin.errors import ConfigError
+
+    try:
+        return float(text)
+    except ValueError:
+        raise ConfigError(f"{what}: {text!r} is not a number") from None
+
+
+def _parse_bounds(items: list[str] | None) -> dict[str, tuple[float, float]]:
+    """``key=low:high`` items -> {key: (low, high)}."""
+    from espin.errors import ConfigError
+
+    out = {}
+    for item in items or []:
+        key, sep, text = item.partition("=")
+        low, colon, high = text.partition(":")
+        if not (sep and colon):
+            raise ConfigError(f"--bounds {item!r}: expected key=low:high, e.g. b_p=1:20")
+        out[key.strip()] = (_number(low, f"--bounds {key}"), _number(high, f"--bounds {key}"))
+    return out
+
+
+def _parse_fixed(items: list[str] | None) -> dict[str, float]:
+    """``key=value`` items -> {key: value}."""
+    from espin.errors import ConfigError
+
+    out = {}
+    for item in items or []:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise ConfigError(f"--fix {item!r}: expected key=value, e.g. E_t=3000")
+        out[key.strip()] = _number(text, f"--fix {key}")
+    return out
+
+
+def _parse_rates(items: list[str] | None) -> dict[float, list[Path]]:
+    """``RATE=FILE,FILE`` items -> {rate [1/s]: [files]}."""
+    from espin.errors import ConfigError
+
+    out: dict[float, list[Path]] = {}
+    for item in items or []:
+        rate, sep, files = item.partition("=")
+        paths = [Path(f) for f in files.split(",") if f.strip()]
+        if not (sep and paths):
+            raise ConfigError(f"--curves-at-rate {item!r}: expected RATE=FILE[,FILE...], e.g. 5e-2=a.csv,b.csv")
+        out[_number(rate, "--curves-at-rate rate")] = paths
+    return out
+
+
+def _curves(curves: list[Path], rate: float | None, other_rates: dict[float, list[Path]]) -> tuple[Any, float | None]:
+    """The ``curve`` and ``strain_rate_per_s`` arguments of :func:`espin.calibration.fit`."""
+    from espin.errors import ConfigError
+
+    if not other_rates:
+        return curves, rate
+    if rate is None:
+        raise ConfigError("--rate: give the strain rate of the CURVES when --curves-at-rate is used")
+    if rate in other_rates:
+        raise ConfigError(f"--curves-at-rate {rate:g}: the CURVES are already at that rate (--rate)")
+    return {rate: curves, **other_rates}, None
+
+
+def _table(result: FitResult) -> Any:
+    from rich.table import Table
+
+    from espin.calibration import FIT_PARAMETERS
+
+    table = Table("parameter", "symbol", "value", "± sd", "Gauss-Newton sd", "sd over RVEs", "bounds",
+                  title=f"fit: R^2 = {result.r_squared:.5f}, RMSE = {result.rmse_MPa:.3g} MPa")
+    for key in result.parameters:
+        spread = result.realization_sd[key] if result.realization_sd else None
+        low, high = result.bounds[key]
+        table.add_row(key, FIT_PARAMETERS[key].symbol, f"{result.values[key]:.5g}",
+                      f"{result.uncertainties[key]:.2g}", f"{result.gauss_newton_sd[key]:.2g}",
+                      "-" if spread is None else f"{spread:.2g}", f"{low:.3g} .. {high:.3g}")
+    return table
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``fit`` command to ``app``."""
+
+    @app.command("fit")
+    def fit_command(
+        curves: Annotated[
+            list[Path],
+            typer.Argument(help="CSV files of the measured curve (specimens: they are averaged)."),
+        ],
+        params: Annotated[
+            str,
+            typer.Option(help="Parameters to fit, comma-separated: eta (volume_fraction), E_t "
+                              "(taut_modulus_MPa), E_b, a_p (needs two rates), b_p, c_p; keys or "
+                              "short names also work."),
+        ] = "eta,b_p,c_p",
+        bounds: Annotated[
+            Optional[list[str]],
+            typer.Option("--bounds", help="Bounds of a fitted parameter: key=low:high. Repeatable."),
+        ] = None,
+        fix: Annotated[
+            Optional[list[str]],
+            typer.Option("--fix", help="Hold a parameter at a value: key=value. Repeatable."),
+        ] = None,
+        realizations: Annotated[
+            Optional[int], typer.Option(help="RVE realizations per evaluation (default 3).")
+        ] = None,
+        seeds: Annotated[
+            Optional[str],
+            typer.Option(help="Seeds of the realizations, comma-separated. Default: base seed, +1, ..."),
+        ] = None,
+        rate: Annotated[
+            Optional[float],
+            typer.Option("--rate", help="Strain rate of the CURVES, 1/s. Default: the base config's."),
+        ] = None,
+        curves_at_rate: Annotated[
+            Optional[list[str]],
+            typer.Option("--curves-at-rate",
+                         help="Curves at another strain rate: RATE=FILE[,FILE...] (1/s). Repeatable; "
+                              "two rates or more let a_p be fitted."),
+        ] = None,
+        steps: Annotated[
+            Optional[int],
+            typer.Option(help="Load steps per simulation. Default: the base config's step size."),
+        ] = None,
+        eta_points: Annotated[int, typer.Option(help="Points of the eta grid.")] = 5,
+        eta_tolerance: Annotated[float, typer.Option(help="Tolerance of the eta bracket search.")] = 0.002,
+        workers: Annotated[
+            Optional[int], typer.Option(help="Worker processes (default: all cores; 1 = serial).")
+        ] = None,
+        scheduler: Annotated[
+            Optional[str],
+            typer.Option(help="Dask scheduler: 'local' or an address such as tcp://host:8786."),
+        ] = None,
+        base: Annotated[
+            str, typer.Option(help="Preset or TOML config holding every value not fitted.")
+        ] = "plla",
+        set_: Annotated[
+            Optional[list[str]],
+            typer.Option("--set", help="Override a key of the base config: section.key=VALUE. Repeatable."),
+        ] = None,
+        out: Annotated[
+            Path, typer.Option("--out", "-o", help="Folder for fitted.toml, fit.csv, fit.json, fit.png.")
+        ] = Path("fit"),
+        strain_column: Annotated[
+            Optional[str], typer.Option(help="Strain column: 0-based index or header name.")
+        ] = None,
+        stress_column: Annotated[
+            Optional[str], typer.Option(help="Stress column [MPa]: 0-based index or header name.")
+        ] = None,
+        percent_strain: Annotated[bool, typer.Option(help="The strain column is in percent.")] = False,
+        delimiter: Annotated[
+            Optional[str], typer.Option(help="Field separator (',', ';', tab, space). Default: detected.")
+        ] = None,
+        skip_rows: Annotated[int, typer.Option(help="Lines to skip at the top of each file.")] = 0,
+        quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or table.")] = False,
+    ) -> None:
+        """Calibrate eta and fiber-law parameters to a measured stress-strain curve (paper 4.2).
+
+        eta by a grid and bracket search, the fiber parameters by least squares for each eta,
+        over RVE realizations with common seeds. Prints the fitted values with their
+        uncertainty and writes fitted.toml (runs with espin simulate), fit.csv, fit.json, fit.png.
+        """
+        from rich.console import Console
+
+        from espin.calibration import fit
+        from espin.cli import _fail, _parse_set
+        from espin.cli_properties import _column
+        from espin.errors import EspinError
+        from espin.rve import resolve_config
+
+        console = Console(stderr=True, quiet=quiet, width=140)
+        read_options = {
+            "strain_column": _column(strain_column),
+            "stress_column": _column(stress_column),
+            "percent_strain": percent_strain,
+            "delimiter": _DELIMITER_NAMES.get(delimiter.lower(), delimiter) if delimiter else None,
+            "skip_rows": skip_rows,
+        }
+        try:
+            overrides = _parse_set(set_)
+            config = resolve_config(base, **{k.replace(".", "__"): v for k, v in overrides.items()})
+            curve, strain_rate = _curves(curves, rate, _parse_rates(curves_at_rate))
+            seed_list = None if seeds is None else [int(_number(s, "--seeds")) for s in seeds.split(",")]
+            with console.status("fitting") as status:
+
+                def on_evaluation(record: dict) -> None:
+                    status.update(f"evaluation {record['evaluation']} ({record['stage']}): "
+                                  f"SSE {record['sse_MPa2']:.4g} MPa^2")
+
+                result = fit(
+                    curve, base=config, parameters=[p for p in params.split(",") if p.strip()],
+                    bounds=_parse_bounds(bounds), fixed=_parse_fixed(fix), realizations=realizations,
+                    seeds=seed_list, strain_rate_per_s=strain_rate, steps=steps, eta_points=eta_points,
+                    eta_tolerance=eta_tolerance, workers=workers, scheduler=scheduler,
+                    read_options=read_options, on_evaluation=on_evaluation,
+                )
+            written = result.write(out)
+        except EspinError as err:
+            _fail(str(err))
+        console.print(_table(result))
+        console.print(
+            f"{result.simulations} simulations ({result.failed_simulations} failed) in "
+            f"{result.elapsed_s:.1f} s, {result.pool}; seeds {', '.join(map(str, result.seeds))}",
+            highlight=False,
+        )
+        console.print(f"wrote {out}/: " + ", ".join(p.name for p in written.values()), highlight=False)
+        console.print(f"next: espin simulate {out}/fitted.toml -o {out}/check", highlight=False,
+                      soft_wrap=True)
