@@ -43,6 +43,49 @@ def test_delimiter_detected_and_given(tmp_path, delimiter):
     assert np.allclose(read_curve(write(tmp_path, text), delimiter=delimiter).strain, [0, 0.01, 0.02])
 
 
+THREE_COLUMNS = "0,0,0\n1,0.01,2\n2,0.02,4\n"  # time [s], strain, stress [MPa]
+
+
+@pytest.mark.parametrize("header", [
+    "time_s,strain,stress",         # 'stress' is a default name: not column 1 (the strain)
+    "time_s,Strain,Stress_MPa",     # default names in any case: not column 0 (the time)
+    "Time_s,STRAIN,Stress [MPa]",
+    "time_s,strain,stress (MPa)",
+])
+def test_default_columns_are_found_by_name_in_any_case(tmp_path, header):
+    curve = read_curve(write(tmp_path, header + "\n" + THREE_COLUMNS))
+    assert np.array_equal(curve.strain, [0.0, 0.01, 0.02])
+    assert np.array_equal(curve.stress_MPa, [0.0, 2.0, 4.0])
+
+
+def test_no_default_by_position_in_a_wide_header(tmp_path):
+    path = write(tmp_path, "time_s,extension_mm,load_N\n" + THREE_COLUMNS, "wide.csv")
+    with pytest.raises(CurveFileError, match=r"wide.csv, line 1: the header has no column with a "
+                       r"default strain name .* 3 columns \('time_s', 'extension_mm', 'load_N'\).*"
+                       r"--strain-column") as info:
+        read_curve(path)
+    assert "time_s" in str(info.value)
+    with pytest.raises(CurveFileError, match=r"default stress name \(stress_MPa, .*--stress-column"):
+        read_curve(path, strain_column="extension_mm")
+    curve = read_curve(path, strain_column="extension_mm", stress_column="LOAD_N")
+    assert np.array_equal(curve.stress_MPa, [0.0, 2.0, 4.0])
+    # Two columns keep the positional default whatever their names.
+    two = read_curve(write(tmp_path, "extension,load\n0,0\n0.01,2\n", "two.csv"))
+    assert np.array_equal(two.strain, [0.0, 0.01]) and np.array_equal(two.stress_MPa, [0.0, 2.0])
+
+
+@pytest.mark.parametrize(("text", "options", "message"), [
+    ("time_s,strain\n0,0\n1,0.01\n", {},
+     r"line 1: strain and stress would both be read from column 'strain' \(index 1\)"),
+    ("0,0,0\n1,0.01,2\n", {"strain_column": 1}, r"both be read from column 1; .*--stress-column"),
+    ("time_s,strain,stress\n0,0,0\n1,0.01,2\n", {"stress_column": "STRAIN"}, "both be read from column 'strain'"),
+])
+def test_strain_and_stress_in_one_column_is_an_error(tmp_path, text, options, message):
+    with pytest.raises(CurveFileError, match=message) as info:
+        read_curve(write(tmp_path, text, "same.csv"), **options)
+    assert "same.csv" in str(info.value)
+
+
 def test_skip_rows_preamble(tmp_path):
     text = "Instron 5969\nspecimen 2, width 10 mm\n\nstrain,stress\n0,0\n0.01,1\n"
     curve = read_curve(write(tmp_path, text), skip_rows=2)

@@ -173,6 +173,80 @@ def test_bad_curves_raise(strain, stress, message):
     assert isinstance(info.value, EspinError)
 
 
+@pytest.mark.parametrize("stress", [np.zeros(301), np.full(301, 5.0), 5.0 + 1e-12 * np.sin(100 * STRAIN)])
+def test_constant_stress_has_no_slope_and_no_yield(stress):
+    # A flat curve (a wrong column, or no load carried): modulus 0, no yield, no zero crossing.
+    props = curve_properties(STRAIN, stress)
+    assert not props.has_yield and "stress is constant" in props.note
+    assert props.modulus_MPa == 0.0
+    assert math.isnan(props.strain_offset) and math.isnan(props.r_squared)
+    assert math.isnan(props.yield_stress_MPa) and math.isnan(props.post_yield_modulus_MPa)
+    assert np.isnan(bilinear_stress(props, STRAIN)).all()  # no line to draw
+    two = curve_properties([0.0, 0.01], [3.0, 3.0])
+    assert two.modulus_MPa == 0.0 and "constant (3 MPa at all 2 points)" in two.note
+
+
+def test_flat_line_with_noise_has_no_strain_offset():
+    # Zero slope up to rounding: its zero crossing (1e14 and more) would be noise.
+    stress = np.where(np.arange(STRAIN.size) == 150, 1.0, 0.0)
+    props = curve_properties(STRAIN, stress)
+    assert not props.has_yield and abs(props.modulus_MPa) < 1e-12
+    assert math.isnan(props.strain_offset)
+
+
+def test_two_points_are_one_line():
+    props = curve_properties([0.0, 0.01], [1.0, 3.0])
+    assert not props.has_yield and "only 2 points" in props.note
+    assert props.modulus_MPa == pytest.approx(200.0)
+    assert props.strain_offset == pytest.approx(-0.005)
+
+
+def test_repeated_first_strains_keep_a_determined_elastic_line():
+    # Three readings at zero strain (load settling), then a coarse bilinear curve: the elastic
+    # window must reach the next strain, not fit a line through one strain (a LinAlgError before).
+    strain = np.r_[0.0, 0.0, 0.0, np.arange(1, 11) * 0.01]
+    stress = np.where(strain < 0.015, E * strain, E * 0.015 + H * (strain - 0.015))
+    stress[1:3] += (0.2, -0.2)
+    props = curve_properties(strain, stress)
+    assert props.has_yield, props.note
+    assert props.modulus_MPa == pytest.approx(E, rel=1e-9)
+    assert props.yield_stress_MPa == pytest.approx(E * 0.015, rel=1e-6)
+
+
+@pytest.mark.parametrize("scale", [1e-300, 2.0**-1000, 1e300])
+def test_tiny_and_huge_stresses_scale_the_results(scale):
+    reference = curve_properties(STRAIN, bilinear(STRAIN))
+    props = curve_properties(STRAIN, scale * bilinear(STRAIN))
+    assert props.has_yield
+    assert props.modulus_MPa == pytest.approx(scale * reference.modulus_MPa, rel=1e-12)
+    assert props.yield_stress_MPa == pytest.approx(scale * reference.yield_stress_MPa, rel=1e-12)
+    assert props.post_yield_modulus_MPa == pytest.approx(scale * reference.post_yield_modulus_MPa, rel=1e-12)
+    assert props.yield_strain == pytest.approx(reference.yield_strain, rel=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("strain_range", "message"),
+    [
+        ((0.2, 0.1), r"strain_range must be \(min, max\) strains with min < max.*got \(0.2, 0.1\)"),
+        ((0.1, 0.1), "min < max"),
+        ((math.nan, None), "finite numbers"),
+        (("a", None), "got \\('a', None\\)"),
+        ((0.1,), "got \\(0.1,\\)"),
+        ((0.5, None), r"two distinct strains within strain_range \(0.5, None\) to fit, got 0"),
+    ],
+)
+def test_bad_strain_range_raises(strain_range, message):
+    with pytest.raises(CurveError, match=message):
+        curve_properties(STRAIN, bilinear(STRAIN), strain_range=strain_range)
+
+
+def test_non_numeric_curve_raises():
+    with pytest.raises(CurveError, match="arrays of numbers"):
+        curve_properties(["0", "x"], [0.0, 1.0])
+    with pytest.raises(CurveError, match="two distinct strains to fit, got 1"):
+        curve_properties([0.01] * 5, [0.0, 1.0, 2.0, 3.0, 4.0])
+
+
 def test_options_are_checked():
     with pytest.raises(CurveError, match="elastic_fraction"):
         curve_properties(STRAIN, bilinear(STRAIN), elastic_fraction=0.0)
@@ -278,3 +352,46 @@ def test_command_reports_bad_files(tmp_path):
     assert "bad.csv, line 3" in result.output and "oops" in result.output
     result = invoke(bad, "--stress-column", "load")
     assert result.exit_code == 2 and "no stress column named 'load'" in result.output
+
+
+def toe_specimen(path, toe=0.01):
+    """A specimen in percent strain with a concave toe over the first ``toe`` of strain."""
+    stress = np.where(STRAIN < toe, 0.5 * E * STRAIN**2 / toe, bilinear(STRAIN - toe / 2))
+    np.savetxt(path, np.c_[100 * STRAIN, stress], delimiter=",", header="Strain,Stress", comments="")
+    return stress
+
+
+def test_command_strain_range_leaves_out_a_toe(tmp_path):
+    stress = toe_specimen(tmp_path / "toe.csv")
+    expected = curve_properties(STRAIN, stress, strain_range=(0.01, None))
+    assert expected.modulus_MPa == pytest.approx(E, rel=1e-6)
+    whole = curve_properties(STRAIN, stress)
+    assert abs(whole.modulus_MPa - E) > 0.05 * E  # without the option the toe biases E
+    # Percent strain: the range is in the file's units (1 % -> 0.01).
+    result = invoke(tmp_path / "toe.csv", "--percent-strain", "--strain-range", "1:", "-o", tmp_path / "out")
+    assert result.exit_code == 0, result.output
+    table = pd.read_csv(tmp_path / "out" / "properties.csv")
+    assert table["modulus_MPa"].iloc[0] == pytest.approx(expected.modulus_MPa, rel=1e-9)  # %.10g
+    assert table["strain_offset"].iloc[0] == pytest.approx(0.005, rel=1e-6)
+    # The same range in fractions without --percent-strain, closed on both ends.
+    np.savetxt(tmp_path / "frac.csv", np.c_[STRAIN, stress], delimiter=",", header="strain,stress", comments="")
+    result = invoke(tmp_path / "frac.csv", "--strain-range", "0.01:0.25", "-o", tmp_path / "frac")
+    assert result.exit_code == 0, result.output
+    closed = curve_properties(STRAIN, stress, strain_range=(0.01, 0.25))
+    table = pd.read_csv(tmp_path / "frac" / "properties.csv")
+    assert table["yield_stress_MPa"].iloc[0] == pytest.approx(closed.yield_stress_MPa, rel=1e-9)
+
+
+@pytest.mark.parametrize("text", ["0.2:0.1", "1:2:3", "a:", "nan:"])
+def test_command_bad_strain_range(tmp_path, text):
+    toe_specimen(tmp_path / "toe.csv")
+    result = invoke(tmp_path / "toe.csv", "--strain-range", text)
+    assert result.exit_code == 2
+    assert "--strain-range: LO:HI" in result.output and repr(text) in result.output
+
+
+def test_command_names_the_curve_that_cannot_be_fitted(tmp_path):
+    toe_specimen(tmp_path / "toe.csv")
+    result = invoke(tmp_path / "toe.csv", "--percent-strain", "--strain-range", "50:")  # ends at 30 %
+    assert result.exit_code == 2
+    assert "toe.csv: a curve needs at least two distinct strains within strain_range" in result.output

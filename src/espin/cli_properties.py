@@ -28,6 +28,43 @@ def _column(text: str | None) -> int | str | None:
     return int(text) if text.strip().isdigit() else text
 
 
+def _strain_range(text: str | None, percent: bool) -> tuple[float | None, float | None] | None:
+    """``--strain-range LO:HI`` as fractions (either end may be empty; percent when ``percent``).
+
+    Raises
+    ------
+    CurveError
+        If the text is not ``LO:HI`` with finite numbers and LO < HI.
+    """
+    import math
+
+    from espin.properties import CurveError
+
+    if text is None:
+        return None
+    rule = ("--strain-range: LO:HI strains with LO < HI, either end may be left empty (e.g. 0.02: "
+            "or, with --percent-strain, 2:)")
+    parts = text.split(":")
+    if len(parts) != 2:
+        raise CurveError(f"{rule}; got {text!r}")
+    bounds: list[float | None] = []
+    for part in parts:
+        if not part.strip():
+            bounds.append(None)
+            continue
+        try:
+            value = float(part)
+        except ValueError:
+            raise CurveError(f"{rule}; got {text!r}") from None
+        if not math.isfinite(value):
+            raise CurveError(f"{rule}; got {text!r}")
+        bounds.append(value / 100.0 if percent else value)
+    lo, hi = bounds
+    if lo is not None and hi is not None and not lo < hi:
+        raise CurveError(f"{rule}; got {text!r}")
+    return lo, hi
+
+
 def _row(name: str, props: CurveProperties) -> list[str]:
     yield_strain = f"{100 * props.yield_strain:.3g}" if props.has_yield else "-"
     return [
@@ -90,14 +127,28 @@ class _Analysis:
     records: list[dict]
 
 
-def _analyse(curves: list[Curve]) -> _Analysis:
-    """Fit each curve; with several, summarize them and fit their average."""
+def _analyse(curves: list[Curve],
+             strain_range: tuple[float | None, float | None] | None = None) -> _Analysis:
+    """Fit each curve (on ``strain_range``, fractions); with several, summarize them and fit
+    their average.
+
+    Raises
+    ------
+    CurveError
+        If a curve cannot be fitted; the message starts with the curve's source.
+    """
     from espin.experiments import average_curves
-    from espin.properties import curve_properties, summarize_properties
+    from espin.properties import CurveError, curve_properties, summarize_properties
+
+    def fit(source: str, strain, stress) -> CurveProperties:
+        try:
+            return curve_properties(strain, stress, strain_range=strain_range)
+        except CurveError as err:
+            raise CurveError(f"{source}: {err}") from None
 
     short = [Path(c.source).name for c in curves]
     names = short if len(set(short)) == len(short) else [c.source for c in curves]
-    fitted = [curve_properties(c.strain, c.stress_MPa) for c in curves]
+    fitted = [fit(c.source, c.strain, c.stress_MPa) for c in curves]
     rows = [_row(name, props) for name, props in zip(names, fitted)]
     records = [{"curve": c.source} | p.as_dict() for c, p in zip(curves, fitted)]
     average = average_props = None
@@ -106,7 +157,7 @@ def _analyse(curves: list[Curve]) -> _Analysis:
         rows.append(_summary_row(summary, len(curves)))
         records += _summary_records(summary, len(curves))
         average = average_curves(curves)
-        average_props = curve_properties(average.strain, average.mean_MPa)
+        average_props = fit("the average curve", average.strain, average.mean_MPa)
         rows.append(_row("average curve", average_props))
         records.append({"curve": "average"} | average_props.as_dict())
     return _Analysis(names, curves, fitted, average, average_props, rows, records)
@@ -140,13 +191,16 @@ def register(app: typer.Typer) -> None:
         ],
         strain_column: Annotated[
             Optional[str],
-            typer.Option(help="Strain column: 0-based index or header name. Default: 'strain' "
-                              "if the header has it, else 0."),
+            typer.Option(help="Strain column: 0-based index or header name (any case). "
+                              "Default: the header's 'strain' column; 0 without a header or "
+                              "with two columns."),
         ] = None,
         stress_column: Annotated[
             Optional[str],
-            typer.Option(help="Stress column [MPa]: 0-based index or header name. Default: "
-                              "'stress_MPa' or 'mean_MPa' if the header has it, else 1."),
+            typer.Option(help="Stress column [MPa]: 0-based index or header name (any case). "
+                              "Default: the header's 'stress_MPa', 'stress [MPa]', "
+                              "'stress (MPa)', 'stress' or 'mean_MPa' column; 1 without a header "
+                              "or with two columns."),
         ] = None,
         percent_strain: Annotated[bool, typer.Option(help="The strain column is in percent.")] = False,
         delimiter: Annotated[
@@ -154,6 +208,13 @@ def register(app: typer.Typer) -> None:
             typer.Option(help="Field separator (',', ';', tab, space). Default: detected."),
         ] = None,
         skip_rows: Annotated[int, typer.Option(help="Lines to skip at the top of each file.")] = 0,
+        strain_range: Annotated[
+            Optional[str],
+            typer.Option(metavar="LO:HI",
+                         help="Fit only the points with LO <= strain <= HI, in the strain "
+                              "column's units (percent with --percent-strain); either end may "
+                              "be empty, e.g. 0.02: to leave out a toe region. Default: all."),
+        ] = None,
         out: Annotated[
             Optional[Path],
             typer.Option("--out", "-o", help="Folder for properties.csv, the averaged curve "
@@ -180,7 +241,8 @@ def register(app: typer.Typer) -> None:
             "skip_rows": skip_rows,
         }
         try:
-            analysis = _analyse([read_curve(path, **options) for path in curves])
+            fit_range = _strain_range(strain_range, percent_strain)
+            analysis = _analyse([read_curve(path, **options) for path in curves], fit_range)
             written = [] if out is None else _write_outputs(analysis, out)
         except EspinError as err:
             _fail(str(err))

@@ -10,9 +10,14 @@ can then be chosen by name as well as by 0-based index. Strain is engineering st
 (0.01 = 1 %; ``percent_strain=True`` reads percent), stress is in MPa. The strain must
 increase from line to line (a monotonic loading: cut unloading parts and repeated points).
 
-Without explicit columns, a header with a ``strain`` column and a ``stress_MPa`` (espin's own
-``curve.csv``) or ``mean_MPa`` column (an averaged curve written by
-:meth:`AveragedCurve.to_csv`) is read by those names; any other file by columns 0 and 1.
+Without explicit columns, default names are looked for in the header, case-insensitively:
+``strain`` for the strain, and for the stress the first of ``stress_MPa`` (espin's own
+``curve.csv``), ``stress [MPa]``, ``stress (MPa)``, ``stress`` and ``mean_MPa`` (an averaged
+curve written by :meth:`AveragedCurve.to_csv`). A column not found by name is column 0
+(strain) or 1 (stress) only when the file has no header or exactly two columns; a header with
+more columns and no default name is an error listing its columns (choose them with
+``strain_column`` / ``stress_column``, ``--strain-column`` / ``--stress-column`` on the command
+line). Strain and stress resolving to the same column is an error.
 
 A bad file raises :class:`CurveFileError` naming the file and the line.
 
@@ -43,7 +48,7 @@ from espin.io.atomic import atomic_write_bytes
 __all__ = ["CurveFileError", "Curve", "AveragedCurve", "read_curve", "average_curves"]
 
 _STRAIN_NAMES = ("strain",)
-_STRESS_NAMES = ("stress_MPa", "mean_MPa")
+_STRESS_NAMES = ("stress_MPa", "stress [MPa]", "stress (MPa)", "stress", "mean_MPa")
 _DELIMITERS = ("\t", ";", ",")
 
 
@@ -148,11 +153,20 @@ def _column_index(path: Path, column: int | str | None, header: list[str] | None
                   defaults: tuple[str, ...], fallback: int, what: str) -> int:
     """0-based index of a column given by index, by name, or by default (module docs)."""
     if column is None:
-        if header is not None:
-            found = [header.index(name) for name in defaults if name in header]
-            if found:
-                return found[0]
-        return fallback
+        if header is None:
+            return fallback
+        lowered = [name.lower() for name in header]
+        found = [lowered.index(name.lower()) for name in defaults if name.lower() in lowered]
+        if found:
+            return found[0]
+        if len(header) == 2:
+            return fallback
+        raise CurveFileError(
+            f"{path}, line {line}: the header has no column with a default {what} name "
+            f"({', '.join(defaults)}; any case), and with {len(header)} columns "
+            f"({', '.join(repr(name) for name in header)}) there is no default by position: "
+            f"choose it by name or 0-based index with --{what}-column ({what}_column= in Python)"
+        )
     if isinstance(column, int):
         if column < 0:
             raise CurveFileError(f"{path}: {what} column index must be >= 0, got {column}")
@@ -216,9 +230,11 @@ def read_curve(
     path
         The file (format in the module docs).
     strain_column, stress_column
-        0-based index or header name of the strain and stress [MPa] columns. Default: the
-        ``strain`` and ``stress_MPa`` / ``mean_MPa`` columns of a file with such a header
-        (espin's ``curve.csv``, an averaged curve), else columns 0 and 1.
+        0-based index or header name (any case) of the strain and stress [MPa] columns.
+        Default: the header's ``strain`` column and its first of ``stress_MPa``,
+        ``stress [MPa]``, ``stress (MPa)``, ``stress``, ``mean_MPa`` (any case; espin's
+        ``curve.csv``, an averaged curve); columns 0 and 1 for a file without a header or
+        with exactly two columns; otherwise an error listing the header's columns.
     percent_strain
         The strain column is in percent.
     delimiter
@@ -235,8 +251,9 @@ def read_curve(
     Raises
     ------
     CurveFileError
-        If the file cannot be read or is empty, a column is missing, a value is not a finite
-        number, or the strain does not increase; the message names the file and the line.
+        If the file cannot be read or is empty, a column is missing or cannot be chosen by
+        default, strain and stress are the same column, a value is not a finite number, or
+        the strain does not increase; the message names the file and the line.
     """
     path = Path(path)
     if skip_rows < 0:
@@ -249,6 +266,15 @@ def read_curve(
         rows = rows[1:]
     x_col = _column_index(path, strain_column, header, header_line, _STRAIN_NAMES, 0, "strain")
     y_col = _column_index(path, stress_column, header, header_line, _STRESS_NAMES, 1, "stress")
+    if x_col == y_col:
+        where = f"{path}, line {header_line}" if header is not None else str(path)
+        named = header is not None and x_col < len(header)
+        column = f"{header[x_col]!r} (index {x_col})" if named else f"{x_col}"
+        raise CurveFileError(
+            f"{where}: strain and stress would both be read from column {column}; they must be "
+            "different columns: give --strain-column and --stress-column (strain_column= and "
+            "stress_column= in Python)"
+        )
     if len(rows) < 2:
         raise CurveFileError(f"{path}: {len(rows)} data line(s); a curve needs at least 2")
     x_label, y_label = _label(header, x_col, "strain"), _label(header, y_col, "stress")

@@ -40,7 +40,10 @@ fewer than six points; a bilinear fit no better than a straight line (F statisti
 extra parameters below 20: a straight line with noise rarely exceeds 10 with an optimized
 breakpoint); the best breakpoint at an end of the data; a post-yield slope above
 ``max_slope_ratio`` (default 1/2) of the elastic modulus (nearly equal slopes, or a stiffening
-curve); a non-positive initial slope; or lines that meet outside the data.
+curve); a non-positive initial slope; or lines that meet outside the data. A constant stress
+(to a relative 1e-9; e.g. all zero: a wrong column, or a mat that carries no load) gives
+``modulus_MPa = 0`` and a NaN ``strain_offset`` and ``r_squared``: a flat line has no zero
+crossing (nor has a line flat to rounding, whose offset is NaN too).
 
 Units: strain dimensionless (engineering, 0.01 = 1 %), stress and moduli MPa.
 """
@@ -171,8 +174,11 @@ def _r_squared(y: np.ndarray, model: np.ndarray) -> float:
 
 
 def _check_curve(strain: ArrayLike, stress: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-    x = np.asarray(strain, dtype=float)
-    y = np.asarray(stress, dtype=float)
+    try:
+        x = np.asarray(strain, dtype=float)
+        y = np.asarray(stress, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise CurveError(f"strain and stress must be arrays of numbers ({err})") from None
     if x.ndim != 1 or x.shape != y.shape:
         raise CurveError(
             f"strain and stress must be 1-D arrays of one length, got shapes {x.shape} and {y.shape}"
@@ -190,9 +196,14 @@ def _check_curve(strain: ArrayLike, stress: ArrayLike) -> tuple[np.ndarray, np.n
 
 
 def _no_yield(x: np.ndarray, y: np.ndarray, note: str) -> CurveProperties:
-    """One straight line through all points, no yield quantities."""
+    """One straight line through all points, no yield quantities.
+
+    The strain offset is NaN when the line is flat to rounding (its zero crossing would be
+    rounding noise far outside the data).
+    """
     intercept, slope = _line(x, y)
-    offset = -intercept / slope if slope != 0.0 else math.nan
+    flat = abs(slope) * float(np.ptp(x)) <= _ROUNDING * float(np.abs(y).max())
+    offset = math.nan if flat else -intercept / slope
     return CurveProperties(
         modulus_MPa=slope, yield_stress_MPa=math.nan, yield_strain=math.nan,
         post_yield_modulus_MPa=math.nan, has_yield=False,
@@ -201,13 +212,59 @@ def _no_yield(x: np.ndarray, y: np.ndarray, note: str) -> CurveProperties:
 
 
 def _elastic_window(x: np.ndarray, knee: float, fraction: float) -> np.ndarray:
-    """Mask of the points the elastic line is fitted on (module docs, step 2)."""
+    """Mask of the points the elastic line is fitted on (module docs, step 2).
+
+    At least three points when the knee has them, and always two distinct strains (repeated
+    strains at the start of a curve would leave the line's slope undetermined).
+    """
     window = x <= x[0] + fraction * (knee - x[0])
     before_knee = int(np.count_nonzero(x <= knee))
     wanted = min(_MIN_POINTS_PER_LINE, before_knee)
     if np.count_nonzero(window) < wanted:
         window = np.arange(len(x)) < wanted
+    if len(np.unique(x[window])) < 2:
+        window = x <= x[x > x[0]][0]  # up to the second distinct strain (x has two or more)
     return window
+
+
+def _check_strain_range(strain_range: object) -> tuple[float, float]:
+    """(lo, hi) of a ``strain_range`` option, None as -inf / inf."""
+    rule = "strain_range must be (min, max) strains with min < max, either None"
+    if not isinstance(strain_range, (tuple, list)) or len(strain_range) != 2:
+        raise CurveError(f"{rule}, got {strain_range!r}")
+    bounds = []
+    for value, default in zip(strain_range, (-math.inf, math.inf)):
+        if value is None:
+            bounds.append(default)
+            continue
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            raise CurveError(f"{rule}, got {strain_range!r}") from None
+        if not math.isfinite(number):
+            raise CurveError(f"{rule} (finite numbers), got {strain_range!r}")
+        bounds.append(number)
+    lo, hi = bounds
+    if not lo < hi:
+        raise CurveError(f"{rule}, got {strain_range!r}")
+    return lo, hi
+
+
+def _constant_stress(x: np.ndarray, y: np.ndarray) -> CurveProperties:
+    """The result for a stress that is constant to rounding (module docs, "No clear yield")."""
+    return CurveProperties(
+        modulus_MPa=0.0, yield_stress_MPa=math.nan, yield_strain=math.nan,
+        post_yield_modulus_MPa=math.nan, has_yield=False, r_squared=math.nan,
+        note=f"the stress is constant ({float(np.mean(y)):.4g} MPa at all {len(x)} points): "
+             "no elastic slope and no yield (a wrong stress column, or no load carried?)",
+        strain_offset=math.nan,
+    )
+
+
+def _scaled(props: CurveProperties, scale: float) -> CurveProperties:
+    """``props`` of a stress divided by ``scale``, back in MPa (strains and R^2 unchanged)."""
+    stresses = ("modulus_MPa", "yield_stress_MPa", "post_yield_modulus_MPa")
+    return CurveProperties(**(props.as_dict() | {name: getattr(props, name) * scale for name in stresses}))
 
 
 def curve_properties(
@@ -247,8 +304,17 @@ def curve_properties(
     Raises
     ------
     CurveError
-        If the arrays differ in shape, hold NaN or infinities, the strain decreases, or fewer
-        than two points lie in ``strain_range``; or an option is out of its range.
+        If the arrays are not 1-D arrays of numbers of one length, hold NaN or infinities, the
+        strain decreases, or fewer than two distinct strains lie in ``strain_range``; or an
+        option is out of its range.
+
+    Notes
+    -----
+    A stress that is constant (to a relative 1e-9) gives ``has_yield=False``,
+    ``modulus_MPa=0``, NaN ``strain_offset`` and ``r_squared`` and a note; fewer than six
+    points give one straight line and a note. The fit runs on the stress divided by a power
+    of two near its largest magnitude (an exact scaling), so tiny or huge stresses neither
+    underflow nor overflow.
     """
     if not 0.0 < elastic_fraction <= 1.0:
         raise CurveError(f"elastic_fraction must be in (0, 1], got {elastic_fraction}")
@@ -256,20 +322,34 @@ def curve_properties(
         raise CurveError(f"max_slope_ratio must be in (0, 1), got {max_slope_ratio}")
     x, y = _check_curve(strain, stress)
     if strain_range is not None:
-        lo, hi = (-np.inf if strain_range[0] is None else strain_range[0],
-                  np.inf if strain_range[1] is None else strain_range[1])
+        lo, hi = _check_strain_range(strain_range)
         keep = (x >= lo) & (x <= hi)
         x, y = x[keep], y[keep]
     distinct = len(np.unique(x))
     if distinct < 2:
-        raise CurveError(f"a curve needs at least two distinct strains to fit, got {distinct}")
+        within = "" if strain_range is None else f" within strain_range {tuple(strain_range)!r}"
+        raise CurveError(f"a curve needs at least two distinct strains{within} to fit, got {distinct}")
+    largest = float(np.abs(y).max())
+    if np.ptp(y) <= _ROUNDING * largest:  # also an all-zero stress
+        return _constant_stress(x, y)
+    scale = math.ldexp(1.0, math.frexp(largest)[1] - 1)  # a power of two: y / scale is exact
+    return _scaled(_bilinear_fit(x, y / scale, scale, elastic_fraction, max_slope_ratio), scale)
+
+
+def _bilinear_fit(x: np.ndarray, y: np.ndarray, scale: float, elastic_fraction: float,
+                  max_slope_ratio: float) -> CurveProperties:
+    """:func:`curve_properties` of a checked curve whose stress is divided by ``scale``.
+
+    The result is in the divided units too; notes quote stresses in MPa (times ``scale``).
+    """
     if len(x) < 2 * _MIN_POINTS_PER_LINE:
         return _no_yield(x, y, f"only {len(x)} points: too few to fit two lines (need 6)")
 
     line_sse = float(np.sum((y - np.polyval(np.polyfit(x, y, 1), x)) ** 2))
     knee = _best_breakpoint(x, y)
     hinge_sse, (a, knee_slope, post_slope) = _hinge(x, y, knee)
-    # Rounding floor of the residuals, so an exact straight line is not a "significant" hinge.
+    # Rounding floor of the residuals, so an exact straight line is not a "significant" hinge
+    # (max |y| is in [1, 2) here, so the floor is never zero).
     hinge_sse = max(hinge_sse, len(x) * (_ROUNDING * float(np.abs(y).max())) ** 2)
     f_statistic = (line_sse - hinge_sse) / 2.0 / (hinge_sse / (len(x) - 4))
     if f_statistic < _MIN_F_STATISTIC:
@@ -281,11 +361,12 @@ def curve_properties(
     window = _elastic_window(x, knee, elastic_fraction)
     elastic_intercept, modulus = _line(x[window], y[window])
     if modulus <= 0.0:
-        return _no_yield(x, y, f"the initial slope ({modulus:.4g} MPa) is not positive")
+        return _no_yield(x, y, f"the initial slope ({modulus * scale:.4g} MPa) is not positive")
     if post_slope > max_slope_ratio * modulus:
         return _no_yield(
-            x, y, f"the post-yield slope ({post_slope:.4g} MPa) is {post_slope / modulus:.0%} of the "
-            f"initial slope ({modulus:.4g} MPa), above {max_slope_ratio:.0%}: no clear yield",
+            x, y, f"the post-yield slope ({post_slope * scale:.4g} MPa) is {post_slope / modulus:.0%} "
+            f"of the initial slope ({modulus * scale:.4g} MPa), above {max_slope_ratio:.0%}: no clear "
+            "yield",
         )
     post_intercept = a + (knee_slope - post_slope) * knee
     yield_at = (post_intercept - elastic_intercept) / (modulus - post_slope)
