@@ -1,7 +1,8 @@
 """espin: virtual electrospun fiber mats and their mechanics.
 
-Pipeline: config -> deposition (fibers as polylines) -> cross-links -> network ->
-(mechanics) -> homogenized stress -> curves and properties.
+Pipeline: (SEM image -> measured distributions -> deposition parameters) -> config ->
+deposition (fibers as polylines) -> cross-links -> network -> mechanics -> homogenized stress
+-> curves and properties -> (calibration against experiments, ensembles and studies).
 
 Units inside espin: length um, stress MPa, force uN (= MPa um^2), time s, angles rad.
 At the user-facing edge (configs, CLI, tables, plots) angles are in degrees.
@@ -29,6 +30,16 @@ _EXPORTS = {
     "load_results": "espin.io.results_file",
     "network_statistics": "espin.statistics",
     "window_tortuosity": "espin.statistics",
+    "curve_properties": "espin.properties",
+    "simulation_properties": "espin.properties",
+    "read_curve": "espin.experiments",
+    "average_curves": "espin.experiments",
+    "fit": "espin.calibration",
+    "sweep": "espin.studies",
+    "rve_size_study": "espin.studies",
+    "dof_study": "espin.dof_study",
+    "measure": "espin.sem",
+    "calibrate_geometry": "espin.geometry_calibration",
 }
 
 __all__ = ["__version__", *_EXPORTS]
