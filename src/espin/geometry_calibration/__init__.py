@@ -1,0 +1,305 @@
+"""Deposition parameters whose mat, measured like an SEM image, matches measured distributions.
+
+:func:`calibrate_geometry` takes measured (or typed-in) distributions of fiber diameter,
+orientation and tortuosity (:class:`espin.geometry_targets.GeometryTargets`) and a base
+config, and returns a config whose virtual mat, measured the same way (portions of fibers
+visible in the same square observation window, :func:`espin.statistics.window_tortuosity`),
+matches them. The other keys of the base config are kept.
+
+Method (docs/geometry_calibration.md)
+-------------------------------------
+1. **Diameters** are set directly: a normal with the sample's mean and sd, truncated below at
+   ``rve.diameter_min_um`` as the deposition draws it; when the truncation matters the
+   parent normal is solved for so that the *truncated* distribution has the target mean and
+   sd.
+2. **Tortuosity.** The visible tortuosity depends on the walk (segment length l_s and largest
+   turn theta_max) through, mainly, its persistence length
+   ``l_p = -l_s / ln(sin theta_max / theta_max)`` relative to the window: pairs along a curve
+   of constant l_p give nearly the same distribution, so only one combination is identifiable.
+   One parameter is searched with the other fixed (default: ``max_deviation_deg`` at the base
+   segment length), minimizing the Kolmogorov-Smirnov distance between the visible tortuosity
+   of generated mats and the target: a coarse grid, then a bounded scalar refinement. Mats are
+   small RVEs (side twice the window) over fixed seeds (common random numbers), so the
+   objective is deterministic. With ``fit="both"`` the search is repeated over a grid of
+   segment lengths and the whole valley is reported; of the points whose KS lies within the
+   sampling spread (1 / sqrt(n)) of the best, the one nearest the base segment length is
+   kept, since the window cannot tell them apart.
+3. **Orientation**: uniform, or an axial von Mises fitted to the sample (uniform when a
+   Rayleigh test on the doubled angles does not reject isotropy at 1 %). The deposition walk
+   widens the visible distribution (a fiber forgets its direction over about l_p / 4), so the
+   deposition kappa is raised until the visible order parameter, measured in the RVE of the
+   written config, matches the target's; where even kappa = 700 cannot, the closest is kept
+   and a warning says so.
+
+New deposition parameters change the network and thus the mechanics: the fiber parameters
+must be fitted again (``espin fit``) before stresses of the calibrated mat mean anything.
+
+Units: um, degrees at the edge (configs, reports); radians inside.
+
+The package: :mod:`~espin.geometry_calibration.fits` (persistence, von Mises and truncated
+normal fits), :mod:`~espin.geometry_calibration.virtual` (the virtual SEM),
+:mod:`~espin.geometry_calibration.matching` (targets and KS matches),
+:mod:`~espin.geometry_calibration.search` (walk and kappa searches),
+:mod:`~espin.geometry_calibration.result` (:class:`GeometryCalibration`) and
+:mod:`~espin.geometry_calibration.options` (config plumbing); :func:`calibrate_geometry`
+is here.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from espin.config import Config, config_from_dict
+from espin.errors import ConfigError
+from espin.geometry_calibration.fits import (
+    KAPPA_MAX,
+    fit_axial_von_mises,
+    persistence_ratio,
+    truncated_normal_parameters,
+)
+from espin.geometry_calibration.matching import (
+    ISOTROPY_P_VALUE,
+    DistributionMatch,
+    _diameter_target,
+    _orientation_spec,
+    _tortuosity_target,
+)
+from espin.geometry_calibration.options import (
+    _base_rve_data,
+    _check_options,
+    _diameter_keys,
+    _fitted,
+    _resolve_base,
+    _window,
+    _with_section,
+)
+from espin.geometry_calibration.result import (
+    MECHANICS_NOTE,
+    SCHEMA,
+    SCHEMA_VERSION,
+    GeometryCalibration,
+)
+from espin.geometry_calibration.search import (
+    DEVIATION_GRID_STEP_DEG,
+    DEVIATION_RANGE_DEG,
+    SEGMENT_RATIO_MAX_FRACTION,
+    SEGMENT_RATIO_MIN,
+    VALLEY_SEGMENT_RATIOS,
+    ValleyPoint,
+    _correct_kappa,
+    _fit_walk,
+    _Objective,
+)
+from espin.geometry_calibration.virtual import (
+    VirtualMeasurement,
+    _layers_per_seed,
+    _validated_rve,
+)
+from espin.geometry_targets import GeometryTargets, MeasurementError
+
+__all__ = [
+    "MECHANICS_NOTE",
+    "DistributionMatch",
+    "ValleyPoint",
+    "VirtualMeasurement",
+    "GeometryCalibration",
+    "calibrate_geometry",
+    "persistence_ratio",
+    "fit_axial_von_mises",
+    "truncated_normal_parameters",
+    # constants (those of the submodules re-exported)
+    "SCHEMA",
+    "SCHEMA_VERSION",
+    "ISOTROPY_P_VALUE",
+    "KAPPA_MAX",
+    "DEVIATION_RANGE_DEG",
+    "DEVIATION_GRID_STEP_DEG",
+    "SEGMENT_RATIO_MIN",
+    "SEGMENT_RATIO_MAX_FRACTION",
+    "VALLEY_SEGMENT_RATIOS",
+    "SEARCH_SIDE_OVER_WINDOW",
+    "Fit",
+]
+
+log = logging.getLogger(__name__)
+
+SEARCH_SIDE_OVER_WINDOW = 2.0
+"""Side of the search RVE over the window side (the window sits in its central quarter)."""
+Fit = Literal["deviation", "segment", "both"]
+
+
+def calibrate_geometry(
+    targets_or_path: GeometryTargets | str | Path,
+    base: Config | str | Path | None = None,
+    *,
+    fit: Fit = "deviation",
+    segment_ratio: float | None = None,
+    max_deviation_deg: float | None = None,
+    segment_ratios: tuple[float, ...] = VALLEY_SEGMENT_RATIOS,
+    window_um: float | None = None,
+    correct_orientation: bool = True,
+    seeds: int = 8,
+    seed: int = 0,
+    min_portions: int = 1000,
+    progress: Callable[[str], None] | None = None,
+) -> GeometryCalibration:
+    """Find deposition parameters whose mat, measured in the same window, matches the targets.
+
+    Parameters
+    ----------
+    targets_or_path
+        :class:`GeometryTargets`, a ``fibers.csv`` or a folder written by ``espin measure``.
+    base
+        Config, preset name or TOML whose other keys are kept (default ``plla``).
+    fit
+        Walk parameter(s) searched to match the tortuosity: ``"deviation"``
+        (``rve.max_deviation_deg``, default), ``"segment"`` (``rve.segment_ratio``) or
+        ``"both"`` (deviation searched at several segment lengths; the valley is reported,
+        and of the equally good points the one nearest the base segment length is kept).
+    segment_ratio
+        Fixed segment length over D when it is not searched (default: the base's).
+    max_deviation_deg : float [deg]
+        Fixed largest turn when it is not searched (default: the base's).
+    segment_ratios
+        Segment lengths over D at which ``fit="both"`` searches the deviation (those longer
+        than a third of the window are skipped).
+    window_um : float [um]
+        Observation window side when the targets carry no field of view (default
+        ``output.window_ratio`` D of the calibrated diameter, 50 D).
+    correct_orientation
+        Raise the deposition kappa of an aligned target so that the visible orientation
+        matches (the walk widens it).
+    seeds
+        Mats per evaluation (fixed seeds: common random numbers).
+    seed
+        Seeds the list of mat seeds.
+    min_portions
+        Fewest visible fiber portions per evaluation (sets the layers per mat).
+    progress
+        Called with a short message after each evaluation.
+
+    Returns
+    -------
+    GeometryCalibration
+        The calibrated config, the per-distribution match and the search record.
+
+    Raises
+    ------
+    EspinError
+        ConfigError or MeasurementError for bad options or targets, before any work.
+    """
+    started = time.perf_counter()
+    _check_options(fit, segment_ratio, max_deviation_deg, seeds, min_portions, window_um)
+    targets = (targets_or_path if isinstance(targets_or_path, GeometryTargets)
+               else GeometryTargets.from_path(targets_or_path))
+    if targets.is_empty:
+        raise MeasurementError(
+            "no targets: give measured fibers (diameter_um, orientation_deg or tortuosity "
+            "columns) or typed-in diameter, orientation or tortuosity"
+        )
+    base_config = _resolve_base(base)
+    rve = _base_rve_data(base_config)
+    parameters: dict[str, Any] = {}
+    warnings: list[str] = []
+    notes: list[str] = []
+
+    # 1. Diameters.
+    if targets.has_diameter:
+        rve |= _diameter_keys(targets, base_config)
+        parameters |= {f"rve.{k}": rve[k] for k in ("diameter_um", "diameter_sd_um")}
+    calibrated_d = _validated_rve(rve).diameter_um
+
+    # 2. The window and how mats are measured.
+    draft = config_from_dict(_with_section(base_config, rve, {}), "(geometry calibration)")
+    window, window_source = _window(targets, window_um, draft)
+    min_chord = targets.min_chord_um
+    if min_chord is None:
+        from espin.statistics import DEFAULT_MIN_CHORD_FRACTION
+
+        min_chord = DEFAULT_MIN_CHORD_FRACTION * window
+    seed_list = tuple(int(s) for s in np.random.SeedSequence(seed).generate_state(seeds))
+    search_side = SEARCH_SIDE_OVER_WINDOW * window
+    base_side = draft.rve.side_um
+    check_side = base_side if window <= base_side else search_side
+    if window > base_side:
+        warnings.append(
+            f"the observation window ({window:.4g} um) is larger than the layer of the config "
+            f"({base_side:.4g} um): the calibration measured layers of {search_side:.4g} um, while "
+            "espin generate with this config measures its whole layer (a smaller window)"
+        )
+    measurement = VirtualMeasurement(window, float(min_chord), seed_list, 1)
+    if targets.has_orientation:
+        orientation, orientation_target, found = _orientation_spec(targets)
+        notes += found
+        rve["orientation"] = orientation
+    layers = _layers_per_seed(measurement, rve, search_side, min_portions)
+    measurement = VirtualMeasurement(window, float(min_chord), seed_list, layers)
+    evaluations = 0
+
+    # 3. Tortuosity: the walk.
+    valley: list[ValleyPoint] = []
+    if targets.has_tortuosity:
+        objective = _Objective(measurement, rve, search_side, _tortuosity_target(targets), progress)
+        largest_segment = SEGMENT_RATIO_MAX_FRACTION * window / calibrated_d
+        if largest_segment <= SEGMENT_RATIO_MIN:
+            raise ConfigError(
+                f"the observation window ({window:.4g} um) is too small to measure tortuosity: "
+                f"it must exceed {SEGMENT_RATIO_MIN / SEGMENT_RATIO_MAX_FRACTION:g} D"
+            )
+        start = _validated_rve(rve)
+        sr = segment_ratio if segment_ratio is not None else start.segment_length_um / calibrated_d
+        dev = max_deviation_deg if max_deviation_deg is not None else start.max_deviation_deg
+        sr, dev, valley, problem = _fit_walk(objective, fit, sr, dev, largest_segment, segment_ratios)
+        if problem:
+            warnings.append(problem)
+        rve |= {"segment_ratio": float(sr), "max_deviation_deg": float(dev)}
+        rve.pop("segment_um", None)
+        parameters |= {"rve.segment_ratio": float(sr), "rve.max_deviation_deg": float(dev),
+                       "persistence_ratio": persistence_ratio(sr, dev)}
+        evaluations += len(objective.cache)
+
+    # 4. Orientation: correct the deposition kappa for the widening by the walk.
+    if targets.has_orientation:
+        spec = rve["orientation"]
+        if isinstance(spec, dict) and correct_orientation:
+            vm = spec["von_mises"]
+            order = dict(orientation_target.summary)["order"]
+            kappa, problem, n = _correct_kappa(measurement, rve, check_side, vm["mean_deg"],
+                                               vm["kappa"], order, progress)
+            evaluations += n
+            spec = {"von_mises": {"mean_deg": vm["mean_deg"], "kappa": kappa}}
+            rve["orientation"] = spec
+            if problem:
+                warnings.append(problem)
+        parameters["rve.orientation"] = spec
+
+    # 5. The written config and its match, measured on mats of that config.
+    output = {"window_ratio": float(f"{window / calibrated_d:.6g}")}
+    config = config_from_dict(_with_section(base_config, rve, output), "(calibrated)")
+    parameters["output.window_ratio"] = output["window_ratio"]
+    parameters["fitted"] = _fitted(targets, fit)
+    seen = measurement.measure(_base_rve_data(config), check_side)
+    evaluations += 1
+    matches = []
+    if targets.has_tortuosity:
+        matches.append(_tortuosity_target(targets).compare(seen["tortuosity"]))
+    if targets.has_orientation:
+        matches.append(orientation_target.compare(seen["orientation_deg"]))
+    if targets.has_diameter:
+        matches.append(_diameter_target(targets).compare(seen["diameter_um"]))
+    search = {
+        "window_um": window, "window_source": window_source, "min_chord_um": float(min_chord),
+        "seeds": list(seed_list), "layers": layers, "search_side_um": search_side,
+        "check_side_um": check_side, "evaluations": evaluations,
+        "elapsed_s": time.perf_counter() - started, "notes": notes,
+    }
+    for w in warnings:
+        log.info("calibration warning: %s", w)
+    return GeometryCalibration(config, base_config, targets, parameters, tuple(matches),
+                               tuple(valley), search, tuple(warnings))
