@@ -1,0 +1,193 @@
+"""Measured curves in (arrays, Curve objects, CSV files), validated; synthetic measured curves."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from espin.calibration.model import _default_steps, _simulate_task, _Task
+from espin.config import Config, apply_overrides, config_to_toml
+from espin.errors import ConfigError, SolverError
+
+
+@dataclass(frozen=True, eq=False)
+class FittedCurve:
+    """A measured curve and the model along it.
+
+    Attributes
+    ----------
+    strain_rate_per_s : float [1/s]
+        Strain rate of the test (and of the simulations).
+    strain : (m,) float64
+        Measured engineering strains (> 0).
+    stress_MPa : (m,) float64 [MPa]
+        Measured (mean) stress.
+    sd_MPa : (m,) float64 [MPa] or None
+        Standard deviation between specimens, when the curve is an average.
+    model_MPa : (m,) float64 [MPa] or None
+        Mean model stress over the realizations at the fitted values (None before a fit).
+    model_sd_MPa : (m,) float64 [MPa] or None
+        Standard deviation of the model stress between realizations.
+    source : str
+        Where the curve came from (file names or ``"arrays"``).
+    """
+
+    strain_rate_per_s: float
+    strain: np.ndarray
+    stress_MPa: np.ndarray
+    sd_MPa: np.ndarray | None = None
+    model_MPa: np.ndarray | None = None
+    model_sd_MPa: np.ndarray | None = None
+    source: str = "arrays"
+
+    @property
+    def max_strain(self) -> float:
+        """Largest measured strain (the simulations run to it)."""
+        return float(self.strain[-1])
+
+
+CurveLike = Any
+"""(strain, stress) arrays, an ``espin.experiments`` Curve or AveragedCurve, a CSV path, or
+a sequence of CSV paths (read and averaged)."""
+
+
+def _is_path(value: Any) -> bool:
+    return isinstance(value, (str, Path))
+
+
+def _read_files(paths: Sequence[str | Path], read_options: Mapping[str, Any]) -> Any:
+    from espin.experiments import average_curves, read_curve
+
+    curves = [read_curve(p, **read_options) for p in paths]
+    return curves[0] if len(curves) == 1 else average_curves(curves)
+
+
+def _measured(curve: CurveLike, rate: float, read_options: Mapping[str, Any]) -> FittedCurve:
+    """A validated :class:`FittedCurve` (no model yet) from any accepted curve form."""
+    source = "arrays"
+    if _is_path(curve) or (isinstance(curve, Sequence) and curve and all(_is_path(c) for c in curve)):
+        paths = [curve] if _is_path(curve) else list(curve)
+        source = ", ".join(Path(p).name for p in paths)
+        curve = _read_files(paths, read_options)
+    sd = None
+    if hasattr(curve, "mean_MPa"):
+        strain, stress, sd = curve.strain, curve.mean_MPa, curve.sd_MPa
+    elif hasattr(curve, "stress_MPa"):
+        strain, stress, sd = curve.strain, curve.stress_MPa, getattr(curve, "sd_MPa", None)
+        source = str(getattr(curve, "source", source))
+    elif isinstance(curve, Sequence) and len(curve) == 2:
+        strain, stress = curve
+    else:
+        raise ConfigError(
+            "curve: expected (strain, stress) arrays, a Curve or AveragedCurve, or CSV paths "
+            f"(got {type(curve).__name__})"
+        )
+    return _validated_curve(rate, strain, stress, sd, source)
+
+
+def _validated_curve(rate: float, strain: Any, stress: Any, sd: Any, source: str) -> FittedCurve:
+    strain = np.asarray(strain, dtype=float)
+    stress = np.asarray(stress, dtype=float)
+    sd = None if sd is None else np.asarray(sd, dtype=float)
+    if strain.ndim != 1 or strain.shape != stress.shape or (sd is not None and sd.shape != strain.shape):
+        raise ConfigError(f"curve {source}: strain and stress must be 1-D arrays of equal length")
+    if not (np.all(np.isfinite(strain)) and np.all(np.isfinite(stress))):
+        raise ConfigError(f"curve {source}: strain and stress must be finite")
+    if strain.size < 2 or np.any(np.diff(strain) <= 0) or strain[0] < 0:
+        raise ConfigError(f"curve {source}: strains must be >= 0 and strictly increasing")
+    if not (np.isfinite(rate) and rate > 0):
+        raise ConfigError(f"strain_rate_per_s: must be > 0 (got {rate!r})")
+    keep = strain > 0  # the origin carries no information
+    return FittedCurve(
+        strain_rate_per_s=float(rate),
+        strain=strain[keep],
+        stress_MPa=stress[keep],
+        sd_MPa=None if sd is None else sd[keep],
+        source=source,
+    )
+
+
+def _measured_curves(
+    curve: CurveLike | Mapping[float, CurveLike], rate: float | None, base: Config,
+    read_options: Mapping[str, Any],
+) -> list[FittedCurve]:
+    """The curves to fit, each with its strain rate (a mapping gives one curve per rate)."""
+    if isinstance(curve, Mapping):
+        if rate is not None:
+            raise ConfigError(
+                "strain_rate_per_s: give it for a single curve, or give curves as a mapping "
+                "rate -> curve, not both"
+            )
+        if not curve:
+            raise ConfigError("curve: the mapping rate -> curve is empty")
+        curves = [_measured(c, float(r), read_options) for r, c in sorted(curve.items())]
+    else:
+        curves = [_measured(curve, base.loading.strain_rate_per_s if rate is None else rate, read_options)]
+    rates = [c.strain_rate_per_s for c in curves]
+    if len(set(rates)) != len(rates):
+        raise ConfigError(f"curve: each strain rate may appear once (got {rates})")
+    return curves
+
+
+def synthetic_curve(
+    config: Config | str | Path,
+    strain: Sequence[float] | np.ndarray,
+    *,
+    seeds: Sequence[int],
+    strain_rate_per_s: float | None = None,
+    steps: int | None = None,
+    noise_sd_MPa: float = 0.0,
+    rng: np.random.Generator | int | None = None,
+) -> FittedCurve:
+    """A synthetic measured curve: one specimen per seed (an RVE realization) plus noise.
+
+    Each specimen is the simulated stress at ``strain`` with independent normal noise of sd
+    ``noise_sd_MPa`` added at every point; the curve is their mean, with their sd.
+
+    Parameters
+    ----------
+    config
+        The true parameters (Config, preset or TOML).
+    strain
+        Strains where the curve is read, increasing, > 0.
+    seeds
+        ``rve.seed`` of each specimen.
+    strain_rate_per_s
+        Strain rate [1/s]; default the config's.
+    steps
+        Load steps; default the config's step size.
+    noise_sd_MPa
+        sd of the noise added to each specimen [MPa], >= 0.
+    rng
+        Generator or seed of the noise.
+
+    Returns
+    -------
+    FittedCurve
+        Without a model (``model_MPa`` None); ``sd_MPa`` None for a single specimen.
+    """
+    from espin.rve import resolve_config
+
+    config = resolve_config(config)
+    rate = config.loading.strain_rate_per_s if strain_rate_per_s is None else strain_rate_per_s
+    curve = _validated_curve(rate, strain, np.zeros(len(strain)), None, "synthetic")
+    if noise_sd_MPa < 0 or not seeds:
+        raise ConfigError("synthetic_curve: need noise_sd_MPa >= 0 and at least one seed")
+    fiber = tuple((f"fiber.{k}", v) for k, v in config.fiber.model_dump().items())
+    n = steps or _default_steps(config, curve.max_strain)
+    generator = np.random.default_rng(rng)
+    specimens = []
+    for seed in seeds:
+        task = _Task(config_to_toml(apply_overrides(config, {"rve.seed": int(seed)})), fiber, rate,
+                     curve.max_strain, n, curve.strain)
+        stress, failure = _simulate_task(task)
+        if failure is not None:
+            raise SolverError(f"synthetic_curve: seed {seed}: {failure}")
+        specimens.append(stress + noise_sd_MPa * generator.standard_normal(stress.size))
+    specimens = np.array(specimens)
+    sd = specimens.std(axis=0, ddof=1) if len(seeds) > 1 else None
+    return FittedCurve(rate, curve.strain, specimens.mean(axis=0), sd, source=f"synthetic, seeds {list(seeds)}")
