@@ -14,9 +14,16 @@ import typer
 if TYPE_CHECKING:  # pragma: no cover
     from espin.calibration import FitResult
 
-__all__ = ["register"]
+from espin.cli_properties import (
+    DelimiterOpt,
+    PercentStrainOpt,
+    SkipRowsOpt,
+    StrainColumnOpt,
+    StressColumnOpt,
+    read_options,
+)
 
-_DELIMITER_NAMES = {"tab": "\t", "\\t": "\t", "space": " ", "whitespace": " "}
+__all__ = ["register"]
 
 
 def _number(text: str, what: str) -> float:
@@ -161,17 +168,11 @@ def register(app: typer.Typer) -> None:
         out: Annotated[
             Path, typer.Option("--out", "-o", help="Folder for fitted.toml, fit.csv, fit.json, fit.png.")
         ] = Path("fit"),
-        strain_column: Annotated[
-            Optional[str], typer.Option(help="Strain column: 0-based index or header name.")
-        ] = None,
-        stress_column: Annotated[
-            Optional[str], typer.Option(help="Stress column [MPa]: 0-based index or header name.")
-        ] = None,
-        percent_strain: Annotated[bool, typer.Option(help="The strain column is in percent.")] = False,
-        delimiter: Annotated[
-            Optional[str], typer.Option(help="Field separator (',', ';', tab, space). Default: detected.")
-        ] = None,
-        skip_rows: Annotated[int, typer.Option(help="Lines to skip at the top of each file.")] = 0,
+        strain_column: StrainColumnOpt = None,
+        stress_column: StressColumnOpt = None,
+        percent_strain: PercentStrainOpt = False,
+        delimiter: DelimiterOpt = None,
+        skip_rows: SkipRowsOpt = 0,
         quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or table.")] = False,
     ) -> None:
         """Calibrate eta and fiber-law parameters to a measured stress-strain curve (paper 4.2).
@@ -184,18 +185,11 @@ def register(app: typer.Typer) -> None:
 
         from espin.calibration import fit
         from espin.cli import _fail, _parse_set
-        from espin.cli_properties import _column
         from espin.errors import EspinError
         from espin.rve import resolve_config
 
         console = Console(stderr=True, quiet=quiet, width=140)
-        read_options = {
-            "strain_column": _column(strain_column),
-            "stress_column": _column(stress_column),
-            "percent_strain": percent_strain,
-            "delimiter": _DELIMITER_NAMES.get(delimiter.lower(), delimiter) if delimiter else None,
-            "skip_rows": skip_rows,
-        }
+        csv_options = read_options(strain_column, stress_column, percent_strain, delimiter, skip_rows)
         try:
             overrides = _parse_set(set_)
             config = resolve_config(base, **{k.replace(".", "__"): v for k, v in overrides.items()})
@@ -212,7 +206,7 @@ def register(app: typer.Typer) -> None:
                     bounds=_parse_bounds(bounds), fixed=_parse_fixed(fix), realizations=realizations,
                     seeds=seed_list, strain_rate_per_s=strain_rate, steps=steps, eta_points=eta_points,
                     eta_tolerance=eta_tolerance, workers=workers, scheduler=scheduler,
-                    read_options=read_options, on_evaluation=on_evaluation,
+                    read_options=csv_options, on_evaluation=on_evaluation,
                 )
             written = result.write(out)
         except EspinError as err:

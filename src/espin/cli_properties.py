@@ -16,9 +16,40 @@ if TYPE_CHECKING:  # pragma: no cover
     from espin.experiments import AveragedCurve, Curve
     from espin.properties import CurveProperties
 
-__all__ = ["register"]
+__all__ = ["register", "StrainColumnOpt", "StressColumnOpt", "PercentStrainOpt", "DelimiterOpt", "SkipRowsOpt",
+           "read_options"]
 
 _DELIMITER_NAMES = {"tab": "\t", "\\t": "\t", "space": " ", "whitespace": " "}
+
+# Options of every command that reads curve CSV files (properties, fit).
+StrainColumnOpt = Annotated[
+    Optional[str],
+    typer.Option(help="Strain column: 0-based index or header name (any case). "
+                      "Default: the header's 'strain' column; 0 without a header or with two columns."),
+]
+StressColumnOpt = Annotated[
+    Optional[str],
+    typer.Option(help="Stress column [MPa]: 0-based index or header name (any case). "
+                      "Default: the header's 'stress_MPa', 'stress [MPa]', 'stress (MPa)', 'stress' or "
+                      "'mean_MPa' column; 1 without a header or with two columns."),
+]
+PercentStrainOpt = Annotated[bool, typer.Option(help="The strain column is in percent.")]
+DelimiterOpt = Annotated[
+    Optional[str], typer.Option(help="Field separator (',', ';', tab, space). Default: detected.")
+]
+SkipRowsOpt = Annotated[int, typer.Option(help="Lines to skip at the top of each file.")]
+
+
+def read_options(strain_column: str | None, stress_column: str | None, percent_strain: bool,
+                 delimiter: str | None, skip_rows: int) -> dict:
+    """The CSV options of the command line as keyword arguments of :func:`espin.experiments.read_curve`."""
+    return {
+        "strain_column": _column(strain_column),
+        "stress_column": _column(stress_column),
+        "percent_strain": percent_strain,
+        "delimiter": _DELIMITER_NAMES.get(delimiter.lower(), delimiter) if delimiter else None,
+        "skip_rows": skip_rows,
+    }
 
 
 def _column(text: str | None) -> int | str | None:
@@ -189,25 +220,11 @@ def register(app: typer.Typer) -> None:
             list[Path],
             typer.Argument(help="CSV files of stress-strain curves (specimens, or espin's curve.csv)."),
         ],
-        strain_column: Annotated[
-            Optional[str],
-            typer.Option(help="Strain column: 0-based index or header name (any case). "
-                              "Default: the header's 'strain' column; 0 without a header or "
-                              "with two columns."),
-        ] = None,
-        stress_column: Annotated[
-            Optional[str],
-            typer.Option(help="Stress column [MPa]: 0-based index or header name (any case). "
-                              "Default: the header's 'stress_MPa', 'stress [MPa]', "
-                              "'stress (MPa)', 'stress' or 'mean_MPa' column; 1 without a header "
-                              "or with two columns."),
-        ] = None,
-        percent_strain: Annotated[bool, typer.Option(help="The strain column is in percent.")] = False,
-        delimiter: Annotated[
-            Optional[str],
-            typer.Option(help="Field separator (',', ';', tab, space). Default: detected."),
-        ] = None,
-        skip_rows: Annotated[int, typer.Option(help="Lines to skip at the top of each file.")] = 0,
+        strain_column: StrainColumnOpt = None,
+        stress_column: StressColumnOpt = None,
+        percent_strain: PercentStrainOpt = False,
+        delimiter: DelimiterOpt = None,
+        skip_rows: SkipRowsOpt = 0,
         strain_range: Annotated[
             Optional[str],
             typer.Option(metavar="LO:HI",
@@ -233,13 +250,7 @@ def register(app: typer.Typer) -> None:
         from espin.errors import EspinError
         from espin.experiments import read_curve
 
-        options = {
-            "strain_column": _column(strain_column),
-            "stress_column": _column(stress_column),
-            "percent_strain": percent_strain,
-            "delimiter": _DELIMITER_NAMES.get(delimiter.lower(), delimiter) if delimiter else None,
-            "skip_rows": skip_rows,
-        }
+        options = read_options(strain_column, stress_column, percent_strain, delimiter, skip_rows)
         try:
             fit_range = _strain_range(strain_range, percent_strain)
             analysis = _analyse([read_curve(path, **options) for path in curves], fit_range)
