@@ -2,7 +2,7 @@
 
 Tolerances (from the acceptance criteria): mean diameter within 10 % or 1 px, whichever is
 larger; dominant direction within 5 deg on aligned mats; mean tortuosity within 0.02 on wavy
-mats. The measured errors are listed in docs/sem.md.
+(max deviation 20 deg) and aligned mats. The measured errors are listed in docs/sem.md.
 """
 
 from __future__ import annotations
@@ -76,7 +76,7 @@ def test_mean_tortuosity_within_0_02_on_wavy_mats(wavy):
 
 
 @pytest.mark.parametrize("kappa, mean_deg", [(10.0, 30.0), (20.0, 150.0)])
-def test_dominant_direction_within_5_deg_on_aligned_mats(kappa, mean_deg):
+def test_direction_within_5_deg_and_tortuosity_within_0_02_on_aligned_mats(kappa, mean_deg):
     orientation = {"von_mises": {"mean_deg": mean_deg, "kappa": kappa}}
     for seed in SEEDS:
         mat = _mat(seed, rve__max_deviation_deg=10.0, rve__orientation=orientation)
@@ -88,6 +88,9 @@ def test_dominant_direction_within_5_deg_on_aligned_mats(kappa, mean_deg):
         assert abs(error) <= 5.0
         assert m.coherency > 0.3  # aligned: clearly anisotropic
         assert m.fits.orientation_model == "von_mises"
+        # Nearly straight fibers: crossing artefacts (U-turns at the border, jogs through
+        # shallow crossings) are cut at sharp turns, so they do not inflate the tortuosity.
+        assert abs(m.fibers["tortuosity"].mean() - v.tortuosity.mean()) <= 0.02
 
 
 def test_uniform_mat_is_nearly_isotropic(wavy):

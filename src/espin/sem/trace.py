@@ -20,6 +20,10 @@ The algorithm (CT-FIRE-like, written with numpy / scipy.ndimage / scipy.sparse.c
 6. Each fiber's pixel chain is resampled every pixel along its arc length and smoothed by a
    Gaussian of sigma w / 2 (at least 2 px): a digital chain overestimates the length of a
    straight line by up to 8 % (the staircase), the smoothed curve by well under 1 %.
+7. A smoothed fiber is cut where it turns by more than 1.5 ``max_bend_deg`` between the
+   chords over the arc length w before and after a point: a tracing artefact (a U-turn where
+   two fibers reach the image border together, a jog onto a neighbour through a shallow
+   crossing), not a bend of a fiber.
 
 Coordinates are (row, col) pixels; nothing here knows the scale.
 """
@@ -35,6 +39,7 @@ from scipy.sparse import csgraph
 __all__ = ["TracedFibers", "trace_fibers"]
 
 _MERGE = 2.5
+_TURN = 1.5  # a fiber is cut where it turns by more than _TURN * max_bend within +- w
 _NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
 
 
@@ -91,7 +96,8 @@ def trace_fibers(mask: np.ndarray, width_px: float, max_bend_deg: float = 35.0) 
     graph = _prune_spurs(graph, w)
     graph = _merge_junctions(graph, w)
     partner = _pair_branches(graph, w, np.radians(max_bend_deg))
-    paths = _chain_fibers(graph, partner, w)
+    paths = [piece for path in _chain_fibers(graph, partner, w)
+             for piece in _split_at_turns(path, w, np.radians(_TURN * max_bend_deg))]
     return TracedFibers(paths=paths, junctions=graph.junction_centre,
                         skeleton=skeleton)
 
@@ -295,3 +301,32 @@ def _smoothed(chain: np.ndarray, w: float) -> np.ndarray:
     pad = min(int(np.ceil(3 * sigma)), n - 1)
     extended = np.pad(points, ((pad, pad), (0, 0)), mode="reflect", reflect_type="odd")
     return ndimage.gaussian_filter1d(extended, sigma, axis=0, mode="nearest")[pad:pad + n]
+
+
+def _split_at_turns(path: np.ndarray, w: float, max_bend: float) -> list[np.ndarray]:
+    """Cut a smoothed path where it turns by more than ``max_bend`` within w on either side.
+
+    The chord directions over the arc length w before and after each point are compared; at a
+    local maximum of that turn above ``max_bend`` (1.5 times the pairing limit) the path is
+    cut, cuts at least w apart. A fiber does not bend that sharply, so such a turn is a
+    tracing artefact: a U-turn where two fibers meet at the image border (the padded
+    skeleton joins them), or a jog onto a neighbouring fiber through a shallow crossing.
+    """
+    h = max(int(round(w)), 2)
+    n = len(path)
+    if n < 2 * h + 1:
+        return [path]
+    before = path[h:n - h] - path[:n - 2 * h]
+    after = path[2 * h:] - path[h:n - h]
+    cos = np.einsum("ij,ij->i", before, after) / np.maximum(
+        np.hypot(*before.T) * np.hypot(*after.T), 1e-12)
+    turn = np.arccos(np.clip(cos, -1.0, 1.0))
+    cuts = []
+    for i in np.argsort(-turn):
+        if turn[i] <= max_bend:
+            break
+        if all(abs(i - c) > h for c in cuts):
+            cuts.append(int(i))
+    if not cuts:
+        return [path]
+    return [piece for piece in np.split(path, np.sort(np.array(cuts)) + h) if len(piece) >= 2]
