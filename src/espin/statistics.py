@@ -566,7 +566,8 @@ class NetworkStatistics:
             ("observation window (as SEM)", ["window_side_um", "window_min_chord_um",
                                             "window_n_portions", "window_tortuosity_mean",
                                             "window_tortuosity_sd"]),
-            ("against targets (KS statistic: 0 same, 1 disjoint)",
+            ("against targets: orientation of the config, tortuosity and diameter of the paper's "
+             "PLLA SEM (Fig. 10) (KS statistic: 0 same, 1 disjoint)",
              ["orientation_target", "ks_fiber_orientation", "ks_window_orientation",
               "target_tortuosity_mean", "target_tortuosity_sd", "ks_window_tortuosity",
               "target_diameter_mean_um", "target_diameter_sd_um", "ks_diameter"]),
