@@ -101,3 +101,14 @@ def test_pool_reused_across_maps():
 def test_bad_options_named(kwargs, key):
     with pytest.raises(ConfigError, match=key):
         TaskPool(**kwargs)
+
+
+def test_scheduler_address_of_a_running_cluster():
+    """--scheduler tcp://host:port: the same code path as a remote Dask cluster."""
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        assert cluster.scheduler_address.startswith("tcp://")
+        outcomes = parallel_map(square_or_fail, range(4), scheduler=cluster.scheduler_address)
+    assert [o.value for o in outcomes] == [0, 1, 4, None]
+    assert outcomes[3].error == "ValueError: three is refused"
