@@ -71,8 +71,11 @@ def calibrate_geometry_command(
     ] = True,
     seeds: Annotated[int, typer.Option(help="Mats per evaluation (fixed seeds).")] = 8,
     out: Annotated[
-        Path, typer.Option("--out", "-o", help="Calibrated config (TOML); the report is written "
-                                                "beside it as <name>.calibration.json.")
+        Path, typer.Option("--out", "-o", help="Where to write. A path ending in .toml is the "
+                                                "calibrated config, with the report beside it as "
+                                                "<name>.calibration.json; any other path is a "
+                                                "folder (created if needed) that gets config.toml, "
+                                                "calibration.json and calibration.txt.")
     ] = Path("calibrated.toml"),
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or table.")] = False,
 ) -> None:
@@ -112,7 +115,7 @@ def calibrate_geometry_command(
     except EspinError as err:
         _fail(str(err))
     console.print(result.format_table(), highlight=False, soft_wrap=True)
-    console.print(f"wrote {files['config']} and {files['report']}", highlight=False)
+    console.print("wrote " + ", ".join(str(f) for f in files.values()), highlight=False)
     # The note (last line of the table) and the next steps are printed even with --quiet.
     if quiet:
         typer.echo(f"note: {MECHANICS_NOTE}", err=True)

@@ -2,14 +2,18 @@
 
 The targets come from SEM images, one row per traced fiber, as written by ``espin measure``:
 
-* ``fibers.csv`` with any of the columns ``diameter_um``, ``orientation_deg`` (axis in
-  [0, 180) deg), ``tortuosity`` (contour / end-to-end length, >= 1), and optionally
-  ``contour_length_um`` and ``end_to_end_um`` (tortuosity is their ratio when the
-  ``tortuosity`` column is absent). Other columns are ignored; empty cells are fibers where
-  that quantity was not measured.
+* ``fibers.csv`` (read by :func:`espin.sem.read_fibers_csv`) with any of the columns
+  ``diameter_um``, ``orientation_deg`` (axis in [0, 180) deg), ``tortuosity`` (contour /
+  end-to-end length, >= 1), and optionally ``contour_length_um`` and ``end_to_end_um``
+  (tortuosity is their ratio when the ``tortuosity`` column is absent). Other columns are
+  ignored; empty cells are fibers where that quantity was not measured, and a column with no
+  value at all is skipped (with a note). The contour lengths of the measured pieces are kept:
+  the virtual mat is then measured on pieces of the same lengths (length-matched sampling,
+  :mod:`espin.geometry_calibration.virtual`).
 * a folder holding ``fibers.csv`` and ``measurement.toml`` with at least ``um_per_px`` and
   ``field_of_view_um = [width, height]`` (and optionally ``min_chord_um``, the shortest
   end-to-end length the tracer kept).
+* an :class:`espin.sem.SEMMeasurement` (:meth:`GeometryTargets.from_measurement`).
 
 Or they are typed in: a normal diameter distribution (mean, sd), a half-normal tortuosity
 ``halfnorm(loc=1, scale)`` as the paper fitted (SPEC 7), and a uniform or axial von Mises
@@ -77,6 +81,27 @@ def _sample(values: ArrayLike | None, name: str, low: float, high: float,
     return x
 
 
+def _number(value: Any, name: str) -> float:
+    """``value`` as a float, or a MeasurementError naming ``name`` (strings, lists... refused)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise MeasurementError(f"{name} must be a number, got {value!r}")
+    return float(value)
+
+
+def _field_of_view(value: Any) -> tuple[float, float]:
+    """A validated ``(width, height)`` [um]: two finite numbers > 0."""
+    message = f"field_of_view_um must be [width, height] in um, both numbers > 0; got {value!r}"
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
+        raise MeasurementError(message)
+    try:
+        fov = tuple(_number(v, "field_of_view_um") for v in value)
+    except MeasurementError:
+        raise MeasurementError(message) from None
+    if not all(math.isfinite(v) and v > 0 for v in fov):
+        raise MeasurementError(message)
+    return fov[0], fov[1]
+
+
 def _positive(value: float | None, name: str, allow_zero: bool = False) -> None:
     if value is None:
         return
@@ -100,6 +125,10 @@ class GeometryTargets:
         Measured fiber axes in [0, 180).
     tortuosity : (n,) float64, optional
         Measured contour / end-to-end length of each traced fiber portion (>= 1).
+    contour_length_um : (m,) float64 [um], optional
+        Contour lengths of the measured pieces (the lengths over which tortuosity and
+        orientation were observed). When given, the virtual mat is measured on pieces of
+        these lengths (length-matched sampling); otherwise on whole window portions.
     diameter_mean_um, diameter_sd_um : float [um], optional
         Typed-in normal diameter distribution (sd defaults to 0: a fixed diameter).
     orientation_uniform : bool
@@ -115,6 +144,8 @@ class GeometryTargets:
         Shortest end-to-end length the tracer kept (the virtual measurement does the same).
     source : str
         Where the targets came from, for reports.
+    notes : tuple of str
+        What the reader noticed (columns skipped, rows left out), for reports.
     """
 
     diameter_um: np.ndarray | None = None
@@ -129,6 +160,8 @@ class GeometryTargets:
     field_of_view_um: tuple[float, float] | None = None
     min_chord_um: float | None = None
     source: str = "typed-in"
+    contour_length_um: np.ndarray | None = None
+    notes: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -139,14 +172,16 @@ class GeometryTargets:
         set_(self, "orientation_deg", None if orientation is None else np.mod(orientation, 180.0))
         tortuosity = _sample(self.tortuosity, "tortuosity", 1.0 - 1e-9, math.inf)
         set_(self, "tortuosity", None if tortuosity is None else np.maximum(tortuosity, 1.0))
+        lengths = _sample(self.contour_length_um, "contour_length_um", 0.0, math.inf)
+        if lengths is not None and (lengths <= 0.0).any():
+            raise MeasurementError("contour_length_um: values must be > 0")
+        set_(self, "contour_length_um", lengths)
+        set_(self, "notes", tuple(self.notes))
         self._check_typed()
         if self.field_of_view_um is not None:
-            fov = tuple(float(v) for v in np.ravel(self.field_of_view_um))
-            if len(fov) != 2 or not all(math.isfinite(v) and v > 0 for v in fov):
-                raise MeasurementError(
-                    f"field_of_view_um must be [width, height] with both > 0, got {self.field_of_view_um!r}"
-                )
-            set_(self, "field_of_view_um", fov)
+            set_(self, "field_of_view_um", _field_of_view(self.field_of_view_um))
+        if self.min_chord_um is not None:
+            set_(self, "min_chord_um", _number(self.min_chord_um, "min_chord_um"))
         _positive(self.min_chord_um, "min_chord_um", allow_zero=True)
 
     def _check_typed(self) -> None:
@@ -195,8 +230,10 @@ class GeometryTargets:
     def from_csv(cls, path: str | Path, **extra: Any) -> GeometryTargets:
         """Targets from a ``fibers.csv`` (one row per measured fiber; see the module doc).
 
-        Rows whose ``end_to_end_um`` is below ``min_chord_um`` (if both are known) are left out
-        of the tortuosity sample, as the virtual measurement drops such stubs.
+        The table is read and validated by :func:`espin.sem.read_fibers_csv`. Rows whose
+        ``end_to_end_um`` is below ``min_chord_um`` (if both are known) are left out of every
+        sample, as the virtual measurement drops such stubs. A column without any value is
+        skipped (with a note).
 
         Parameters
         ----------
@@ -205,41 +242,84 @@ class GeometryTargets:
         **extra
             Further fields (``field_of_view_um``, ``min_chord_um``, typed-in values).
         """
-        import pandas as pd
+        from espin.sem import read_fibers_csv
+        from espin.sem.errors import SEMError
 
         path = Path(path)
         if not path.is_file():
             raise MeasurementError(f"measured fibers file not found: {path}")
         try:
-            table = pd.read_csv(path)
-        except (ValueError, OSError) as err:  # pandas' parser errors are ValueErrors
-            raise MeasurementError(f"cannot read {path} as CSV: {err}") from None
-        columns = {c.strip(): c for c in table.columns}
-        known = [c for c in SAMPLE_COLUMNS + LENGTH_COLUMNS if c in columns]
-        has_lengths = all(c in columns for c in LENGTH_COLUMNS)
-        if not any(c in columns for c in SAMPLE_COLUMNS) and not has_lengths:
-            raise MeasurementError(
-                f"{path} has none of the columns {', '.join(SAMPLE_COLUMNS)} (or both "
-                f"{' and '.join(LENGTH_COLUMNS)}); found: {', '.join(map(str, table.columns))}"
-            )
+            table = read_fibers_csv(path)
+        except SEMError as err:
+            raise MeasurementError(str(err)) from None
+        return cls.from_table(table, **({"source": str(path)} | extra))
 
-        def column(name: str) -> np.ndarray:
+    @classmethod
+    def from_table(cls, table: Any, **extra: Any) -> GeometryTargets:
+        """Targets from a per-fiber table (a DataFrame with the columns of ``fibers.csv``).
+
+        Parameters
+        ----------
+        table : pandas.DataFrame
+            Columns as :data:`espin.sem.FIBER_COLUMNS` (missing ones allowed; NaN = not
+            measured), e.g. :attr:`espin.sem.SEMMeasurement.fibers`.
+        **extra
+            Further fields (``field_of_view_um``, ``min_chord_um``, ``source``, typed-in
+            values).
+        """
+        notes: list[str] = list(extra.pop("notes", ()))
+        values: dict[str, np.ndarray] = {}
+        for name in SAMPLE_COLUMNS + LENGTH_COLUMNS:
+            if name not in table.columns:
+                continue
             try:
-                return pd.to_numeric(table[columns[name]], errors="raise").to_numpy(dtype=float)
-            except (ValueError, TypeError):
-                raise MeasurementError(f"{path}: column {name} holds non-numeric values") from None
-
-        values = {name: column(name) for name in known}
-        if "tortuosity" not in values and has_lengths:
+                column = np.asarray(table[name], dtype=float)
+            except (TypeError, ValueError):
+                raise MeasurementError(f"column {name} holds non-numeric values") from None
+            if len(column) and np.isnan(column).all():
+                notes.append(f"column {name} has no values: skipped")
+                continue
+            values[name] = column
+        if "tortuosity" not in values and all(c in values for c in LENGTH_COLUMNS):
             with np.errstate(divide="ignore", invalid="ignore"):
                 values["tortuosity"] = values["contour_length_um"] / values["end_to_end_um"]
+            notes.append("tortuosity = contour_length_um / end_to_end_um")
+        if "contour_length_um" not in values and "end_to_end_um" in values and "tortuosity" in values:
+            values["contour_length_um"] = values["tortuosity"] * values["end_to_end_um"]
         min_chord = extra.get("min_chord_um")
-        if "tortuosity" in values and "end_to_end_um" in values and min_chord:
-            values["tortuosity"] = np.where(
-                values["end_to_end_um"] >= min_chord, values["tortuosity"], np.nan
+        if min_chord is not None:
+            min_chord = _number(min_chord, "min_chord_um")
+        if "end_to_end_um" in values and min_chord:
+            short = values["end_to_end_um"] < min_chord
+            if short.any():
+                notes.append(f"{int(short.sum())} rows with end_to_end_um < min_chord_um = "
+                             f"{min_chord:g} um left out (as the virtual measurement does)")
+                values = {k: np.where(short, np.nan, v) for k, v in values.items()}
+        if not any(k in values for k in SAMPLE_COLUMNS):
+            raise MeasurementError(
+                f"{extra.get('source', 'the table')}: none of the columns "
+                f"{', '.join(SAMPLE_COLUMNS)} holds a value"
             )
+        lengths = None
+        if "contour_length_um" in values and ("tortuosity" in values or "orientation_deg" in values):
+            # The observation lengths of the pieces whose tortuosity / orientation was measured.
+            measured = values.get("tortuosity", values.get("orientation_deg"))
+            lengths = values["contour_length_um"][np.isfinite(measured)]
+            lengths = lengths[np.isfinite(lengths)]
+            if len(lengths) < MIN_SAMPLE_SIZE:
+                notes.append(f"only {len(lengths)} contour lengths: whole window portions measured")
+                lengths = None
         samples = {k: values.get(k) for k in SAMPLE_COLUMNS}
-        return cls(**samples, source=str(path), **extra)
+        return cls(**samples, contour_length_um=lengths, notes=tuple(notes), **extra)
+
+    @classmethod
+    def from_measurement(cls, measurement: Any, **extra: Any) -> GeometryTargets:
+        """Targets from an :class:`espin.sem.SEMMeasurement` (``espin.sem.measure(...)``):
+        its fibers table, field of view and shortest chord."""
+        found = {"field_of_view_um": tuple(measurement.field_of_view_um),
+                 "min_chord_um": float(measurement.min_chord_um),
+                 "source": f"espin measure of {getattr(measurement, 'source', 'an image')}"}
+        return cls.from_table(measurement.fibers, **(found | extra))
 
     @classmethod
     def from_folder(cls, folder: str | Path, **extra: Any) -> GeometryTargets:
@@ -252,17 +332,21 @@ class GeometryTargets:
             )
         try:
             meta = tomllib.loads(toml_path.read_text("utf-8"))
-        except tomllib.TOMLDecodeError as err:
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
             raise MeasurementError(f"{toml_path} is not valid TOML: {err}") from None
         for key in ("um_per_px", "field_of_view_um"):
             if key not in meta:
                 raise MeasurementError(f"{toml_path}: missing key {key}")
         um_per_px = meta["um_per_px"]
-        if not isinstance(um_per_px, (int, float)) or not um_per_px > 0:
+        if (isinstance(um_per_px, bool) or not isinstance(um_per_px, (int, float))
+                or not um_per_px > 0):
             raise MeasurementError(f"{toml_path}: um_per_px must be a number > 0, got {um_per_px!r}")
-        found = {"field_of_view_um": meta["field_of_view_um"]}
-        if "min_chord_um" in meta:
-            found["min_chord_um"] = meta["min_chord_um"]
+        try:
+            found = {"field_of_view_um": _field_of_view(meta["field_of_view_um"])}
+            if "min_chord_um" in meta:
+                found["min_chord_um"] = _number(meta["min_chord_um"], "min_chord_um")
+        except MeasurementError as err:
+            raise MeasurementError(f"{toml_path}: {err}") from None
         return cls.from_csv(folder / "fibers.csv", **(found | extra))
 
     @classmethod

@@ -2,9 +2,14 @@
 
 :func:`calibrate_geometry` takes measured (or typed-in) distributions of fiber diameter,
 orientation and tortuosity (:class:`espin.geometry_targets.GeometryTargets`) and a base
-config, and returns a config whose virtual mat, measured the same way (portions of fibers
-visible in the same square observation window, :func:`espin.statistics.window_tortuosity`),
-matches them. The other keys of the base config are kept.
+config, and returns a config whose virtual mat, measured the same way, matches them. The other
+keys of the base config are kept. "The same way": in the same square observation window, and,
+when the measured sample records the contour lengths of its pieces (as ``espin measure``
+writes), on virtual pieces of the same lengths (length-matched sampling,
+:mod:`espin.geometry_calibration.virtual`): the SEM tracer cuts fibers at crossings, so its
+pieces are much shorter than the window, and tortuosity grows with the observation length.
+Without lengths (typed-in targets) whole window portions are measured
+(:func:`espin.statistics.window_tortuosity`). The report says which was used.
 
 Method (docs/geometry_calibration.md)
 -------------------------------------
@@ -25,7 +30,8 @@ Method (docs/geometry_calibration.md)
    sampling spread (1 / sqrt(n)) of the best, the one nearest the base segment length is
    kept, since the window cannot tell them apart.
 3. **Orientation**: uniform, or an axial von Mises fitted to the sample (uniform when a
-   Rayleigh test on the doubled angles does not reject isotropy at 1 %). The deposition walk
+   Rayleigh test on the doubled angles does not reject isotropy at 1 %; when ``espin
+   measure``'s rule, the smaller AIC, picks the other model, a warning says so). The deposition walk
    widens the visible distribution (a fiber forgets its direction over about l_p / 4), so the
    deposition kappa is raised until the visible order parameter, measured in the RVE of the
    written config, matches the target's; where even kappa = 700 cannot, the closest is kept
@@ -64,6 +70,7 @@ from espin.geometry_calibration.fits import (
     truncated_normal_parameters,
 )
 from espin.geometry_calibration.matching import (
+    FIXED_TOLERANCE,
     ISOTROPY_P_VALUE,
     DistributionMatch,
     _diameter_target,
@@ -117,6 +124,8 @@ __all__ = [
     "SCHEMA",
     "SCHEMA_VERSION",
     "ISOTROPY_P_VALUE",
+    "FIXED_TOLERANCE",
+    "TORTUOSITY_MEAN_TOLERANCE",
     "KAPPA_MAX",
     "DEVIATION_RANGE_DEG",
     "DEVIATION_GRID_STEP_DEG",
@@ -129,13 +138,16 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+TORTUOSITY_MEAN_TOLERANCE = 0.02
+"""A warning is printed when the calibrated mat's mean tortuosity is further from the target's
+(the KS objective matches the distribution's bulk, not its mean)."""
 SEARCH_SIDE_OVER_WINDOW = 2.0
 """Side of the search RVE over the window side (the window sits in its central quarter)."""
 Fit = Literal["deviation", "segment", "both"]
 
 
 def calibrate_geometry(
-    targets_or_path: GeometryTargets | str | Path,
+    targets_or_path: GeometryTargets | str | Path | Any,
     base: Config | str | Path | None = None,
     *,
     fit: Fit = "deviation",
@@ -154,7 +166,8 @@ def calibrate_geometry(
     Parameters
     ----------
     targets_or_path
-        :class:`GeometryTargets`, a ``fibers.csv`` or a folder written by ``espin measure``.
+        :class:`GeometryTargets`, a ``fibers.csv``, a folder written by ``espin measure`` or
+        an :class:`espin.sem.SEMMeasurement`.
     base
         Config, preset name or TOML whose other keys are kept (default ``plla``).
     fit
@@ -196,8 +209,12 @@ def calibrate_geometry(
     """
     started = time.perf_counter()
     _check_options(fit, segment_ratio, max_deviation_deg, seeds, min_portions, window_um)
-    targets = (targets_or_path if isinstance(targets_or_path, GeometryTargets)
-               else GeometryTargets.from_path(targets_or_path))
+    if isinstance(targets_or_path, GeometryTargets):
+        targets = targets_or_path
+    elif hasattr(targets_or_path, "fibers") and hasattr(targets_or_path, "field_of_view_um"):
+        targets = GeometryTargets.from_measurement(targets_or_path)
+    else:
+        targets = GeometryTargets.from_path(targets_or_path)
     if targets.is_empty:
         raise MeasurementError(
             "no targets: give measured fibers (diameter_um, orientation_deg or tortuosity "
@@ -207,7 +224,7 @@ def calibrate_geometry(
     rve = _base_rve_data(base_config)
     parameters: dict[str, Any] = {}
     warnings: list[str] = []
-    notes: list[str] = []
+    notes: list[str] = list(targets.notes)
 
     # 1. Diameters.
     if targets.has_diameter:
@@ -233,13 +250,16 @@ def calibrate_geometry(
             f"({base_side:.4g} um): the calibration measured layers of {search_side:.4g} um, while "
             "espin generate with this config measures its whole layer (a smaller window)"
         )
-    measurement = VirtualMeasurement(window, float(min_chord), seed_list, 1)
+    measurement = VirtualMeasurement(window, float(min_chord), seed_list, 1,
+                                     targets.contour_length_um)
     if targets.has_orientation:
         orientation, orientation_target, found = _orientation_spec(targets)
-        notes += found
+        notes += [n for n in found if not n.startswith("warning: ")]
+        warnings += [n.removeprefix("warning: ") for n in found if n.startswith("warning: ")]
         rve["orientation"] = orientation
     layers = _layers_per_seed(measurement, rve, search_side, min_portions)
-    measurement = VirtualMeasurement(window, float(min_chord), seed_list, layers)
+    measurement = measurement.with_layers(layers)
+    sampling = _sampling_description(measurement)
     evaluations = 0
 
     # 3. Tortuosity: the walk.
@@ -289,6 +309,13 @@ def calibrate_geometry(
     matches = []
     if targets.has_tortuosity:
         matches.append(_tortuosity_target(targets).compare(seen["tortuosity"]))
+        means = dict((n, (t, v)) for n, t, v in matches[-1].summary)["mean"]
+        if abs(means[1] - means[0]) > TORTUOSITY_MEAN_TOLERANCE:
+            warnings.append(
+                f"the calibrated mat's mean tortuosity {means[1]:.3f} differs from the target's "
+                f"{means[0]:.3f} by more than {TORTUOSITY_MEAN_TOLERANCE:g}: the KS distance "
+                "matches the bulk of the distribution, and the walk's tail (fibers curling "
+                "within the window) is heavier than the target's")
     if targets.has_orientation:
         matches.append(orientation_target.compare(seen["orientation_deg"]))
     if targets.has_diameter:
@@ -296,10 +323,23 @@ def calibrate_geometry(
     search = {
         "window_um": window, "window_source": window_source, "min_chord_um": float(min_chord),
         "seeds": list(seed_list), "layers": layers, "search_side_um": search_side,
-        "check_side_um": check_side, "evaluations": evaluations,
+        "check_side_um": check_side, "sampling": measurement.sampling,
+        "sampling_description": sampling, "evaluations": evaluations,
         "elapsed_s": time.perf_counter() - started, "notes": notes,
     }
     for w in warnings:
         log.info("calibration warning: %s", w)
+    log.debug("virtual measurement: %s", sampling)
     return GeometryCalibration(config, base_config, targets, parameters, tuple(matches),
                                tuple(valley), search, tuple(warnings))
+
+
+def _sampling_description(measurement: VirtualMeasurement) -> str:
+    """How the virtual mats are measured, for the report."""
+    lengths = measurement.piece_lengths_um
+    if lengths is None:
+        return ("whole fiber portions in the window, edge to edge (the targets carry no piece "
+                "lengths)")
+    return (f"length-matched pieces: contour lengths drawn from the {len(lengths)} measured "
+            f"pieces (median {np.median(lengths):.3g} um), placed uniformly along the window "
+            "portions")

@@ -61,7 +61,11 @@ def _window(targets: GeometryTargets, window_um: float | None, config: Config) -
 
 
 def _diameter_keys(targets: GeometryTargets, base: Config) -> dict[str, float]:
-    """``diameter_um`` and ``diameter_sd_um`` whose truncated normal has the target moments."""
+    """``diameter_um`` and ``diameter_sd_um`` whose truncated normal has the target moments.
+
+    Values computed here (a sample's moments, a truncation correction) are rounded to four
+    significant digits; typed-in values that need no correction are written as typed.
+    """
     sample = targets.diameter_um
     if sample is not None:
         mean, sd = float(np.mean(sample)), float(np.std(sample, ddof=1))
@@ -69,6 +73,8 @@ def _diameter_keys(targets: GeometryTargets, base: Config) -> dict[str, float]:
         mean, sd = targets.diameter_mean_um, targets.diameter_sd_um or 0.0
     explicit_min = base.rve.diameter_min_um if "diameter_min_um" in base.rve.model_fields_set else None
     mu, sigma = truncated_normal_parameters(mean, sd, explicit_min)
+    if sample is None and (mu, sigma) == (mean, sd):
+        return {"diameter_um": float(mu), "diameter_sd_um": float(sigma)}
     return {"diameter_um": float(f"{mu:.4g}"), "diameter_sd_um": float(f"{sigma:.4g}")}
 
 
@@ -82,6 +88,27 @@ def _fitted(targets: GeometryTargets, fit: str) -> list[str]:
     if targets.has_orientation:
         keys.append("rve.orientation")
     return keys
+
+
+DERIVED_RVE_KEYS = ("size_ratio", "segment_ratio", "diameter_min_um", "seeding")
+"""rve keys that espin derives when unset (SPEC 1 defaults, :class:`espin.config.RVEConfig`)."""
+
+
+def _written_data(config: Config) -> dict[str, Any]:
+    """The calibrated config as TOML data, derived rve values left unset unless given.
+
+    ``diameter_min_um`` (0.1 D), ``seeding`` (border if uniform, else lines) and the default
+    sizes follow the calibrated values when unset; pinning them would make later edits of the
+    file (another diameter, an orientation) keep stale values.
+    """
+    from espin.config import config_to_dict
+
+    data = config_to_dict(config)
+    given = config.rve.model_fields_set
+    for key in DERIVED_RVE_KEYS:
+        if key not in given:
+            data["rve"].pop(key, None)
+    return data
 
 
 def _with_section(base: Config, rve: dict[str, Any], output: dict[str, Any]) -> dict[str, Any]:

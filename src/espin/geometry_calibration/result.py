@@ -8,8 +8,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from espin.config import Config, config_to_toml
+import tomli_w
+
+from espin.config import Config
+from espin.errors import EspinError
 from espin.geometry_calibration.matching import DistributionMatch
+from espin.geometry_calibration.options import _written_data
 from espin.geometry_calibration.search import ValleyPoint
 from espin.geometry_targets import GeometryTargets
 
@@ -88,7 +92,8 @@ class GeometryCalibration:
         """Plain-text report for the command line."""
         s = self.search
         lines = [f"targets: {self.targets.source}; observation window {s['window_um']:.4g} um "
-                 f"({s['window_source']}), chords >= {s['min_chord_um']:.3g} um", "parameters"]
+                 f"({s['window_source']}), chords >= {s['min_chord_um']:.3g} um",
+                 f"virtual measurement: {s['sampling_description']}", "parameters"]
         fitted = set(self.parameters["fitted"])
         for key, value in self.parameters.items():
             if key == "fitted":
@@ -96,12 +101,13 @@ class GeometryCalibration:
             shown = json.dumps(value) if isinstance(value, dict) else f"{value:.6g}" \
                 if isinstance(value, float) else str(value)
             lines.append(f"  {key:<24} {shown}{'   (fitted)' if key in fitted else ''}")
-        lines.append("match in the observation window (KS distance: 0 same, 1 disjoint; "
-                     "p: two-sample KS against a measured sample)")
+        lines.append("match in the observation window (KS distance: 0 same, 1 disjoint; p: "
+                     "two-sample KS p-value, descriptive only - the parameters were fitted to "
+                     "this sample and the virtual pieces are not independent, so p is optimistic)")
         for m in self.matches:
             n_target = "-" if m.n_target is None else f"{m.n_target:,}"
-            p = "-" if m.p_value is None else f"{m.p_value:.3g}"
-            lines.append(f"  {m.quantity:<16} KS {m.ks:.4f}  p {p:<8} target {m.target} "
+            p = "-" if m.p_value is None else f"{m.p_value:.2g}"
+            lines.append(f"  {m.quantity:<16} KS {m.ks:.4f}  descriptive p {p:<7} target {m.target} "
                          f"(n {n_target}), virtual n {m.n_virtual:,}")
             for name, target, virtual in m.summary:
                 lines.append(f"      {name:<14} target {target:<10.4g} virtual {virtual:.4g}")
@@ -128,28 +134,45 @@ class GeometryCalibration:
         ----------
         path
             A ``.toml`` file: the config there and the report beside it as
-            ``<stem>.calibration.json``. Anything else is a folder: ``config.toml``,
-            ``calibration.json`` and ``calibration.txt`` in it.
+            ``<stem>.calibration.json``. Any other path is a folder (created if needed):
+            ``config.toml``, ``calibration.json`` and ``calibration.txt`` in it.
 
         Returns
         -------
         dict
-            The files written, by kind.
+            The files written, by kind (``config``, ``report``, and ``table`` for a folder).
+
+        Raises
+        ------
+        EspinError
+            If the path is an existing file that is not a ``.toml`` (it would be a folder), or
+            a file cannot be written.
         """
         from espin.io.atomic import atomic_write_bytes
 
         path = Path(path)
         if path.suffix == ".toml":
+            if path.is_dir():
+                raise EspinError(f"{path} is a folder: give a .toml file or a folder name without .toml")
             files = {"config": path, "report": path.with_name(f"{path.stem}.calibration.json")}
         else:
+            if path.exists() and not path.is_dir():
+                raise EspinError(
+                    f"{path} is an existing file: a path without .toml is a folder "
+                    "(config.toml, calibration.json, calibration.txt); give a .toml file or a folder"
+                )
             files = {"config": path / "config.toml", "report": path / "calibration.json",
                      "table": path / "calibration.txt"}
         header = "".join(f"# {line}\n" for line in self._header_lines())
-        atomic_write_bytes(files["config"], (header + config_to_toml(self.config)).encode("utf-8"))
+        text = header + tomli_w.dumps(_written_data(self.config))
         report = json.dumps(self.report, indent=2, allow_nan=False) + "\n"
-        atomic_write_bytes(files["report"], report.encode("utf-8"))
-        if "table" in files:
-            atomic_write_bytes(files["table"], (self.format_table() + "\n").encode("utf-8"))
+        try:
+            atomic_write_bytes(files["config"], text.encode("utf-8"))
+            atomic_write_bytes(files["report"], report.encode("utf-8"))
+            if "table" in files:
+                atomic_write_bytes(files["table"], (self.format_table() + "\n").encode("utf-8"))
+        except OSError as err:
+            raise EspinError(f"cannot write the calibration to {path}: {err}") from None
         return files
 
     def _header_lines(self) -> list[str]:
