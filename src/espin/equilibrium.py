@@ -40,7 +40,7 @@ from espin.network import Network
 
 __all__ = ["StepState", "StepResult", "StepFailed", "EquilibriumSolver"]
 
-_MAX_ITERATIONS = 50  # default Newton iterations per step
+_MAX_ITERATIONS = 200  # default per step: plla seed 6 needs 75 at its first step (kink cycling)
 _MAX_ITERATIONS_MIXED = 500  # under mixed control: buckling chains need hundreds
 _SLOPE_RATIO = 0.5
 _MAX_SEARCH = 10
