@@ -35,6 +35,34 @@ def _number(text: str, what: str) -> float:
         raise ConfigError(f"{what}: {text!r} is not a number") from None
 
 
+def _parse_seeds(text: str) -> list[int]:
+    """``1,2,3`` -> [1, 2, 3]; a seed that is not an integer is an error (never truncated)."""
+    from espin.errors import ConfigError
+
+    seeds = []
+    for item in text.split(","):
+        try:
+            seeds.append(int(item.strip()))
+        except ValueError:
+            raise ConfigError(f"--seeds: {item.strip()!r} is not an integer") from None
+    return seeds
+
+
+def _parse_grid(text: str) -> Any:
+    """``measured`` or a number of evenly spaced strains (>= 2)."""
+    from espin.errors import ConfigError
+
+    if text.strip() == "measured":
+        return "measured"
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 2:
+        raise ConfigError(f"--average-grid: 'measured' or a number of points >= 2 (got {text!r})")
+    return n
+
+
 def _parse_bounds(items: list[str] | None) -> dict[str, tuple[float, float]]:
     """``key=low:high`` items -> {key: (low, high)}."""
     from espin.errors import ConfigError
@@ -89,20 +117,65 @@ def _curves(curves: list[Path], rate: float | None, other_rates: dict[float, lis
     return {rate: curves, **other_rates}, None
 
 
-def _table(result: FitResult) -> Any:
-    from rich.table import Table
+def _sd_text(result: FitResult, key: str, sd: float | None) -> str:
+    """An sd as the table shows it: ± sd, or ×/÷ factor for a log-scale parameter."""
+    import math
 
     from espin.calibration import FIT_PARAMETERS
 
-    table = Table("parameter", "symbol", "value", "± sd", "Gauss-Newton sd", "sd over RVEs", "bounds",
-                  title=f"fit: R^2 = {result.r_squared:.5f}, RMSE = {result.rmse_MPa:.3g} MPa")
+    if sd is None:
+        return "-"
+    if not math.isfinite(sd):
+        return "n/a"
+    if FIT_PARAMETERS[key].log_scale:
+        return f"×/÷ {math.exp(sd / result.values[key]):.3g}"
+    return f"± {sd:.2g}"
+
+
+def _table(result: FitResult) -> Any:
+    from rich.table import Table
+
+    from espin.calibration import ETA_KEY, FIT_PARAMETERS
+
+    table = Table(title=f"fit: R^2 = {result.r_squared:.5f}, RMSE = {result.rmse_MPa:.3g} MPa",
+                  caption_justify="left")
+    table.add_column("parameter", no_wrap=True)
+    for name in ("value", "sd", "1-sd interval", "Gauss-Newton sd", "sd over RVEs", "bounds", "note"):
+        table.add_column(name)
     for key in result.parameters:
         spread = result.realization_sd[key] if result.realization_sd else None
         low, high = result.bounds[key]
-        table.add_row(key, FIT_PARAMETERS[key].symbol, f"{result.values[key]:.5g}",
-                      f"{result.uncertainties[key]:.2g}", f"{result.gauss_newton_sd[key]:.2g}",
-                      "-" if spread is None else f"{spread:.2g}", f"{low:.3g} .. {high:.3g}")
+        lo, hi = result.interval(key)
+        note = f"at {result.at_bound[key]} bound" if result.at_bound[key] else ""
+        if key == ETA_KEY and result.eta_profile_sd is not None:
+            note = ", ".join(filter(None, [note, f"profile sd {result.eta_profile_sd:.2g}"]))
+        table.add_row(f"{FIT_PARAMETERS[key].symbol} ({key})", f"{result.values[key]:.5g}",
+                      _sd_text(result, key, result.uncertainties[key]), f"{lo:.4g} .. {hi:.4g}",
+                      _sd_text(result, key, result.gauss_newton_sd[key]), _sd_text(result, key, spread),
+                      f"{low:.3g} .. {high:.3g}", note)
+    lines = ["sd = sqrt(Gauss-Newton sd^2 + (sd over RVEs)^2 / R); ×/÷: log-scale parameter, "
+             "1-sd interval value / f .. value * f"]
+    gn = result.gauss_newton_sd.get(ETA_KEY)
+    if result.eta_resolution is not None and gn is not None and gn < result.eta_resolution:
+        lines.append(f"eta: its Gauss-Newton sd ({gn:.2g}) is below the network's step, one fiber per "
+                     f"layer = {result.eta_resolution:.2g} of volume fraction: eta is not resolved finer "
+                     "than that")
+    table.caption = "\n".join(lines)
     return table
+
+
+def _live_warnings(console: Any) -> Any:
+    """A logging handler that shows the fit's warnings as they happen (failed simulations,
+    failed etas), except the result's own, which follow the table."""
+    import logging
+
+    class Live(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            if record.name != "espin.calibration.result":
+                console.print(f"warning: {record.getMessage()}", style="yellow", highlight=False,
+                              soft_wrap=True)
+
+    return Live(logging.WARNING)
 
 
 def register(app: typer.Typer) -> None:
@@ -145,10 +218,21 @@ def register(app: typer.Typer) -> None:
                          help="Curves at another strain rate: RATE=FILE[,FILE...] (1/s). Repeatable; "
                               "two rates or more let a_p be fitted."),
         ] = None,
-        steps: Annotated[
-            Optional[int],
-            typer.Option(help="Load steps per simulation. Default: the base config's step size."),
-        ] = None,
+        step_strain: Annotated[
+            float,
+            typer.Option(help="Largest load step (strain) up to twice the curve's knee; beyond, up to "
+                              "0.01. Segments end at the measured strains."),
+        ] = 1e-3,
+        average_grid: Annotated[
+            str,
+            typer.Option(help="Where several CURVES are averaged: 'measured' (their common strains, else "
+                              "the union within the common range) or a number of evenly spaced strains."),
+        ] = "measured",
+        large_strain: Annotated[
+            bool,
+            typer.Option("--large-strain",
+                         help="Accept strains above 1 (100 %); otherwise refused as probably percent."),
+        ] = False,
         eta_points: Annotated[int, typer.Option(help="Points of the eta grid.")] = 5,
         eta_tolerance: Annotated[float, typer.Option(help="Tolerance of the eta bracket search.")] = 0.002,
         workers: Annotated[
@@ -181,6 +265,8 @@ def register(app: typer.Typer) -> None:
         over RVE realizations with common seeds. Prints the fitted values with their
         uncertainty and writes fitted.toml (runs with espin simulate), fit.csv, fit.json, fit.png.
         """
+        import logging
+
         from rich.console import Console
 
         from espin.calibration import fit
@@ -189,12 +275,15 @@ def register(app: typer.Typer) -> None:
         from espin.rve import resolve_config
 
         console = Console(stderr=True, quiet=quiet, width=140)
+        live = _live_warnings(console)
+        logging.getLogger("espin.calibration").addHandler(live)
         csv_options = read_options(strain_column, stress_column, percent_strain, delimiter, skip_rows)
         try:
             overrides = _parse_set(set_)
             config = resolve_config(base, **{k.replace(".", "__"): v for k, v in overrides.items()})
             curve, strain_rate = _curves(curves, rate, _parse_rates(curves_at_rate))
-            seed_list = None if seeds is None else [int(_number(s, "--seeds")) for s in seeds.split(",")]
+            seed_list = None if seeds is None else _parse_seeds(seeds)
+            grid = _parse_grid(average_grid)
             with console.status("fitting") as status:
 
                 def on_evaluation(record: dict) -> None:
@@ -204,14 +293,25 @@ def register(app: typer.Typer) -> None:
                 result = fit(
                     curve, base=config, parameters=[p for p in params.split(",") if p.strip()],
                     bounds=_parse_bounds(bounds), fixed=_parse_fixed(fix), realizations=realizations,
-                    seeds=seed_list, strain_rate_per_s=strain_rate, steps=steps, eta_points=eta_points,
+                    seeds=seed_list, strain_rate_per_s=strain_rate, step_strain=step_strain,
+                    average_grid=grid, large_strain=large_strain, eta_points=eta_points,
                     eta_tolerance=eta_tolerance, workers=workers, scheduler=scheduler,
                     read_options=csv_options, on_evaluation=on_evaluation,
                 )
             written = result.write(out)
         except EspinError as err:
             _fail(str(err))
+        finally:
+            logging.getLogger("espin.calibration").removeHandler(live)
         console.print(_table(result))
+        for curve, steps in zip(result.curves, result.load_steps):
+            console.print(
+                f"curve {curve.source} ({curve.strain_rate_per_s:g} 1/s): {curve.strain.size} points from "
+                f"{curve.points_from}; {steps['load_steps']} load steps, at most {steps['step_strain']:g} "
+                f"to strain {steps['fine_steps_to_strain']:.3g}, largest {steps['largest_step_strain']:.3g} "
+                "overall", highlight=False, soft_wrap=True)
+        for warning in result.warnings:
+            console.print(f"warning: {warning}", style="yellow", highlight=False, soft_wrap=True)
         console.print(
             f"{result.simulations} simulations ({result.failed_simulations} failed) in "
             f"{result.elapsed_s:.1f} s, {result.pool}; seeds {', '.join(map(str, result.seeds))}",

@@ -28,6 +28,10 @@ the sample standard deviation (ddof = 1, as for the paper's N = 3 specimens) and
 specimens whose strain range covers it are reported. The default grid runs from 0 (or the
 latest first strain of the specimens) to the smallest of their last strains, so every
 specimen covers every point; a user grid may reach further, where fewer specimens count.
+``grid="measured"`` keeps the measured strains instead of inventing new ones: the specimens'
+common strains when they all share them (no interpolation at all), else the union of their
+strains within the common range (each specimen interpolated at the others' strains); a fit
+to the average then weighs the points that were measured, not an arbitrary grid.
 """
 
 from __future__ import annotations
@@ -303,8 +307,31 @@ def _default_grid(curves: Sequence[Curve], n_points: int) -> np.ndarray:
     return np.linspace(start, end, n_points)
 
 
+_SAME_STRAIN = 1e-9
+"""Relative tolerance (of the largest strain) under which two measured strains are one."""
+
+
+def _shared_strains(curves: Sequence[Curve]) -> bool:
+    """Whether every specimen was measured at the same strains (to ``_SAME_STRAIN``)."""
+    first = np.asarray(curves[0].strain, dtype=float)
+    scale = max(float(np.max(np.abs(c.strain))) for c in curves) or 1.0
+    return all(len(c.strain) == len(first) and np.allclose(c.strain, first, rtol=0.0, atol=_SAME_STRAIN * scale)
+               for c in curves[1:])
+
+
+def _measured_grid(curves: Sequence[Curve]) -> np.ndarray:
+    """The union of the specimens' strains within their common strain range (strains closer
+    than ``_SAME_STRAIN`` merged)."""
+    scale = max(float(np.max(np.abs(c.strain))) for c in curves) or 1.0
+    span = _default_grid(curves, 2)  # the common range (and its error when there is none)
+    union = np.unique(np.concatenate([np.asarray(c.strain, dtype=float) for c in curves]))
+    union = union[(union >= span[0] - _SAME_STRAIN * scale) & (union <= span[-1] + _SAME_STRAIN * scale)]
+    keep = np.concatenate([[True], np.diff(union) > _SAME_STRAIN * scale])
+    return np.clip(union[keep], span[0], span[-1])
+
+
 def average_curves(
-    curves: Sequence[Curve], grid: ArrayLike | None = None, n_points: int = 101
+    curves: Sequence[Curve], grid: ArrayLike | str | None = None, n_points: int = 101
 ) -> AveragedCurve:
     """Mean, sample sd and count of several specimens' stress on a common strain grid.
 
@@ -312,9 +339,11 @@ def average_curves(
     ----------
     curves
         The specimens (at least one).
-    grid : (m,) array_like, optional
+    grid : (m,) array_like or "measured", optional
         Increasing strains to average at; default ``n_points`` strains from 0 (or the latest
-        first strain) to the smallest last strain of the specimens.
+        first strain) to the smallest last strain of the specimens. ``"measured"``: the
+        specimens' own strains, their common strains when they all share them (to a relative
+        1e-9), else the union of their strains within the common range.
     n_points
         Size of the default grid (>= 2).
 
@@ -330,7 +359,14 @@ def average_curves(
     """
     if not curves:
         raise CurveFileError("no curves to average")
-    if grid is None:
+    if isinstance(grid, str):
+        if grid != "measured":
+            raise CurveFileError(f'grid must be strains or "measured", got {grid!r}')
+        if _shared_strains(curves):  # no interpolation: the measured values themselves
+            stress = np.array([c.stress_MPa for c in curves], dtype=float)
+            return _averaged(np.array(curves[0].strain, dtype=float), stress, curves)
+        strain = _measured_grid(curves)
+    elif grid is None:
         if n_points < 2:
             raise CurveFileError(f"n_points must be >= 2, got {n_points}")
         strain = _default_grid(curves, n_points)
@@ -342,6 +378,11 @@ def average_curves(
     for row, curve in zip(stress, curves):
         covered = (strain >= curve.strain[0]) & (strain <= curve.strain[-1])
         row[covered] = np.interp(strain[covered], curve.strain, curve.stress_MPa)
+    return _averaged(strain, stress, curves)
+
+
+def _averaged(strain: np.ndarray, stress: np.ndarray, curves: Sequence[Curve]) -> AveragedCurve:
+    """Mean, sd and count of the (specimens, strains) stress table (NaN: not covered)."""
     covered = np.isfinite(stress)
     n = covered.sum(axis=0)
     if np.any(n == 0):

@@ -10,8 +10,8 @@ from typing import Any
 
 import numpy as np
 
-from espin.calibration.curves import FittedCurve, _measured_curves
-from espin.calibration.model import _default_steps
+from espin.calibration.curves import AverageGrid, FittedCurve, _measured_curves
+from espin.calibration.model import _curve_steps, _loading_config, _Steps
 from espin.calibration.parameters import ETA_KEY, FIT_PARAMETERS, _bounds_table, _keys_of, parameter_key
 from espin.config import Config, apply_overrides
 from espin.errors import ConfigError
@@ -24,7 +24,7 @@ class _Problem:
     bounds: dict[str, tuple[float, float]]
     seeds: tuple[int, ...]
     curves: tuple[FittedCurve, ...]
-    steps: tuple[int, ...]  # load steps of each curve's simulation
+    steps: tuple[_Steps, ...]  # load steps of each curve's simulations
     eta_points: int
     eta_tolerance: float
 
@@ -80,11 +80,33 @@ def _seed_list(config: Config, realizations: int | None, seeds: Sequence[int] | 
     return tuple(int(s) for s in seeds)
 
 
+def _checked_steps(config: Config, curves: Sequence[FittedCurve], step_strain: float,
+                   large_strain: bool) -> tuple[_Steps, ...]:
+    """Each curve's load steps, its loading validated as the simulations will run it."""
+    if not (isinstance(step_strain, (int, float)) and math.isfinite(step_strain) and 0 < step_strain <= 0.1):
+        raise ConfigError(f"step_strain: the largest load step must be in (0, 0.1] (got {step_strain!r})")
+    steps = []
+    for c in curves:
+        if c.max_strain > 1.0 and not large_strain:
+            raise ConfigError(
+                f"curve {c.source}: its largest strain is {c.max_strain:g} (= {100 * c.max_strain:g} %): "
+                "strain in percent? use --percent-strain (read_options={'percent_strain': True}); "
+                "if strains above 1 are intended, pass --large-strain (large_strain=True)"
+            )
+        s = _curve_steps(c.strain, c.stress_MPa, step_strain)
+        try:
+            _loading_config(config, s, c.strain_rate_per_s)
+        except ConfigError as err:
+            raise ConfigError(f"curve {c.source} at {c.strain_rate_per_s:g} 1/s: {err}") from None
+        steps.append(s)
+    return tuple(steps)
+
+
 def _problem(
     curve: Any, *, base: Config | str | Path, parameters: Sequence[str], bounds: Mapping[str, Any] | None,
     fixed: Mapping[str, float] | None, realizations: int | None, seeds: Sequence[int] | None,
-    strain_rate_per_s: float | None, steps: int | None, eta_points: int, eta_tolerance: float,
-    read_options: Mapping[str, Any],
+    strain_rate_per_s: float | None, step_strain: float, eta_points: int, eta_tolerance: float,
+    read_options: Mapping[str, Any], average_grid: AverageGrid = "measured", large_strain: bool = False,
 ) -> _Problem:
     from espin.rve import resolve_config
 
@@ -104,7 +126,7 @@ def _problem(
             "measured strain; use a base config with the loading shorthand"
         )
     table = _bounds_table(config, keys, bounds)
-    curves = _measured_curves(curve, strain_rate_per_s, config, read_options)
+    curves = _measured_curves(curve, strain_rate_per_s, config, read_options, average_grid)
     if "fiber.flow_rate_per_s" in keys and len(curves) < 2:
         raise ConfigError(
             "fiber.flow_rate_per_s (a_p): from one strain rate only b_p * asinh(rate / a_p) is "
@@ -114,8 +136,7 @@ def _problem(
     if n_points <= len(keys):
         raise ConfigError(f"curve: {n_points} points with strain > 0 cannot fit {len(keys)} parameters")
     seeds = _seed_list(config, realizations, seeds)
-    if steps is not None and steps < 1:
-        raise ConfigError(f"steps: must be >= 1 (got {steps})")
+    steps = _checked_steps(config, curves, step_strain, large_strain)
     if eta_points < 2 or not 0 < eta_tolerance < 0.1:
         raise ConfigError(
             f"eta_points must be >= 2 and eta_tolerance in (0, 0.1) (got {eta_points}, {eta_tolerance})"
@@ -126,7 +147,7 @@ def _problem(
         bounds=table,
         seeds=seeds,
         curves=tuple(curves),
-        steps=tuple(steps or _default_steps(config, c.max_strain) for c in curves),
+        steps=steps,
         eta_points=eta_points,
         eta_tolerance=eta_tolerance,
     )

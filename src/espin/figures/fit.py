@@ -66,9 +66,15 @@ def _fiber(ax: Axes, result: FitResult) -> None:
 
 
 def _profile(ax: Axes, result: FitResult) -> None:
-    """Least SSE at each eta visited (the profile the eta search walked)."""
+    """Least SSE at each eta visited (the profile the eta search walked); an eta where the fit
+    failed (SSE inf) is a dotted vertical line."""
+    import numpy as np
+
     eta, sse = result.eta_profile.T
-    ax.plot(eta, sse, "o-", color="k", markersize=3)
+    finite = np.isfinite(sse)
+    ax.plot(eta[finite], sse[finite], "o-", color="k", markersize=3)
+    for k, failed in enumerate(eta[~finite]):
+        ax.axvline(failed, color="0.5", linestyle=":", linewidth=0.8, label="fit failed" if k == 0 else None)
     best = result.values["rve.volume_fraction"]
     ax.axvline(best, color="C3", linewidth=0.8, label=f"eta = {best:.4g}")
     ax.set_yscale("log")
