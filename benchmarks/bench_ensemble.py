@@ -49,7 +49,8 @@ def run_mode(mode: str, realizations: int, size_ratio: float, layers: int) -> di
         "n_dof": int(np.mean([r["n_dof"] for r in ensemble.records])), "wall_s": wall,
         "task_s": float(sum(r["seconds"] for r in ensemble.records)),
         "peak_MB": max(peak_self, peak_children),
-        "curves": [r["stress_MPa"] for r in ensemble.records],
+        "curves": {r["seed"]: r["stress_MPa"] for r in ensemble.records},
+        "failures": [f"seed {f['seed']}: {f['error'].splitlines()[0][:300]}" for f in ensemble.failures],
     }
 
 
@@ -76,10 +77,14 @@ def main() -> None:
         print(f"{row['mode']:>15}: {row['tasks']} tasks ({row['failed']} failed), {row['n_dof']} DOF each, "
               f"wall {row['wall_s']:.1f} s, task sum {row['task_s']:.1f} s, peak {row['peak_MB']:.0f} MB",
               flush=True)
+        for failure in row["failures"]:
+            print(f"{'':>17}failed {failure}", flush=True)
     reference = next((r for r in rows if r["mode"] == "serial-1"), rows[0])
     for row in rows:
         speedup = reference["wall_s"] / row["wall_s"]
-        diff = max(float(np.max(np.abs(np.subtract(a, b)))) for a, b in zip(row["curves"], reference["curves"]))
+        common = set(row["curves"]) & set(reference["curves"])
+        diff = max((float(np.max(np.abs(np.subtract(row["curves"][s], reference["curves"][s])))) for s in common),
+                   default=float("nan"))
         print(f"{row['mode']:>15}: speed-up over {reference['mode']} {speedup:.2f}, "
               f"max |stress difference| {diff:.3g} MPa")
 
