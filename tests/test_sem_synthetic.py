@@ -2,7 +2,10 @@
 
 Tolerances (from the acceptance criteria): mean diameter within 10 % or 1 px, whichever is
 larger; dominant direction within 5 deg on aligned mats; mean tortuosity within 0.02 on wavy
-(max deviation 20 deg) and aligned mats. The measured errors are listed in docs/sem.md.
+(max deviation 20 deg) and aligned mats. Tightened where the method does better: wavy mats
+within 0.01 pooled and 0.015 image by image, aligned mats within 0.015, and straight fibers
+read a median tortuosity below 1.0125 (the floor of the tracer). The measured errors are listed
+in docs/sem.md.
 """
 
 from __future__ import annotations
@@ -70,9 +73,9 @@ def test_mean_tortuosity_within_0_02_on_wavy_mats(wavy):
     measured = np.concatenate([m.fibers["tortuosity"].to_numpy() for _, m in wavy])
     true = np.concatenate([image.visible.tortuosity for image, _ in wavy])
     assert true.mean() > 1.02  # wavy enough for the test to mean something
-    assert abs(measured.mean() - true.mean()) <= 0.02
+    assert abs(measured.mean() - true.mean()) <= 0.01
     for image, m in wavy:  # and image by image
-        assert abs(m.fibers["tortuosity"].mean() - image.visible.tortuosity.mean()) <= 0.02
+        assert abs(m.fibers["tortuosity"].mean() - image.visible.tortuosity.mean()) <= 0.015
 
 
 @pytest.mark.parametrize("kappa, mean_deg", [(10.0, 30.0), (20.0, 150.0)])
@@ -90,7 +93,19 @@ def test_direction_within_5_deg_and_tortuosity_within_0_02_on_aligned_mats(kappa
         assert m.fits.orientation_model == "von_mises"
         # Nearly straight fibers: crossing artefacts (U-turns at the border, jogs through
         # shallow crossings) are cut at sharp turns, so they do not inflate the tortuosity.
-        assert abs(m.fibers["tortuosity"].mean() - v.tortuosity.mean()) <= 0.02
+        assert abs(m.fibers["tortuosity"].mean() - v.tortuosity.mean()) <= 0.015
+
+
+def test_straight_fibers_read_a_small_tortuosity_floor():
+    """Straight fibers (true tortuosity 1) crossing at all angles: the skeleton staircase,
+    the end caps and the joins through crossings add little length."""
+    orientation = {"von_mises": {"mean_deg": 45.0, "kappa": 3.0}}
+    mat = _mat(1, rve__max_deviation_deg=0.0, rve__orientation=orientation)
+    image = render_sem(mat, side_um=70 * D, seed=1)
+    assert np.allclose(image.visible.tortuosity, 1.0)
+    t = measure(image.image, um_per_px=image.um_per_px).fibers["tortuosity"]
+    assert np.median(t) < 1.0125
+    assert t.mean() < 1.02
 
 
 def test_uniform_mat_is_nearly_isotropic(wavy):

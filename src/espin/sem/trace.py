@@ -16,11 +16,22 @@ The algorithm (CT-FIRE-like, written with numpy / scipy.ndimage / scipy.sparse.c
    outgoing directions, below ``max_bend_deg``; so a fiber passes straight through a crossing,
    and an unpaired branch ends there (a fiber that dives under another one).
 5. Paired branches are chained into fibers. Near a junction, the skeleton pixels within w / 2
-   of its centre are dropped and the fiber crosses the junction on a straight line.
-6. Each fiber's pixel chain is resampled every pixel along its arc length and smoothed by a
-   Gaussian of sigma w / 2 (at least 2 px): a digital chain overestimates the length of a
-   straight line by up to 8 % (the staircase), the smoothed curve by well under 1 %.
-7. A smoothed fiber is cut where it turns by more than 1.5 ``max_bend_deg`` between the
+   of its centre are dropped and the fiber crosses the junction on a straight line. At the
+   open ends of a fiber the skeleton does not follow it: at an unpaired end at a junction it
+   bends towards the junction centre, so the pixels within w of the centre are dropped; at a
+   free end inside the image it curls into the end cap, so the last w / 2 is dropped.
+6. Gap joining: a fiber broken at a crossing (a shallow crossing split into two junctions, an
+   end taken by the other fiber, a fiber hidden under another one) leaves two open ends that
+   face each other. Pairs of open ends at most 8 w apart, neither on the image border, whose
+   total turn (end direction -> straight gap -> other end) is at most ``max_bend_deg`` are
+   joined across the gap, smallest turn first; a join is refused if the joined, smoothed path
+   turns by more than ``max_bend_deg`` between chords of 2 w or 4 w around the gap (a U-turn
+   on a larger scale than the end directions see).
+7. Each fiber's pixel chain is resampled every pixel along its arc length and smoothed by a
+   Gaussian-weighted local linear fit of sigma w / 2 (at least 2 px; the Gaussian filter
+   inside the chain, a local line at its ends): a digital chain overestimates the length of
+   a straight line by up to 8 % (the staircase), the smoothed curve by well under 1 %.
+8. A smoothed fiber is cut where it turns by more than 1.5 ``max_bend_deg`` between the
    chords over the arc length w before and after a point: a tracing artefact (a U-turn where
    two fibers reach the image border together, a jog onto a neighbour through a shallow
    crossing), not a bend of a fiber.
@@ -39,6 +50,13 @@ from scipy.sparse import csgraph
 __all__ = ["TracedFibers", "trace_fibers"]
 
 _MERGE = 2.5
+_SIGMA = 0.5  # smoothing sigma of a traced path, in widths (at least 2 px)
+_END_JUNCTION = 1.0  # an unpaired end at a junction loses the pixels within this * w of it
+_END_FREE = 0.5  # a free end inside the image loses this * w of arc (the end cap)
+_GAP = 8.0  # open fiber ends at most this * w apart may be joined across a straight gap,
+_JOIN_TURN = 1.0  # ... if their total turn is at most this * max_bend,
+_GUARD_SHORT, _GUARD = 2.0, 4.0  # ... and the joined path turns by at most
+_GUARD_LIMIT = 1.0  # this * max_bend between chords of these many widths around the gap
 _TURN = 1.5  # a fiber is cut where it turns by more than _TURN * max_bend within +- w
 _NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
 
@@ -69,6 +87,7 @@ class _Graph:
     branches: list[np.ndarray]
     ends: np.ndarray  # (n_branches, 2) int64 junction id at the first / last pixel
     junction_centre: np.ndarray  # (n_junctions, 2) float64
+    skeleton_shape: tuple[int, int] = (0, 0)
 
 
 def trace_fibers(mask: np.ndarray, width_px: float, max_bend_deg: float = 35.0) -> TracedFibers:
@@ -96,7 +115,12 @@ def trace_fibers(mask: np.ndarray, width_px: float, max_bend_deg: float = 35.0) 
     graph = _prune_spurs(graph, w)
     graph = _merge_junctions(graph, w)
     partner = _pair_branches(graph, w, np.radians(max_bend_deg))
-    paths = [piece for path in _chain_fibers(graph, partner, w)
+    chains = _chain_fibers(graph, partner, w)
+    if _GAP > 0:
+        smooth = _join_gaps(chains, w, np.radians(max_bend_deg), skeleton.shape)
+    else:
+        smooth = [_smoothed(c, w) for c, _ in chains]
+    paths = [piece for path in smooth
              for piece in _split_at_turns(path, w, np.radians(_TURN * max_bend_deg))]
     return TracedFibers(paths=paths, junctions=graph.junction_centre,
                         skeleton=skeleton)
@@ -123,7 +147,8 @@ def _skeleton_graph(skeleton: np.ndarray) -> _Graph:
             if len(labels):
                 # A one-pixel branch may touch two junctions: give it both.
                 ends[i, side] = (labels.max() if side == 0 else labels.min()) - 1
-    return _Graph(branches=branches, ends=ends, junction_centre=centre)
+    return _Graph(branches=branches, ends=ends, junction_centre=centre,
+                  skeleton_shape=skeleton.shape)
 
 
 def _ordered_chains(chain_px: np.ndarray) -> list[np.ndarray]:
@@ -174,7 +199,7 @@ def _prune_spurs(graph: _Graph, w: float) -> _Graph:
     free = (graph.ends < 0).sum(axis=1) == 1
     keep = ~(free & (length < w))
     return _Graph([b for b, k in zip(graph.branches, keep) if k], graph.ends[keep],
-                  graph.junction_centre)
+                  graph.junction_centre, graph.skeleton_shape)
 
 
 def _merge_junctions(graph: _Graph, w: float) -> _Graph:
@@ -203,7 +228,8 @@ def _merge_junctions(graph: _Graph, w: float) -> _Graph:
     ends = np.where(graph.ends >= 0, group[np.maximum(graph.ends, 0)] if n else -1, -1)
     # Bridges (and short loops) inside a merged junction are dropped.
     inner = np.all(ends >= 0, axis=1) & (ends[:, 0] == ends[:, 1]) & (length < 2 * _MERGE * w)
-    return _Graph([b for b, k in zip(graph.branches, ~inner) if k], ends[~inner], centre)
+    return _Graph([b for b, k in zip(graph.branches, ~inner) if k], ends[~inner], centre,
+                  graph.skeleton_shape)
 
 
 # --------------------------------------------------------------------------------------------
@@ -255,7 +281,10 @@ def _pair_branches(graph: _Graph, w: float, max_bend: float) -> np.ndarray:
 
 
 def _chain_fibers(graph: _Graph, partner: np.ndarray, w: float) -> list[np.ndarray]:
-    """Follow branches through their paired ends; smooth each fiber's pixel chain."""
+    """Follow branches through their paired ends: (pixel chain, open?) of each fiber.
+
+    The ends of an open chain are trimmed (:func:`_trim_open_ends`); a closed loop is not.
+    """
     n = len(graph.branches)
     used = np.zeros(n, dtype=bool)
     starts = [2 * b + s for b in range(n) for s in (0, 1) if partner[b, s] < 0]
@@ -272,8 +301,140 @@ def _chain_fibers(graph: _Graph, partner: np.ndarray, w: float) -> list[np.ndarr
             if nxt < 0:
                 break
             end = int(nxt)
-        paths.append(_smoothed(np.concatenate(pieces).astype(float), w))
+        chain = np.concatenate(pieces).astype(float)
+        if partner[b, 1 - side] < 0:  # an open chain: trim both of its ends
+            first_b, first_side = divmod(start, 2)
+            chain = _trim_open_ends(chain, graph.ends[first_b, first_side],
+                                    graph.ends[b, 1 - side], graph, w)
+            paths.append((chain, True))
+        else:
+            paths.append((chain, False))
     return paths
+
+
+def _end_direction(chain: np.ndarray, w: float) -> np.ndarray:
+    """Unit direction (row, col) in which a chain leaves its last point, fitted over 2 w."""
+    distance = np.hypot(*(chain - chain[-1]).T)
+    near = chain[distance <= 2.0 * w]
+    d = chain[-1] - near.mean(axis=0)
+    if len(near) >= 3:
+        axis = np.linalg.svd(near - near.mean(axis=0), full_matrices=False)[2][0]
+        d = axis if axis @ d >= 0 else -axis
+    norm = np.hypot(*d)
+    return d / norm if norm > 0 else d
+
+
+def _max_turn(path: np.ndarray, h: int, around: float, radius: float) -> float:
+    """Largest turn between the chords h points before and after, at points near index around."""
+    n = len(path)
+    if n < 2 * h + 1:
+        return 0.0
+    before = path[h:n - h] - path[:n - 2 * h]
+    after = path[2 * h:] - path[h:n - h]
+    cos = np.einsum("ij,ij->i", before, after) / np.maximum(
+        np.hypot(*before.T) * np.hypot(*after.T), 1e-12)
+    index = np.arange(h, n - h)
+    near = np.abs(index - around) <= radius
+    return float(np.arccos(np.clip(cos[near], -1.0, 1.0)).max(initial=0.0))
+
+
+def _join_gaps(chains: list, w: float, max_bend: float, shape: tuple) -> list[np.ndarray]:
+    """Join open fiber chains whose ends face each other across a straight gap; smooth all.
+
+    A fiber broken at a crossing (a shallow crossing split into two junctions, an end stolen
+    by the other fiber) leaves two open ends that face each other: candidates are pairs of
+    ends at most _GAP w apart, neither on the image border, whose total turn (end direction
+    to gap, gap to the other end's reverse direction) is at most ``max_bend``; smallest turn
+    first. A join is kept only if the smoothed joined path turns by at most ``max_bend``
+    between chords of 2 w and _GUARD w around the gap (no U-turn through a gap).
+    """
+    open_ids = [i for i, (c, o) in enumerate(chains) if o and len(c) >= 2]
+    shape = np.array(shape)
+    ends = []  # (chain, side, point, outgoing direction)
+    for i in open_ids:
+        c = chains[i][0]
+        for side, oriented in ((0, c[::-1]), (1, c)):
+            p = oriented[-1]
+            if np.any(p <= 1) or np.any(p >= shape - 2):
+                continue
+            ends.append((i, side, p, _end_direction(oriented, w)))
+    candidates = []
+    for a in range(len(ends)):
+        for b in range(a + 1, len(ends)):
+            ia, sa, pa, da = ends[a]
+            ib, sb, pb, db = ends[b]
+            if ia == ib:
+                continue
+            g = pb - pa
+            gap = np.hypot(*g)
+            if gap > _GAP * w:
+                continue
+            if gap < 1e-9:
+                turn = np.arccos(np.clip(-(da @ db), -1, 1))
+            else:
+                u = g / gap
+                turn = np.arccos(np.clip(da @ u, -1, 1)) + np.arccos(np.clip(-(db @ u), -1, 1))
+            if turn <= _JOIN_TURN * max_bend:
+                candidates.append((turn, gap, a, b))
+    # Union of chains: each chain is a sequence of (chain id, reversed?) pieces.
+    seq = {i: [(i, False)] for i in range(len(chains))}
+    owner = {i: i for i in range(len(chains))}
+    free = {(ends[k][0], ends[k][1]) for k in range(len(ends))}
+
+    def assemble(pieces):
+        return np.concatenate([chains[i][0][::-1] if r else chains[i][0] for i, r in pieces])
+
+    for turn, gap, a, b in sorted(candidates):
+        ia, sa = ends[a][:2]
+        ib, sb = ends[b][:2]
+        if (ia, sa) not in free or (ib, sb) not in free:
+            continue
+        ga, gb = owner[ia], owner[ib]
+        if ga == gb:
+            continue
+        A, B = seq[ga], seq[gb]
+        # orient A so that the end (ia, sa) is last, B so that (ib, sb) is first
+        last_a = A[-1][0] == ia and (A[-1][1] == (sa == 0))
+        A_or = A if last_a else [(i, not r) for i, r in A[::-1]]
+        first_b = B[0][0] == ib and (B[0][1] == (sb == 1))
+        B_or = B if first_b else [(i, not r) for i, r in B[::-1]]
+        joined = A_or + B_or
+        path = _smoothed(assemble(joined), w)
+        # the gap starts at the arc length of A (one smoothed point per pixel of arc)
+        arc_a = float(np.hypot(*np.diff(assemble(A_or), axis=0).T).sum())
+        if max(_max_turn(path, max(int(round(k * w)), 2), arc_a + gap / 2, _GUARD * w)
+               for k in (_GUARD_SHORT, _GUARD)) > _GUARD_LIMIT * max_bend:
+            continue
+        free -= {(ia, sa), (ib, sb)}
+        seq[ga] = joined
+        for i, _ in B:
+            owner[i] = ga
+        del seq[gb]
+    return [_smoothed(assemble(pieces), w) for pieces in seq.values()]
+
+
+def _trim_open_ends(chain: np.ndarray, j_first: int, j_last: int, graph: _Graph,
+                    w: float) -> np.ndarray:
+    """Drop the end pixels of an open fiber chain where the skeleton does not follow the fiber.
+
+    At an unpaired end at a junction the skeleton bends towards the junction centre within
+    about w of it (the same zone the direction fit leaves out); at a free end the skeleton
+    curls into the end cap over about w / 2. Ends on the image border (the skeleton was run
+    out to the border) are kept. A chain shorter than the trims is left whole.
+    """
+    shape = np.array(graph.skeleton_shape)
+    arc = np.r_[0.0, np.cumsum(np.hypot(*np.diff(chain, axis=0).T))]
+    keep = np.ones(len(chain), dtype=bool)
+    for end, j, distance_from_end in ((0, j_first, arc), (-1, j_last, arc[-1] - arc)):
+        pixel = chain[end]
+        if j >= 0:
+            keep &= np.hypot(*(chain - graph.junction_centre[j]).T) > _END_JUNCTION * w
+        elif np.all(pixel > 0) and np.all(pixel < shape - 1):
+            keep &= distance_from_end >= _END_FREE * w
+    kept = np.flatnonzero(keep)
+    if len(kept) < 2:
+        return chain
+    return chain[kept[0]:kept[-1] + 1]
 
 
 def _trimmed(graph: _Graph, b: int, side: int, w: float) -> np.ndarray:
@@ -289,18 +450,41 @@ def _trimmed(graph: _Graph, b: int, side: int, w: float) -> np.ndarray:
 def _smoothed(chain: np.ndarray, w: float) -> np.ndarray:
     """Resample a pixel chain every pixel of arc length and smooth it (sigma max(2, w / 2)).
 
-    The chain is extended at both ends by point reflection before smoothing, so a straight
-    chain keeps its end points and its length.
+    The smoothing is a Gaussian-weighted local linear fit (:func:`_local_linear`): the Gaussian
+    filter inside the chain, and near an end a local line, so a straight chain stays straight
+    up to its end points (a point reflection about a noisy end pixel put a kink there).
     """
     step = np.hypot(*np.diff(chain, axis=0).T)
     arc = np.r_[0.0, np.cumsum(step)]
     n = max(int(np.ceil(arc[-1])) + 1, 2)
     s = np.linspace(0.0, arc[-1], n)
     points = np.column_stack([np.interp(s, arc, chain[:, k]) for k in range(2)])
-    sigma = max(2.0, w / 2.0)
-    pad = min(int(np.ceil(3 * sigma)), n - 1)
-    extended = np.pad(points, ((pad, pad), (0, 0)), mode="reflect", reflect_type="odd")
-    return ndimage.gaussian_filter1d(extended, sigma, axis=0, mode="nearest")[pad:pad + n]
+    return _local_linear(points, max(2.0, _SIGMA * w))
+
+
+def _local_linear(points: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian-weighted local linear fit of a curve sampled every pixel, at every sample.
+
+    Inside the curve this is the Gaussian filter; near an end, where the kernel is cut off, the
+    local line keeps a straight curve straight (no reflection about a noisy end pixel).
+    """
+    n = len(points)
+    half = int(np.ceil(3 * sigma))
+    k = np.arange(-half, half + 1, dtype=float)
+    g = np.exp(-0.5 * (k / sigma) ** 2)
+    ones = np.ones(n)
+
+    def conv(x: np.ndarray, kern: np.ndarray) -> np.ndarray:  # sum_k kern[k] x[i + k]
+        return np.convolve(x, kern[::-1], mode="full")[half:half + n]
+
+    s0, s1, s2 = conv(ones, g), conv(ones, k * g), conv(ones, k * k * g)
+    out = np.empty_like(points)
+    for c in range(points.shape[1]):
+        t0, t1 = conv(points[:, c], g), conv(points[:, c], k * g)
+        det = s0 * s2 - s1 * s1
+        out[:, c] = np.where(det > 1e-9, (s2 * t0 - s1 * t1) / np.where(det > 1e-9, det, 1.0),
+                             t0 / s0)
+    return out
 
 
 def _split_at_turns(path: np.ndarray, w: float, max_bend: float) -> list[np.ndarray]:
