@@ -139,6 +139,65 @@ def _clip_segments(
     return t0, t1, hits
 
 
+@dataclass(frozen=True)
+class WindowPieces:
+    """Fiber segments clipped to a square window, inside pieces only, grouped into runs.
+
+    A run is a maximal portion: consecutive pieces of a fiber that meet at a vertex inside
+    the closed window. Pieces are ordered by fiber and along each fiber.
+
+    Attributes
+    ----------
+    fiber : (n,) int64
+        Fiber of each piece.
+    start, end : (n, 2) float64 [um]
+        End points of each piece (exactly the vertices where a segment is not cut).
+    length : (n,) float64 [um]
+        Length of each piece.
+    run_start : (n,) bool
+        True where a piece starts a new run.
+    run : (n,) int64
+        Run of each piece, 0, 1, ...
+    """
+
+    fiber: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
+    length: np.ndarray
+    run_start: np.ndarray
+    run: np.ndarray
+
+
+def clip_to_window(vertices: np.ndarray, fiber_offsets: np.ndarray, origin: np.ndarray,
+                   side: float) -> WindowPieces:
+    """Clip every fiber segment to the square [origin, origin + side]^2 at once (Liang-Barsky)
+    and group the inside pieces into runs (see :class:`WindowPieces`)."""
+    v = np.asarray(vertices, dtype=float).reshape(-1, 2)
+    offsets = np.asarray(fiber_offsets, dtype=np.int64)
+    lo = np.asarray(origin, dtype=float).reshape(2)
+    hi = lo + float(side)
+    # Segments: vertex i to i + 1 of the same fiber (robust to fibers with 0 or 1 vertex).
+    vertex_fiber = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
+    seg = np.flatnonzero(vertex_fiber[:-1] == vertex_fiber[1:])
+    p0, p1 = v[seg], v[seg + 1]
+    t0, t1, hits = _clip_segments(p0, p1, lo, hi)
+    d = p1 - p0
+    # Exact end points where the segment is not cut, so shared vertices coincide bit for bit.
+    a = np.where((t0 <= 0.0)[:, None], p0, p0 + t0[:, None] * d)
+    b = np.where((t1 >= 1.0)[:, None], p1, p0 + t1[:, None] * d)
+    piece = np.hypot(*(b - a).T)
+    # A piece counts if it has length; a zero-length segment counts if its point is inside.
+    idx = np.flatnonzero(hits & ((piece > 0.0) | (np.hypot(*d.T) == 0.0)))
+    # A piece continues the previous inside piece if that is the previous segment (of the same
+    # fiber, then) and their shared vertex lies in the closed window.
+    vertex_in = np.all((v >= lo) & (v <= hi), axis=1)
+    run_start = np.ones(len(idx), dtype=bool)
+    if len(idx) > 1:
+        run_start[1:] = ~((seg[idx[1:]] == seg[idx[:-1]] + 1) & vertex_in[seg[idx[1:]]])
+    return WindowPieces(fiber=vertex_fiber[seg[idx]].astype(np.int64), start=a[idx], end=b[idx],
+                        length=piece[idx], run_start=run_start, run=np.cumsum(run_start) - 1)
+
+
 def window_tortuosity(
     vertices: ArrayLike,
     fiber_offsets: ArrayLike,
@@ -187,41 +246,14 @@ def window_tortuosity(
         raise ValueError(f"min_chord must be >= 0, got {min_chord}")
     if offsets.ndim != 1 or len(offsets) < 1 or offsets[0] != 0 or offsets[-1] != len(v):
         raise ValueError("fiber_offsets must start at 0 and end at the number of vertices")
-    hi = lo + side
-
-    # Segments: vertex i to i + 1 of the same fiber (robust to fibers with 0 or 1 vertex).
-    vertex_fiber = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
-    seg = np.flatnonzero(vertex_fiber[:-1] == vertex_fiber[1:])
-    seg_fiber = vertex_fiber[seg]
-    p0, p1 = v[seg], v[seg + 1]
-    t0, t1, hits = _clip_segments(p0, p1, lo, hi)
-    d = p1 - p0
-    # Exact end points where the segment is not cut, so shared vertices coincide bit for bit.
-    a = np.where((t0 <= 0.0)[:, None], p0, p0 + t0[:, None] * d)
-    b = np.where((t1 >= 1.0)[:, None], p1, p0 + t1[:, None] * d)
-    piece = np.hypot(*(b - a).T)
-    seg_length = np.hypot(*d.T)
-    # A piece counts if it has length; a zero-length segment counts if its point is inside.
-    inside = hits & ((piece > 0.0) | (seg_length == 0.0))
-
-    # Runs: an inside piece continues the previous one if that is the previous segment of the
-    # same fiber, also inside, and their shared vertex lies in the closed window.
-    vertex_in = np.all((v >= lo) & (v <= hi), axis=1)
-    continues = np.zeros(len(seg), dtype=bool)
-    if len(seg) > 1:
-        continues[1:] = (
-            inside[1:] & inside[:-1] & (seg[1:] == seg[:-1] + 1) & vertex_in[seg[1:]]
-        )
-    idx = np.flatnonzero(inside)
-    run_start = ~continues[idx]
-    run = np.cumsum(run_start) - 1
+    pieces = clip_to_window(v, offsets, lo, side)
+    run_start = pieces.run_start
     n_runs = int(run_start.sum())
-    first = idx[run_start]
-    last = idx[np.r_[run_start[1:], True]] if len(idx) else idx
+    last = np.r_[run_start[1:], True] if len(run_start) else run_start
 
-    contour = np.bincount(run, piece[idx], minlength=n_runs)
-    start = a[first]
-    end = b[last]
+    contour = np.bincount(pieces.run, pieces.length, minlength=n_runs)
+    start = pieces.start[run_start]
+    end = pieces.end[last]
     chord_vec = end - start
     chord = np.hypot(*chord_vec.T)
     keep = (chord > 0.0) & (chord >= min_chord)
@@ -233,7 +265,7 @@ def window_tortuosity(
         chord_length=chord,
         tortuosity=contour / chord,
         orientation=np.mod(np.arctan2(chord_vec[:, 1], chord_vec[:, 0]), np.pi),
-        fiber=seg_fiber[first][keep].astype(np.int64),
+        fiber=pieces.fiber[run_start][keep],
         start=start[keep],
         end=end[keep],
         origin=lo,

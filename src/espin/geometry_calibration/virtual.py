@@ -148,42 +148,25 @@ def window_runs(vertices: np.ndarray, fiber_offsets: np.ndarray, origin: np.ndar
     The portions are those of :func:`espin.statistics.window_tortuosity` (same clipping and
     same rule for consecutive pieces), before any chord filter.
     """
-    from espin.statistics import _clip_segments  # the clipping window_tortuosity uses
+    from espin.statistics import clip_to_window  # the clipping window_tortuosity uses
 
-    v = np.asarray(vertices, dtype=float).reshape(-1, 2)
-    offsets = np.asarray(fiber_offsets, dtype=np.int64)
-    lo = np.asarray(origin, dtype=float).reshape(2)
-    hi = lo + float(side)
-    vertex_fiber = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
-    seg = np.flatnonzero(vertex_fiber[:-1] == vertex_fiber[1:])
-    p0, p1 = v[seg], v[seg + 1]
-    t0, t1, hits = _clip_segments(p0, p1, lo, hi)
-    d = p1 - p0
-    a = np.where((t0 <= 0.0)[:, None], p0, p0 + t0[:, None] * d)
-    b = np.where((t1 >= 1.0)[:, None], p1, p0 + t1[:, None] * d)
-    piece = np.hypot(*(b - a).T)
-    inside = hits & ((piece > 0.0) | (np.hypot(*d.T) == 0.0))
-    vertex_in = np.all((v >= lo) & (v <= hi), axis=1)
-    idx = np.flatnonzero(inside)
-    continues = np.zeros(len(idx), dtype=bool)
-    if len(idx) > 1:
-        continues[1:] = (seg[idx[1:]] == seg[idx[:-1]] + 1) & vertex_in[seg[idx[1:]]]
-    run_start = ~continues
-    run = np.cumsum(run_start) - 1
+    pieces = clip_to_window(vertices, fiber_offsets, origin, side)
+    run_start, run = pieces.run_start, pieces.run
     n_runs = int(run_start.sum())
+    n_pieces = len(run)
     # Points: the start of each run, then the end of each of its pieces.
-    n_points = n_runs + len(idx)
+    n_points = n_runs + n_pieces
     points = np.empty((n_points, 2))
     step = np.zeros(n_points)
-    end_pos = np.arange(len(idx)) + run + 1
+    end_pos = np.arange(n_pieces) + run + 1
     first = np.flatnonzero(run_start) + np.arange(n_runs)
-    points[first] = a[idx[run_start]]
-    points[end_pos] = b[idx]
-    step[end_pos] = piece[idx]
+    points[first] = pieces.start[run_start]
+    points[end_pos] = pieces.end
+    step[end_pos] = pieces.length
     last = np.r_[first[1:] - 1, n_points - 1] if n_runs else first
     return WindowRuns(points=points, arc=np.cumsum(step), first=first.astype(np.int64),
                       last=np.asarray(last, dtype=np.int64),
-                      fiber=vertex_fiber[seg[idx[run_start]]].astype(np.int64))
+                      fiber=pieces.fiber[run_start])
 
 
 def sample_pieces(runs: WindowRuns, lengths_um: np.ndarray, min_chord_um: float,
