@@ -99,6 +99,20 @@ def _run_with_progress(run, n_tasks: int, quiet: bool):
         return run(on_outcome)
 
 
+def _run_study(prepare, out: Path, columns: list[str], quiet: bool) -> None:
+    """``prepare()`` -> (run, number of tasks), inside the CLI's error handling; run under a
+    progress bar, then report."""
+    from espin.cli import _fail
+    from espin.errors import EspinError
+
+    try:
+        run, n_tasks = prepare()
+        result = _run_with_progress(run, n_tasks, quiet)
+    except EspinError as err:
+        _fail(str(err))
+    _report(result, out, columns, quiet)
+
+
 def _report(result, folder: Path, columns: list[str], quiet: bool) -> None:
     """Summary table on stdout; notes, failures and the files written on stderr."""
     from rich.console import Console
@@ -153,24 +167,19 @@ def rve_size(
 
     Reruns skip finished realizations (resume after a crash or a killed job).
     """
-    from espin.cli import _fail
-    from espin.errors import EspinError
     from espin.studies import rve_size_study
 
-    try:
+    def prepare():
         sizes = _numbers("--size-ratios", size_ratios, float)
         layers = _numbers("--layer-counts", layer_counts, int)
         n_points = len({*((s, layers_for_sizes) for s in sizes), *((size_for_layers, n) for n in layers)})
-        result = _run_with_progress(
-            lambda on_outcome: rve_size_study(
-                base, size_ratios=sizes, layer_counts=layers, layers_for_sizes=layers_for_sizes,
-                size_for_layers=size_for_layers, realizations=realizations, seed_start=seed_start,
-                folder=out, workers=workers, scheduler=scheduler, blas_threads=blas_threads,
-                on_outcome=on_outcome, **_overrides(set_)),
-            n_points * realizations, quiet)
-    except EspinError as err:
-        _fail(str(err))
-    _report(result, out, _MEANS + _RSDS, quiet)
+        return (lambda on_outcome: rve_size_study(
+            base, size_ratios=sizes, layer_counts=layers, layers_for_sizes=layers_for_sizes,
+            size_for_layers=size_for_layers, realizations=realizations, seed_start=seed_start,
+            folder=out, workers=workers, scheduler=scheduler, blas_threads=blas_threads,
+            on_outcome=on_outcome, **_overrides(set_))), n_points * realizations
+
+    _run_study(prepare, out, _MEANS + _RSDS, quiet)
 
 
 @study_app.command("sweep")
@@ -197,24 +206,19 @@ def sweep(
     Writes a tidy table (one row per realization), a summary per point and plots. Reruns skip
     finished tasks.
     """
-    import itertools
+    import math
 
-    from espin.cli import _fail
-    from espin.errors import EspinError
     from espin.studies import sweep as run_sweep
 
-    try:
+    def prepare():
         parsed = parse_grid(grid)
-        n_points = len(list(itertools.product(*parsed.values()))) if parsed else 1
-        result = _run_with_progress(
-            lambda on_outcome: run_sweep(
-                base, parsed, realizations=realizations, seed_start=seed_start, folder=out,
-                table_format=table_format, workers=workers, scheduler=scheduler, blas_threads=blas_threads,
-                on_outcome=on_outcome, **_overrides(set_)),
-            n_points * realizations, quiet)
-    except EspinError as err:
-        _fail(str(err))
-    _report(result, out, _MEANS + _SDS, quiet)
+        n_points = math.prod(len(values) for values in parsed.values())
+        return (lambda on_outcome: run_sweep(
+            base, parsed, realizations=realizations, seed_start=seed_start, folder=out,
+            table_format=table_format, workers=workers, scheduler=scheduler, blas_threads=blas_threads,
+            on_outcome=on_outcome, **_overrides(set_))), n_points * realizations
+
+    _run_study(prepare, out, _MEANS + _SDS, quiet)
 
 
 @study_app.command("dof")
