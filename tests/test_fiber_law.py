@@ -366,3 +366,29 @@ def test_vectorized_equals_element_by_element():
             assert getattr(alone, name)[0] == getattr(together, name)[i]
         assert work_increment(PLLA, lam_n[i], lam[i], lam_p_old[i], lam_r[i], dt[i])[0] == (
             pytest.approx(work[i], rel=1e-14, abs=1e-300))
+
+
+@pytest.mark.parametrize("law", LAWS, ids=LAW_IDS)
+def test_warm_start_gives_the_same_state(law):
+    """A guess of lambda_p (nearby, poor, of the wrong sign or outside the bracket) changes
+    the start of the return mapping only, not its result."""
+    rng = np.random.default_rng(5)
+    n = 400
+    lam_p_old = rng.uniform(0.9, 1.3, n)
+    lam = lam_p_old * rng.uniform(0.6, 1.2, n)
+    lam_r = 1 + rng.exponential(0.02, n)
+    dt = rng.choice([1e-3, 1.0, 100.0], n)
+    cold = update(law, lam, lam_p_old, lam_r, dt)
+    nearby = update(law, lam * (1 + rng.normal(0, 1e-4, n)), lam_p_old, lam_r, dt)
+    guesses = {
+        "nearby": nearby.plastic_stretch,
+        "wrong sign": 2 * lam_p_old - cold.plastic_stretch,
+        "beyond lambda": lam + (lam - lam_p_old),
+        "lambda_p_n": lam_p_old,
+    }
+    for name, guess in guesses.items():
+        warm = update(law, lam, lam_p_old, lam_r, dt, plastic_stretch_guess=guess)
+        np.testing.assert_allclose(warm.plastic_stretch, cold.plastic_stretch, rtol=1e-14,
+                                   atol=0, err_msg=name)
+        np.testing.assert_allclose(warm.stress, cold.stress, rtol=1e-10, atol=1e-10, err_msg=name)
+        np.testing.assert_allclose(warm.tangent, cold.tangent, rtol=1e-9, atol=1e-9, err_msg=name)

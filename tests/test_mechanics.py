@@ -285,3 +285,25 @@ def test_superlu_gives_the_same_curves(small_rve, linear):
         a = run_program(small_rve.network, config, linear)
         b = run_program(small_rve.network, config, superlu)
         assert b.P == pytest.approx(a.P, rel=1e-6, abs=1e-9)
+
+
+def test_law_on_threads_equals_one_call(monkeypatch):
+    """The threaded fiber-law update (used at plla size) is bit-identical to one call."""
+    import espin.equilibrium as equilibrium
+    from espin.fiber_law import update
+
+    monkeypatch.setattr(equilibrium, "_ELEMENTS_PER_THREAD", 10)
+    monkeypatch.setattr(equilibrium, "threadpool_info", lambda: [{"num_threads": 3}])
+    law = FiberLaw(3000, 3, 1e-8, 5, 0.5)
+    rng = np.random.default_rng(2)
+    n = 101
+    tortuosity = 1 + rng.exponential(0.01, n)
+    threaded = equilibrium._ThreadedLaw(law, tortuosity)
+    assert threaded.pool is not None and len(threaded.chunks) == 3
+    stretch = rng.uniform(0.9, 1.1, n)
+    plastic_old = rng.uniform(1.0, 1.05, n)
+    for guess in (None, plastic_old * 1.001):
+        expected = update(law, stretch, plastic_old, tortuosity, 2.0, guess)
+        got = threaded(stretch, plastic_old, 2.0, guess)
+        for name in ("stress", "plastic_stretch", "tangent", "recruited"):
+            np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
