@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Iterator
 
 import numpy as np
@@ -25,9 +26,19 @@ def _pardiso_param() -> object:
 BACKENDS = ["superlu", _pardiso_param()]
 
 
-@pytest.fixture(params=BACKENDS)
-def solver(request: pytest.FixtureRequest) -> Iterator[ls.LinearSolver]:
-    with make_linear_solver(request.param) as solver:
+def hide_pymetis(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Make ``import pymetis`` fail, as when it is not installed."""
+    monkeypatch.setitem(sys.modules, "pymetis", None)
+
+
+@pytest.fixture(params=["superlu", "superlu-mmd", *BACKENDS[1:]])
+def solver(
+    request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch
+) -> Iterator[ls.LinearSolver]:
+    """Every backend; "superlu-mmd" is SuperLU without pymetis (MMD_AT_PLUS_A ordering)."""
+    if request.param == "superlu-mmd":
+        hide_pymetis(monkeypatch)
+    with make_linear_solver(request.param.removesuffix("-mmd")) as solver:
         yield solver
 
 
@@ -124,6 +135,91 @@ def test_saddle_point_matrix_with_missing_diagonal(solver: ls.LinearSolver) -> N
     if solver.name == "pardiso":
         assert factorization.n_negative == 10
     assert relative_residual(K, factorization.solve(b), b) < 1e-10
+
+
+def mixed_control_matrix(extra: int, seed: int) -> sp.csr_matrix:
+    """[[A, C], [C^T, D]]: a 2 x 2-blocked indefinite A and ``extra`` appended unknowns.
+
+    Like the free components of F under mixed control: each extra row couples to many DOFs
+    (one grid row of nodes, a different one per extra row, so no two extra rows share a
+    pattern) and to all other extra rows.
+    """
+    m = 8
+    A = random_symmetric_values(laplacian_2dof(m), seed)
+    rng = np.random.default_rng(seed)
+    C = np.zeros((A.shape[0], extra))
+    for k in range(extra):
+        C[2 * m * k : 2 * m * (k + 1), k] = rng.standard_normal(2 * m)
+    D = rng.standard_normal((extra, extra))
+    K = sp.bmat([[A, sp.csr_matrix(C)], [sp.csr_matrix(C.T), sp.csr_matrix(D + D.T)]],
+                format="csr")
+    K.sort_indices()
+    return K
+
+
+@pytest.mark.parametrize("extra", [1, 2, 3])
+def test_mixed_control_extra_rows(solver: ls.LinearSolver, extra: int) -> None:
+    """Extra rows that break the 2 x 2 blocks: same inertia as the dense eigenvalues."""
+    K = mixed_control_matrix(extra, seed=10 + extra)
+    b = np.random.default_rng(extra).standard_normal(K.shape[0])
+    for values in (K, random_symmetric_values(K, seed=20 + extra)):  # first and reused
+        factorization = solver.factorize(values)
+        assert factorization.n_negative == n_negative_eigenvalues(values)
+        assert relative_residual(values, factorization.solve(b), b) < 1e-10
+
+
+def test_node_vertices() -> None:
+    """DOFs 2i, 2i+1 with equal row patterns share a vertex; other DOFs are vertices alone."""
+    blocked = laplacian_2dof(5)
+    np.testing.assert_array_equal(ls._node_vertices(blocked), np.arange(50) // 2)
+    tridiagonal = sp.diags([np.ones(9), np.ones(10), np.ones(9)], [-1, 0, 1], format="csr")
+    np.testing.assert_array_equal(ls._node_vertices(tridiagonal), np.arange(10))
+    mixed = mixed_control_matrix(3, seed=0)  # 64 nodes, then 3 unpaired extra rows
+    np.testing.assert_array_equal(ls._node_vertices(mixed),
+                                  np.r_[np.arange(128) // 2, 64, 65, 66])
+    # a node coupled to an extra row by one DOF only is split into two vertices
+    pattern = mixed.tolil()
+    pattern[0, 130] = pattern[130, 0] = 1.0
+    split = ls._node_vertices(pattern.tocsr())
+    np.testing.assert_array_equal(split[:4], [0, 1, 2, 2])
+    assert split[-1] == 67
+
+
+@pytest.mark.parametrize("K", [laplacian_2dof(9), mixed_control_matrix(3, seed=1),
+                               sp.eye(1, format="csr"), sp.eye(3, format="csr")],
+                         ids=["blocked", "mixed", "1x1", "diagonal"])
+def test_nested_dissection_permutation(K: sp.csr_matrix) -> None:
+    """A permutation that keeps the two DOFs of each node consecutive, in their order."""
+    pytest.importorskip("pymetis")
+    perm = ls._nested_dissection(K)
+    np.testing.assert_array_equal(np.sort(perm), np.arange(K.shape[0]))
+    vertex = ls._node_vertices(K)[perm]
+    same_vertex = np.diff(vertex) == 0
+    assert np.count_nonzero(~same_vertex) == vertex.max()  # one run of DOFs per vertex
+    assert np.all(np.diff(perm)[same_vertex] == 1)
+
+
+def test_superlu_ordering_with_and_without_pymetis(monkeypatch: pytest.MonkeyPatch) -> None:
+    """With pymetis every factorization is in METIS' order (NATURAL after the symmetric
+    permutation); without, the first computes MMD_AT_PLUS_A and the later ones reuse it."""
+    pytest.importorskip("pymetis")
+    specs = []
+    splu = ls._splu
+    monkeypatch.setattr(ls, "_splu", lambda matrix, spec: specs.append(spec) or splu(matrix, spec))
+    K = laplacian_2dof(12)
+    indefinite = random_symmetric_values(K, seed=11)
+    b = np.ones(K.shape[0])
+    for ordering in ("metis", "mmd"):
+        if ordering == "mmd":
+            hide_pymetis(monkeypatch)
+        specs.clear()
+        with ls.SuperLUSolver() as solver:
+            for values in (K, indefinite):
+                factorization = solver.factorize(values)
+                assert factorization.n_negative == n_negative_eigenvalues(values)
+                assert relative_residual(values, factorization.solve(b), b) < 1e-10
+        assert specs == (["NATURAL", "NATURAL"] if ordering == "metis"
+                         else ["MMD_AT_PLUS_A", "NATURAL"])
 
 
 def test_multiple_right_hand_sides(solver: ls.LinearSolver) -> None:
@@ -256,3 +352,13 @@ def test_small_pivots_are_refined(solver: ls.LinearSolver) -> None:
     backward_error = np.abs(K @ x - b).max() / (norm_K * np.abs(x).max() + np.abs(b).max())
     assert backward_error < 1e-12
     assert factorization.n_negative == n_negative_eigenvalues(K)
+
+
+def test_factor_size_follows_a_new_pattern(solver: ls.LinearSolver) -> None:
+    """nnz_factor after a pattern change is that of the new pattern, as from a fresh solver."""
+    small, large = laplacian_2dof(4), laplacian_2dof(12)
+    solver.factorize(small)
+    after_change = solver.factorize(large).nnz_factor
+    with make_linear_solver(solver.name) as fresh:
+        assert after_change == fresh.factorize(large).nnz_factor
+    assert after_change > solver.factorize(small).nnz_factor
