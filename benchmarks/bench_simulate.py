@@ -109,7 +109,7 @@ def main() -> None:
         show(in_subprocess("200", "15", "--steps", str(args.steps), "--strain", str(args.strain), *common,
                            *(["--elastic"] if args.elastic else [])))
     else:
-        for size_ratio, layers in ((100, 6), (200, 8), (200, 15), (400, 15), (560, 20)):
+        for size_ratio, layers in ((100, 6), (200, 8), (200, 15), (400, 15), (480, 20)):
             show(in_subprocess(str(size_ratio), str(layers), "--steps", "1", "--strain", "0.01",
                                "--elastic", *common))
 

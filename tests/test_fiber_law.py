@@ -103,17 +103,21 @@ def test_reported_states():
     np.testing.assert_array_equal(state.recruited, [False, True, True])
 
 
+def random_elements(rng: np.random.Generator, n: int, highest_elastic_stretch: float):
+    """Stretch, lambda_p_n, lambda_r and dt of n elements in compression and tension."""
+    lam_p_old = rng.uniform(0.9, 1.3, n)
+    lam = lam_p_old * rng.uniform(0.6, highest_elastic_stretch, n)
+    lam_r = 1 + rng.exponential(0.02, n)
+    dt = rng.choice([1e-3, 1.0, 100.0], n)
+    return lam, lam_p_old, lam_r, dt
+
+
 # ------------------------------------------------------------------------------------------
 # plastic flow
 # ------------------------------------------------------------------------------------------
 @pytest.mark.parametrize("law", LAWS, ids=LAW_IDS)
 def test_return_mapping_solves_backward_euler(law):
-    rng = np.random.default_rng(3)
-    n = 200
-    lam_p_old = rng.uniform(0.9, 1.3, n)
-    lam = lam_p_old * rng.uniform(0.6, 1.1, n)
-    lam_r = 1 + rng.exponential(0.02, n)
-    dt = rng.choice([1e-3, 1.0, 100.0], n)
+    lam, lam_p_old, lam_r, dt = random_elements(np.random.default_rng(3), 200, 1.1)
     state = update(law, lam, lam_p_old, lam_r, dt)
     lp = state.plastic_stretch
     # lambda_p lies between lambda_p_n and lambda, on the side of the trial stress.
@@ -374,10 +378,7 @@ def test_warm_start_gives_the_same_state(law):
     the start of the return mapping only, not its result."""
     rng = np.random.default_rng(5)
     n = 400
-    lam_p_old = rng.uniform(0.9, 1.3, n)
-    lam = lam_p_old * rng.uniform(0.6, 1.2, n)
-    lam_r = 1 + rng.exponential(0.02, n)
-    dt = rng.choice([1e-3, 1.0, 100.0], n)
+    lam, lam_p_old, lam_r, dt = random_elements(rng, n, 1.2)
     cold = update(law, lam, lam_p_old, lam_r, dt)
     nearby = update(law, lam * (1 + rng.normal(0, 1e-4, n)), lam_p_old, lam_r, dt)
     guesses = {
