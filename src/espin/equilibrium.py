@@ -278,7 +278,7 @@ class EquilibriumSolver:
 
     # -- one step -----------------------------------------------------------------------------
     def iteration_limit(self, n_free: int) -> int:
-        """Newton iterations allowed per step: the config's, else 50 (500 with free F)."""
+        """Newton iterations allowed per step: the config's, else 200 (500 with free F)."""
         return self.config.max_iterations or (_MAX_ITERATIONS_MIXED if n_free else _MAX_ITERATIONS)
 
     def solve(
