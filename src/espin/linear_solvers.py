@@ -213,6 +213,11 @@ class LinearSolver(_Releasable, ABC):
     name: ClassVar[str]
     """Backend name, as accepted by :func:`make_linear_solver`."""
 
+    uses_openblas: ClassVar[bool]
+    """Whether the backend runs on numpy / scipy's OpenBLAS (SuperLU's dense kernels do).
+    If not, the Newton loop keeps OpenBLAS on one thread, so that its threads do not spin on
+    the cores the backend needs."""
+
     def __init__(self) -> None:
         self._pattern: _Pattern | None = None
         self._current: Factorization | None = None
@@ -302,6 +307,7 @@ class SuperLUSolver(LinearSolver):
     """
 
     name = "superlu"
+    uses_openblas = True
 
     def __init__(self) -> None:
         super().__init__()
@@ -534,6 +540,7 @@ class PardisoSolver(LinearSolver):
     """
 
     name = "pardiso"
+    uses_openblas = False
 
     def __init__(self) -> None:
         super().__init__()
