@@ -307,3 +307,34 @@ def test_law_on_threads_equals_one_call(monkeypatch):
         got = threaded(stretch, plastic_old, 2.0, guess)
         for name in ("stress", "plastic_stretch", "tangent", "recruited"):
             np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
+
+
+@pytest.mark.parametrize("uses_openblas", [True, False])
+def test_openblas_threads_during_a_step(uses_openblas):
+    """A backend that does not use OpenBLAS factorizes with OpenBLAS on one thread (its
+    spinning threads would take the backend's cores); SuperLU keeps OpenBLAS's threads."""
+    from threadpoolctl import ThreadpoolController
+
+    openblas = ThreadpoolController().select(internal_api="openblas")
+    if not openblas.lib_controllers:
+        pytest.skip("numpy does not use OpenBLAS here")
+    seen = []
+
+    class Recording:
+        def __init__(self):
+            self.inner = make_linear_solver("superlu")
+            self.uses_openblas = uses_openblas
+
+        def factorize(self, K):
+            seen.append(max(c.num_threads for c in ThreadpoolController().select(
+                internal_api="openblas").lib_controllers))
+            return self.inner.factorize(K)
+
+    import espin.rve
+
+    rve = espin.rve.generate("plla", rve__size_ratio=30, rve__layers=2,
+                             loading__max_strain=0.02, loading__steps=2)
+    with openblas.limit(limits=2):
+        run_program(rve.network, rve.config, Recording())
+        assert seen
+        assert set(seen) == ({2} if uses_openblas else {1})
