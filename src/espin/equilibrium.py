@@ -28,6 +28,7 @@ driver cuts the step.
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -302,9 +303,9 @@ class EquilibriumSolver:
         # gain nothing from threads) runs on one thread: its threads spin after each call
         # and took a core from the next factorization (PARDISO at plla size: 0.098 s per
         # factorization in the run, 0.067 s without; SuperLU needs its threads).
-        if getattr(self.linear, "uses_openblas", True):
-            return self._solve(start, time, F_prescribed, directions, guess_inner, guess_free)
-        with ThreadpoolController().select(internal_api="openblas").limit(limits=1):
+        openblas = (nullcontext() if getattr(self.linear, "uses_openblas", True)
+                    else ThreadpoolController().select(internal_api="openblas").limit(limits=1))
+        with openblas:
             return self._solve(start, time, F_prescribed, directions, guess_inner, guess_free)
 
     def _solve(self, start: StepState, time: float, F_prescribed: np.ndarray,
