@@ -28,7 +28,7 @@ from espin.sem.orientation import image_angle_deg, structure_tensor_orientation
 from espin.sem.scale import ScaleBar, detect_scale_bar
 from espin.sem.segment import MIN_WIDTH_PX, segment_fibers
 from espin.sem.trace import trace_fibers
-from espin.sem.widths import WidthSamples, local_widths
+from espin.sem.widths import WidthSamples, fiber_diameters, local_widths
 
 __all__ = ["SEMMeasurement", "measure", "SCHEMA"]
 
@@ -45,7 +45,8 @@ class SEMMeasurement:
     Attributes
     ----------
     fibers : pandas.DataFrame
-        One row per traced fiber: ``fiber`` (int), ``diameter_um`` (median local width),
+        One row per traced fiber: ``fiber`` (int), ``diameter_um`` (blurred flat profile
+        fitted to the fiber's median profile, :func:`espin.sem.widths.fiber_diameters`),
         ``orientation_deg`` (end-to-end axis, [0, 180)), ``tortuosity`` (contour /
         end-to-end, >= 1), ``contour_length_um``, ``end_to_end_um``.
     widths_um : (n,) float64 [um]
@@ -302,12 +303,11 @@ def _measure_grey(grey: np.ndarray, um_per_px: float, width_px: float | None,
             f"no fibers found: no traced fiber is at least {min_length_diameters:g} typical "
             f"widths ({min_chord_px:.1f} px) long end to end; is this an image of fibers?"
         )
-    diameter_px = _median_by_fiber(samples, len(paths))[kept]
+    diameter_px = fiber_diameters(seg.flat, samples, len(paths), seg.width_px)[kept]
     renumber = np.full(len(paths), -1)
     renumber[kept] = np.arange(len(kept))
     on_kept = renumber[samples.fiber] >= 0
-    samples = WidthSamples(fiber=renumber[samples.fiber[on_kept]], point=samples.point[on_kept],
-                           normal=samples.normal[on_kept], width_px=samples.width_px[on_kept])
+    samples = samples.subset(on_kept, renumber[samples.fiber[on_kept]])
     fibers = pd.DataFrame({
         "fiber": np.arange(len(kept), dtype=np.int64),
         "diameter_um": diameter_px * um_per_px,
@@ -327,22 +327,6 @@ def _measure_grey(grey: np.ndarray, um_per_px: float, width_px: float | None,
         paths_px=[paths[i] for i in kept], width_samples=samples, junctions_px=traced.junctions,
         scale_bar=bar, scale_bar_um=None if bar is None else float(scale_bar_um), source=source,
     )
-
-
-def _median_by_fiber(samples: WidthSamples, n_fibers: int) -> np.ndarray:
-    """Median local width [px] of each fiber (NaN for a fiber without samples)."""
-    out = np.full(n_fibers, np.nan)
-    if len(samples.fiber) == 0:
-        return out
-    order = np.lexsort((samples.width_px, samples.fiber))
-    fiber, width = samples.fiber[order], samples.width_px[order]
-    first = np.searchsorted(fiber, np.arange(n_fibers), "left")
-    last = np.searchsorted(fiber, np.arange(n_fibers), "right")
-    has = last > first
-    lo = (first + last - 1) // 2
-    hi = (first + last) // 2
-    out[has] = 0.5 * (width[lo[has]] + width[hi[has]])
-    return out
 
 
 def _check_options(um_per_px: float | None, scale_bar_um: float | None, scale_bar_rows: Any,

@@ -1,0 +1,66 @@
+"""Local widths (FWHM) and per-fiber diameters (blurred flat profile fit) on exact profiles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import ndimage
+from scipy.special import erf
+
+from espin.sem.segment import segment_fibers
+from espin.sem.widths import fiber_diameters, local_widths
+
+WIDTH = 8.0  # px, true fiber width
+
+
+def _band(sigma: float, width: float = WIDTH, noise: float = 0.0, angle_deg: float = 0.0):
+    """A straight bright fiber of ``width`` px across a 96 x 96 image, blurred by ``sigma``."""
+    n = 96
+    rows, cols = np.mgrid[0:n, 0:n].astype(float)
+    a = np.radians(angle_deg)
+    # signed distance from the line through the centre at angle a (row, col frame)
+    d = (rows - n / 2) * np.cos(a) - (cols - n / 2) * np.sin(a)
+    image = 0.1 + 0.8 * np.clip(width / 2 + 0.5 - np.abs(d), 0.0, 1.0)  # anti-aliased edge
+    image = ndimage.gaussian_filter(image, sigma) if sigma > 0 else image
+    image += np.random.default_rng(0).normal(0.0, noise, image.shape)
+    s = np.arange(8.0, n - 8.0)
+    path = np.column_stack([n / 2 + (s - n / 2) * np.sin(a), n / 2 + (s - n / 2) * np.cos(a)])
+    return image, [path]
+
+
+def _fwhm_of_blurred_flat(width: float, sigma: float) -> float:
+    x = np.linspace(0.0, width + 6 * sigma, 200001)
+    scale = np.sqrt(2) * sigma
+    profile = erf((x + width / 2) / scale) - erf((x - width / 2) / scale)
+    return 2 * x[np.argmax(profile < profile[0] / 2)]
+
+
+@pytest.mark.parametrize("sigma", [1.0, 2.0, 3.0])
+def test_fiber_diameter_undoes_the_blur_that_widens_the_fwhm(sigma):
+    image, paths = _band(sigma)
+    samples = local_widths(image, paths, np.zeros((0, 2)), WIDTH)
+    fwhm = np.median(samples.width_px)
+    # The half-maximum width of a blurred flat profile is exact while the blur leaves the
+    # peak alone, and too wide once it dims it (8 px, sigma 3: 9.35 px).
+    assert fwhm == pytest.approx(_fwhm_of_blurred_flat(WIDTH, sigma), abs=0.1)
+    diameter = fiber_diameters(image, samples, 1, WIDTH)
+    assert diameter[0] == pytest.approx(WIDTH, abs=0.1)
+
+
+def test_fiber_diameter_with_noise_and_at_an_angle():
+    """Through the segmentation's denoised, flattened image, as espin measure does."""
+    image, paths = _band(3.0, noise=0.05, angle_deg=30.0)
+    flat = segment_fibers(image, WIDTH).flat
+    samples = local_widths(flat, paths, np.zeros((0, 2)), WIDTH)
+    assert np.median(samples.width_px) > WIDTH + 1.5
+    assert abs(np.median(samples.centre_px)) < 0.2  # the path runs along the fiber's middle
+    assert fiber_diameters(flat, samples, 1, WIDTH)[0] == pytest.approx(WIDTH, abs=0.3)
+
+
+def test_fiber_without_enough_samples_keeps_its_median_width():
+    image, paths = _band(3.0)
+    samples = local_widths(image, paths, np.zeros((0, 2)), WIDTH)
+    two = samples.subset(np.arange(2))
+    out = fiber_diameters(image, two, 2, WIDTH)
+    assert out[0] == pytest.approx(np.median(two.width_px))
+    assert np.isnan(out[1])  # no samples at all
