@@ -3,12 +3,14 @@
 At sample points every ``max(1, w / 4)`` px along each traced fiber, the flattened image is
 read (bilinear) along the normal, from -1.5 w to +1.5 w in quarter pixels. On each side the
 edge is where the profile first falls below half-way between the fiber's peak (the maximum
-within w / 4 of the centre line) and that side's background (the profile's minimum on that
+within w / 2 of the centre line) and that side's background (the profile's minimum on that
 side): the full width at half maximum, sub-pixel by linear interpolation. A blurred step
-edge crosses half-way exactly at the edge, so the width does not depend on the blur, the
-threshold, or how dim a deeper fiber is. Samples closer than w to a junction (another fiber
-changes the profile) or w / 2 to a fiber end, and profiles with no edge on a side or less
-than 10 % contrast, are skipped.
+edge crosses half-way exactly at the edge, so the width depends neither on the threshold
+nor on how dim a deeper fiber is, nor on blur as long as the blur leaves the fiber's peak
+alone (sigma below about w / 4); blur that dims the peak widens it, which
+:func:`fiber_diameters` undoes for each fiber. Samples closer than w to a junction (another
+fiber changes the profile) or w / 2 to a fiber end, and profiles with no edge on a side or
+less than 10 % contrast, are skipped.
 """
 
 from __future__ import annotations
