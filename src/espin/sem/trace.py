@@ -14,7 +14,12 @@ The algorithm (CT-FIRE-like, written with numpy / scipy.ndimage / scipy.sparse.c
    2.75 w from the junction centre (the skeleton bends towards a junction closer in). Branches
    are paired greedily by the smallest bending angle, pi minus the angle between their
    outgoing directions, below ``max_bend_deg``; so a fiber passes straight through a crossing,
-   and an unpaired branch ends there (a fiber that dives under another one).
+   and an unpaired branch ends there (a fiber that dives under another one). Before that,
+   shallow crossings are paired: two fibers crossing at a few degrees share a stretch of
+   skeleton (up to 20 w), two three-way junctions joined by a bridge; each outer branch is
+   paired with the one at the far junction that continues it on a straight line, and the
+   bridge belongs to neither fiber (paired junction by junction, one fiber jogs onto the other
+   one's branch and the other is cut).
 5. Paired branches are chained into fibers. Near a junction, the skeleton pixels within w / 2
    of its centre are dropped and the fiber crosses the junction on a straight line. At the
    open ends of a fiber the skeleton does not follow it: at an unpaired end at a junction it
@@ -57,6 +62,7 @@ _GAP = 8.0  # open fiber ends at most this * w apart may be joined across a stra
 _JOIN_TURN = 1.0  # ... if their total turn is at most this * max_bend,
 _GUARD_SHORT, _GUARD = 2.0, 4.0  # ... and the joined path turns by at most
 _GUARD_LIMIT = 1.0  # this * max_bend between chords of these many widths around the gap
+_SHALLOW = 20.0  # bridges of shallow crossings up to this * w long are crossed straight
 _TURN = 1.5  # a fiber is cut where it turns by more than _TURN * max_bend within +- w
 _NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
 
@@ -114,8 +120,9 @@ def trace_fibers(mask: np.ndarray, width_px: float, max_bend_deg: float = 35.0) 
     graph = _skeleton_graph(skeleton)
     graph = _prune_spurs(graph, w)
     graph = _merge_junctions(graph, w)
-    partner = _pair_branches(graph, w, np.radians(max_bend_deg))
-    chains = _chain_fibers(graph, partner, w)
+    partner, bridges = _pair_shallow_crossings(graph, w, np.radians(max_bend_deg))
+    partner = _pair_branches(graph, w, np.radians(max_bend_deg), partner, bridges)
+    chains = _chain_fibers(graph, partner, w, bridges)
     if _GAP > 0:
         smooth = _join_gaps(chains, w, np.radians(max_bend_deg), skeleton.shape)
     else:
@@ -249,14 +256,92 @@ def _outgoing_direction(chain: np.ndarray, centre: np.ndarray, w: float) -> np.n
     return d / norm if norm > 0 else d
 
 
-def _pair_branches(graph: _Graph, w: float, max_bend: float) -> np.ndarray:
-    """partner[b, side] = (branch, side) index 2 b' + s' joined at that end, or -1."""
+def _pair_shallow_crossings(graph: _Graph, w: float,
+                            max_bend: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pair the branches of two fibers crossing at a shallow angle: (partner, bridges).
+
+    Two fibers crossing at a small angle share a stretch of skeleton longer than the merge
+    distance: two three-way junctions joined by a bridge branch, two outer branches at each.
+    Paired at each junction on its own, one fiber follows the bridge and may leave on the other
+    fiber's branch (a jog), the other is cut. Here each outer branch is paired with the outer
+    branch at the far junction that continues it straight: the pairing whose larger deviation
+    is smaller, at most ``max_bend``, where the deviation of a pair is its bend or twice the
+    angle between either branch and the line joining points 2 w out on both (so two branches
+    parallel but offset are no pair). The fibers cross the shared stretch on straight lines,
+    and the bridge belongs to neither. Bridges up to _SHALLOW w long are considered (two
+    fibers w wide crossing at 6 deg share about 18 w).
+
+    Returns
+    -------
+    partner : (n_branches, 2) int64
+        As :func:`_pair_branches`, for the branches paired here (-1 elsewhere).
+    bridges : (n_branches,) bool
+        The bridges crossed this way.
+    """
     partner = np.full(graph.ends.shape, -1, dtype=np.int64)
+    bridges = np.zeros(len(graph.branches), dtype=bool)
+    at = {}  # junction -> its branch ends (2 b + side)
+    for b in range(len(graph.branches)):
+        for side in (0, 1):
+            if graph.ends[b, side] >= 0:
+                at.setdefault(int(graph.ends[b, side]), []).append(2 * b + side)
+    for bridge, chain in enumerate(graph.branches):
+        j1, j2 = (int(j) for j in graph.ends[bridge])
+        if (j1 < 0 or j2 < 0 or j1 == j2 or len(at[j1]) != 3 or len(at[j2]) != 3
+                or _branch_length(chain) > _SHALLOW * w):
+            continue
+        outer1 = [e for e in at[j1] if e // 2 != bridge]
+        outer2 = [e for e in at[j2] if e // 2 != bridge]
+        ends = outer1 + outer2
+        if len(ends) != 4 or len({e // 2 for e in ends}) != 4 or np.any(
+                partner.flat[ends] >= 0) or bridges[[e // 2 for e in ends]].any():
+            continue
+        axis = graph.junction_centre[j2] - graph.junction_centre[j1]
+        u, anchor = {}, {}
+        for e, j in zip(ends, (j1, j1, j2, j2)):
+            b, side = divmod(e, 2)
+            oriented = graph.branches[b] if side == 0 else graph.branches[b][::-1]
+            u[e] = _outgoing_direction(oriented, graph.junction_centre[j], w)
+            anchor[e] = oriented[min(int(round(2 * w)), len(oriented) - 1)]
+        # The outer branches leave away from the bridge on both sides (an X, not a loop).
+        if min(-(u[e] @ axis) for e in outer1) <= 0 or min(u[e] @ axis for e in outer2) <= 0:
+            continue
+
+        def deviation(a: int, c: int) -> float:
+            """Bend from a (at j1) to c (at j2), or twice the larger angle between their
+            directions and the line joining them (on one straight line they are all 0)."""
+            line = anchor[c] - anchor[a]
+            line = line / max(float(np.hypot(*line)), 1e-12)
+            return max(float(np.arccos(np.clip(-(u[a] @ u[c]), -1.0, 1.0))),
+                       2.0 * float(np.arccos(np.clip(-(u[a] @ line), -1.0, 1.0))),
+                       2.0 * float(np.arccos(np.clip(u[c] @ line, -1.0, 1.0))))
+
+        options = [((outer1[0], outer2[0]), (outer1[1], outer2[1])),
+                   ((outer1[0], outer2[1]), (outer1[1], outer2[0]))]
+        worst = [max(deviation(*p) for p in pairs) for pairs in options]
+        best = int(np.argmin(worst))
+        if worst[best] > max_bend:
+            continue
+        for a, c in options[best]:
+            partner.flat[a], partner.flat[c] = c, a
+        bridges[bridge] = True
+    return partner, bridges
+
+
+def _pair_branches(graph: _Graph, w: float, max_bend: float, partner: np.ndarray,
+                   bridges: np.ndarray) -> np.ndarray:
+    """partner[b, side] = (branch, side) index 2 b' + s' joined at that end, or -1.
+
+    Ends already paired in ``partner`` and the ``bridges`` are left out.
+    """
+    partner = partner.copy()
     by_junction: dict[int, list[tuple[int, np.ndarray]]] = {}
     for b, chain in enumerate(graph.branches):
+        if bridges[b]:
+            continue
         for side in (0, 1):
             j = int(graph.ends[b, side])
-            if j < 0:
+            if j < 0 or partner[b, side] >= 0:
                 continue
             oriented = chain if side == 0 else chain[::-1]
             u = _outgoing_direction(oriented, graph.junction_centre[j], w)
@@ -280,13 +365,14 @@ def _pair_branches(graph: _Graph, w: float, max_bend: float) -> np.ndarray:
     return partner
 
 
-def _chain_fibers(graph: _Graph, partner: np.ndarray, w: float) -> list[np.ndarray]:
+def _chain_fibers(graph: _Graph, partner: np.ndarray, w: float,
+                  bridges: np.ndarray) -> list[np.ndarray]:
     """Follow branches through their paired ends: (pixel chain, open?) of each fiber.
 
     The ends of an open chain are trimmed (:func:`_trim_open_ends`); a closed loop is not.
     """
     n = len(graph.branches)
-    used = np.zeros(n, dtype=bool)
+    used = bridges.copy()  # a bridge of a shallow crossing belongs to neither fiber
     starts = [2 * b + s for b in range(n) for s in (0, 1) if partner[b, s] < 0]
     paths = []
     for start in starts + [2 * b for b in range(n)]:  # open chains first, then loops
