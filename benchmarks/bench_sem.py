@@ -21,13 +21,15 @@ def synthetic_accuracy() -> None:
     cases = [
         ("wavy uniform, max dev 20", {"rve__max_deviation_deg": 20.0}, 60, 8),
         ("wavy uniform, max dev 25", {"rve__max_deviation_deg": 25.0}, 60, 8),
+        ("wavy uniform, max dev 45", {"rve__max_deviation_deg": 45.0}, 60, 8),
         ("aligned kappa 10, mean 30", {"rve__max_deviation_deg": 10.0, "rve__orientation":
                                        {"von_mises": {"mean_deg": 30.0, "kappa": 10.0}}}, 80, 7),
         ("aligned kappa 20, mean 150", {"rve__max_deviation_deg": 10.0, "rve__orientation":
                                         {"von_mises": {"mean_deg": 150.0, "kappa": 20.0}}}, 80, 7),
     ]
     print("case | seed | fibers traced / true portions | diameter error | tortuosity "
-          "measured / true | direction error [deg] | coherency | time [s]")
+          "measured / true | median end-to-end traced / true [D] | direction error [deg] | "
+          "coherency | time [s]")
     for label, overrides, window, px in cases:
         for seed in (1, 2, 3):
             mat = espin.rve.generate("plla", rve__size_ratio=100, rve__layers=4, rve__seed=seed,
@@ -40,9 +42,11 @@ def synthetic_accuracy() -> None:
             true_dir = np.degrees(np.angle(np.sum(v.contour_length * np.exp(2j * v.orientation))) / 2)
             turn = (m.dominant_direction_deg - true_dir + 90) % 180 - 90
             d_err = m.fits.diameter_mean_um / np.mean(image.diameter_um) - 1
+            chords = (np.median(m.fibers["end_to_end_um"]) / D, np.median(v.chord_length) / D)
             print(f"{label} | {seed} | {len(m.fibers)} / {len(v)} | {100 * d_err:+.1f} % | "
                   f"{m.fibers['tortuosity'].mean():.4f} / {v.tortuosity.mean():.4f} | "
-                  f"{turn:+.1f} | {m.coherency:.2f} | {elapsed:.2f}")
+                  f"{chords[0]:.0f} / {chords[1]:.0f} | {turn:+.1f} | {m.coherency:.2f} | "
+                  f"{elapsed:.2f}")
 
 
 def real_images() -> None:

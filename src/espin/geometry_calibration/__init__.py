@@ -37,6 +37,10 @@ Method (docs/geometry_calibration.md)
    written config, matches the target's; where even kappa = 700 cannot, the closest is kept
    and a warning says so.
 
+With length-matched sampling the report also gives the tortuosity of the calibrated mat's
+whole window portions: what tracing fibers by hand across the image would measure, which the
+tracer's pieces cannot show.
+
 New deposition parameters change the network and thus the mechanics: the fiber parameters
 must be fitted again (``espin fit``) before stresses of the calibrated mat mean anything.
 
@@ -126,6 +130,7 @@ __all__ = [
     "ISOTROPY_P_VALUE",
     "FIXED_TOLERANCE",
     "TORTUOSITY_MEAN_TOLERANCE",
+    "HALFNORM_MEDIAN",
     "KAPPA_MAX",
     "DEVIATION_RANGE_DEG",
     "DEVIATION_GRID_STEP_DEG",
@@ -141,6 +146,8 @@ log = logging.getLogger(__name__)
 TORTUOSITY_MEAN_TOLERANCE = 0.02
 """A warning is printed when the calibrated mat's mean tortuosity is further from the target's
 (the KS objective matches the distribution's bulk, not its mean)."""
+HALFNORM_MEDIAN = 0.6744897501960817
+"""Median of the standard half-normal distribution (its scale is (median - loc) / this)."""
 SEARCH_SIDE_OVER_WINDOW = 2.0
 """Side of the search RVE over the window side (the window sits in its central quarter)."""
 Fit = Literal["deviation", "segment", "both"]
@@ -320,11 +327,24 @@ def calibrate_geometry(
         matches.append(orientation_target.compare(seen["orientation_deg"]))
     if targets.has_diameter:
         matches.append(_diameter_target(targets).compare(seen["diameter_um"]))
+    whole = None
+    if targets.has_tortuosity and measurement.piece_lengths_um is not None:
+        # What the pieces say of whole fibers across the window (a hand tracing's measure).
+        t = VirtualMeasurement(window, float(min_chord), seed_list, layers).measure(
+            _base_rve_data(config), check_side)["tortuosity"]
+        evaluations += 1
+        # The walk's portions have a long tail (fibers curling inside the window): the median
+        # gives the half-normal scale robustly (median = scale * 0.6745).
+        median = float(np.median(t))
+        whole = {"mean": float(np.mean(t)), "median": median,
+                 "halfnorm_scale_from_median": (median - 1.0) / HALFNORM_MEDIAN,
+                 "n": int(len(t))}
     search = {
         "window_um": window, "window_source": window_source, "min_chord_um": float(min_chord),
         "seeds": list(seed_list), "layers": layers, "search_side_um": search_side,
         "check_side_um": check_side, "sampling": measurement.sampling,
-        "sampling_description": sampling, "evaluations": evaluations,
+        "sampling_description": sampling, "whole_portion_tortuosity": whole,
+        "evaluations": evaluations,
         "elapsed_s": time.perf_counter() - started, "notes": notes,
     }
     for w in warnings:

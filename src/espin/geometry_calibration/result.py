@@ -111,6 +111,14 @@ class GeometryCalibration:
                          f"(n {n_target}), virtual n {m.n_virtual:,}")
             for name, target, virtual in m.summary:
                 lines.append(f"      {name:<14} target {target:<10.4g} virtual {virtual:.4g}")
+        whole = s.get("whole_portion_tortuosity")
+        if whole:
+            lines.append(
+                f"whole fibers across the window (the calibrated mat's window portions, edge to "
+                f"edge, as tracing fibers by hand measures them; inferred from the pieces through "
+                f"the walk): tortuosity median {whole['median']:.4g} (half-normal scale "
+                f"{whole['halfnorm_scale_from_median']:.3g} from the median), mean "
+                f"{whole['mean']:.4g} (n {whole['n']:,})")
         if self.valley:
             lines.append("tortuosity valley (segment length and deviation are only identifiable "
                          "together, through the persistence length)")
