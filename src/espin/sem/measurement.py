@@ -159,13 +159,15 @@ class SEMMeasurement:
                 if self.scale_bar else "")),
             ("field of view",
              f"{self.field_of_view_um[0]:.4g} x {self.field_of_view_um[1]:.4g} um"),
-            ("fibers traced", f"{len(f)} (end-to-end >= {self.min_chord_um:.3g} um)"),
-            ("diameter", f"{fits.diameter_mean_um:.4g} +- {fits.diameter_sd_um:.3g} um (normal; "
-                         f"{len(self.widths_um)} local widths)"),
+            ("fibers traced", f"{len(f)} (end-to-end >= {self.min_chord_um:.3g} um, median "
+                              f"{_nan_stat(np.median, f['end_to_end_um']):.3g} um)"),
+            ("diameter", f"{fits.diameter_mean_um:.4g} +- {fits.diameter_sd_um:.3g} um (normal, "
+                         f"per fiber; {len(self.widths_um)} local widths)"),
             ("orientation", f"dominant {self.dominant_direction_deg:.1f} deg, coherency "
                             f"{self.coherency:.3f}; fibers: {orient} (AIC)"),
             ("tortuosity", f"mean {_nan_stat(np.mean, f['tortuosity']):.4f}; half-normal loc 1, "
-                           f"scale {fits.tortuosity_scale:.4f}"),
+                           f"scale {fits.tortuosity_scale:.4f} (of the traced pieces; whole "
+                           "fibers across the image: espin calibrate-geometry)"),
         ]
 
     def write(self, folder: str | Path, figures: bool = True) -> dict[str, Path]:
