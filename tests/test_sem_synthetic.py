@@ -3,8 +3,7 @@
 Tolerances (from the acceptance criteria): mean diameter within 10 % or 1 px, whichever is
 larger; dominant direction within 5 deg on aligned mats; mean tortuosity within 0.02 on wavy
 (max deviation 20 deg) and aligned mats. Tightened where the method does better: per-fiber
-diameters within 7 % on wavy mats and 10 % (not 1 px = 14 %) on aligned ones, tortuosity on
-wavy mats within 0.01 pooled and 0.015 image by image, aligned mats within 0.015, and straight
+diameters within 7 % on wavy mats, tortuosity on wavy mats within 0.01 pooled and 0.015 image by image, aligned mats within 0.015, and straight
 fibers read a median tortuosity below 1.0125 (the floor of the tracer). The measured errors are
 listed in docs/sem.md.
 """
@@ -94,7 +93,8 @@ def test_direction_within_5_deg_and_tortuosity_within_0_02_on_aligned_mats(kappa
         assert m.coherency > 0.3  # aligned: clearly anisotropic
         assert m.fits.orientation_model == "von_mises"
         true_diameter = float(np.mean(image.diameter_um))
-        assert abs(m.fits.diameter_mean_um - true_diameter) <= 0.10 * true_diameter
+        tolerance = max(0.10 * true_diameter, image.um_per_px)  # 1 px = 14 % at 7 px per D
+        assert abs(m.fits.diameter_mean_um - true_diameter) <= tolerance
         # Nearly straight fibers: crossing artefacts (U-turns at the border, jogs through
         # shallow crossings) are cut at sharp turns, so they do not inflate the tortuosity.
         assert abs(m.fibers["tortuosity"].mean() - v.tortuosity.mean()) <= 0.015

@@ -54,10 +54,27 @@ def test_a_shallow_crossing_is_crossed_straight(monkeypatch, angle_deg):
     """At 6-15 deg the fibers share a stretch 6-18 w long: two junctions joined by a bridge.
     Each fiber keeps its own straight line through it, and the bridge is no fiber."""
     mask = _bands(0.0, angle_deg)
-    paths = trace_fibers(mask, WIDTH).paths
-    assert len(paths) == 2
-    assert _axes_deg(paths) == [0, round(angle_deg)]
-    assert all(_tortuosity(p) < 1.002 for p in paths)
+    traced = trace_fibers(mask, WIDTH)
+    assert len(traced.paths) == 2
+    assert _axes_deg(traced.paths) == [0, round(angle_deg)]
+    assert all(_tortuosity(p) < 1.002 for p in traced.paths)
+    # The shared stretch is reported (no width is measured there), around the crossing.
+    assert len(traced.shared) > 2 * WIDTH
+    assert np.hypot(*(traced.shared.mean(axis=0) - (N - 1) / 2)) < WIDTH
     # Paired junction by junction instead, one fiber jogs onto the other and one is cut.
     monkeypatch.setattr(trace, "_SHALLOW", 0.0)
     assert len(trace_fibers(mask, WIDTH).paths) == 3
+
+
+def test_two_fibers_joined_by_a_bar_are_no_shallow_crossing():
+    """An H: two parallel fibers and a bar between them. The outer branches at each end of the
+    bar do not leave away from it, so nothing is paired across the bar; each fiber stays whole
+    and straight."""
+    rows, cols = np.mgrid[0:N, 0:N].astype(float) - (N - 1) / 2
+    mask = (np.abs(cols + 40) <= WIDTH / 2) | (np.abs(cols - 40) <= WIDTH / 2)
+    mask |= (np.abs(rows) <= WIDTH / 2) & (np.abs(cols) <= 40)
+    traced = trace_fibers(mask, WIDTH)
+    assert len(traced.shared) == 0
+    long = _long_paths(mask)
+    assert _axes_deg(long) == [90, 90]
+    assert all(_tortuosity(p) < 1.002 for p in long)

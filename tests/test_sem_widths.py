@@ -64,3 +64,32 @@ def test_fiber_without_enough_samples_keeps_its_median_width():
     out = fiber_diameters(image, two, 2, WIDTH)
     assert out[0] == pytest.approx(np.median(two.width_px))
     assert np.isnan(out[1])  # no samples at all
+
+
+def test_centre_offset_follows_a_path_beside_the_middle():
+    """A path 2 px off the fiber's middle: the half-maximum midpoint is 2 px along the normal
+    back towards it, and the profiles re-centred there give the same diameter."""
+    image, (path,) = _band(2.0)
+    shifted = path + np.array([2.0, 0.0])  # 2 px down the rows, across the fiber at 0 deg
+    samples = local_widths(image, [shifted], np.zeros((0, 2)), WIDTH)
+    assert np.allclose(samples.point + samples.centre_px[:, None] * samples.normal,
+                       samples.point - [2.0, 0.0], atol=0.05)
+    assert fiber_diameters(image, samples, 1, WIDTH)[0] == pytest.approx(WIDTH, abs=0.1)
+
+
+@pytest.mark.parametrize("spacing", [1.25, 1.5, 2.0])
+def test_a_neighbouring_fiber_does_not_narrow_the_fit(spacing):
+    """A parallel fiber ``spacing`` widths beside the first (blur 2 px, 9 px fibers): each
+    profile is fitted only out to its minimum between the two, so the fit reads no narrower
+    than the half-maximum width (fitted on the whole profile it read 6.6 px at 1.25 widths,
+    where the half-maximum width is 8.05 px: the blurred gap no longer reaches the
+    background), and within 0.5 px of the truth once the gap is half a fiber width."""
+    width = 9.0
+    image, paths = _band(2.0, width=width)
+    neighbour, _ = _band(2.0, width=width)
+    image = np.maximum(image, np.roll(neighbour, int(round(spacing * width)), axis=0))
+    samples = local_widths(image, paths, np.zeros((0, 2)), width)
+    diameter = fiber_diameters(image, samples, 1, width)[0]
+    assert diameter > np.median(samples.width_px) - 0.2
+    if spacing >= 1.5:
+        assert diameter == pytest.approx(width, abs=0.5)

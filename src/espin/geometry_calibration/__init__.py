@@ -335,10 +335,11 @@ def calibrate_geometry(
         evaluations += 1
         # The walk's portions have a long tail (fibers curling inside the window): the median
         # gives the half-normal scale robustly (median = scale * 0.6745).
-        median = float(np.median(t))
-        whole = {"mean": float(np.mean(t)), "median": median,
-                 "halfnorm_scale_from_median": (median - 1.0) / HALFNORM_MEDIAN,
-                 "n": int(len(t))}
+        if len(t):
+            median = float(np.median(t))
+            whole = {"mean": float(np.mean(t)), "median": median,
+                     "halfnorm_scale_from_median": (median - 1.0) / HALFNORM_MEDIAN,
+                     "n": int(len(t))}
     search = {
         "window_um": window, "window_source": window_source, "min_chord_um": float(min_chord),
         "seeds": list(seed_list), "layers": layers, "search_side_um": search_side,

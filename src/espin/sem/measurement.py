@@ -291,7 +291,8 @@ def _measure_grey(grey: np.ndarray, um_per_px: float, width_px: float | None,
                   scale_bar_um: float | None, source: str, rows: tuple[int, int]) -> SEMMeasurement:
     seg = segment_fibers(grey, width_px)
     traced = trace_fibers(seg.mask, seg.width_px, max_bend_deg)
-    samples = local_widths(seg.flat, traced.paths, traced.junctions, seg.width_px)
+    crossings = np.concatenate([traced.junctions, traced.shared])
+    samples = local_widths(seg.flat, traced.paths, crossings, seg.width_px)
     typical = float(np.median(samples.width_px)) if len(samples.width_px) else seg.width_px
     min_chord_px = min_length_diameters * typical
 

@@ -79,11 +79,15 @@ class TracedFibers:
         Junction centres (row, col) after merging.
     skeleton : (rows, cols) bool
         The skeleton that was traced.
+    shared : (n_shared, 2) float64 [px]
+        Skeleton pixels two fibers share: the bridges of shallow crossings. Like the
+        junctions, no place to measure one fiber's width.
     """
 
     paths: list[np.ndarray]
     junctions: np.ndarray
     skeleton: np.ndarray
+    shared: np.ndarray
 
 
 @dataclass
@@ -129,8 +133,10 @@ def trace_fibers(mask: np.ndarray, width_px: float, max_bend_deg: float = 35.0) 
         smooth = [_smoothed(c, w) for c, _ in chains]
     paths = [piece for path in smooth
              for piece in _split_at_turns(path, w, np.radians(_TURN * max_bend_deg))]
-    return TracedFibers(paths=paths, junctions=graph.junction_centre,
-                        skeleton=skeleton)
+    shared = [graph.branches[b] for b in np.flatnonzero(bridges)]
+    return TracedFibers(paths=paths, junctions=graph.junction_centre, skeleton=skeleton,
+                        shared=np.concatenate(shared).astype(float) if shared
+                        else np.zeros((0, 2)))
 
 
 # --------------------------------------------------------------------------------------------

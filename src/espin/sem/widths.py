@@ -15,6 +15,7 @@ less than 10 % contrast, are skipped.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,6 +28,7 @@ _MIN_CONTRAST = 0.1  # peak minus background, in units of the flattened image (0
 _PROFILE_STEP = 0.25  # px
 _MIN_FIT_SAMPLES = 3  # a fiber's diameter is fitted to the median of at least this many profiles
 _MAX_AMPLITUDE = 1.25  # the fitted blur may dim a fiber's peak by at most 20 %
+_FIT_RANGE = (0.8, 1.05)  # a fitted width is kept within these times the FWHM (the docs)
 
 
 @dataclass(frozen=True, eq=False)
@@ -71,7 +73,7 @@ def local_widths(flat: np.ndarray, paths: list[np.ndarray], junctions: np.ndarra
     paths : list of (n_i, 2) float64 [px]
         Fiber centre lines (row, col), one point per pixel of arc length.
     junctions : (n_junctions, 2) float64 [px]
-        Junction centres.
+        Junction centres, and any other points where fibers overlap (no sample within w).
     width_px : float [px]
         Typical fiber width w (sets the sampling, the profile length and the exclusions).
 
@@ -100,11 +102,15 @@ def fiber_diameters(flat: np.ndarray, samples: WidthSamples, n_fibers: int,
     The profiles of a fiber's samples, centred on their half-maximum midpoints and scaled on
     each side from that side's background (0) to the peak (1), are reduced to their median; a
     flat profile of width W and amplitude a, blurred by a Gaussian of sd sigma, plus an offset,
-    is fitted to it by least squares (W, sigma, a, centre, offset free; a <= 2, i.e. blur that
-    halves the peak at most). Its W is the fiber's diameter: the full width at half maximum
-    of a fiber that blur dims (a deeper, out-of-focus fiber) overestimates it, by 0.2 px for
-    an 8 px fiber blurred by 2 px and 1.4 px for one blurred by 3 px. A fiber with fewer than
-    three samples, or whose fit fails, keeps the median of its local widths.
+    is fitted to it (each profile only out to its minimum on either side: beyond lies the
+    next fiber) by least squares (W, sigma, a, centre, offset free; a <= 1.25, i.e. blur
+    dims the peak by 20 % at most). Its W is the fiber's diameter: the full width at half
+    maximum of a fiber that blur dims (a deeper, out-of-focus fiber) overestimates it, by
+    0.2 px for an 8 px fiber blurred by 2 px and 1.4 px for one blurred by 3 px. A fiber
+    keeps the median of its local widths (its FWHM) when it has fewer than three samples, when
+    the fit fails, or when W falls outside [0.838, 1.05] times that FWHM: blur that dims the
+    peak by 20 % narrows the FWHM by the factor 0.838 at most, so such a fit read something
+    else (a neighbouring fiber inside the profile, a shoulder).
 
     Parameters
     ----------
@@ -133,11 +139,21 @@ def fiber_diameters(flat: np.ndarray, samples: WidthSamples, n_fibers: int,
     background = np.where(t < 0, profile[:, :half + 1].min(axis=1)[:, None],
                           profile[:, half:].min(axis=1)[:, None])
     unit = (profile - background) / np.maximum(peak[:, None] - background, 1e-12)
+    # Beyond a side's minimum lies the next fiber (or noise): left out of the median.
+    reach = np.abs(np.arange(len(t)) - half)
+    first = half - np.argmin(profile[:, half::-1], axis=1)
+    last = half + np.argmin(profile[:, half:], axis=1)
+    own = np.where(np.arange(len(t)) < half, reach <= (half - first)[:, None],
+                   reach <= (last - half)[:, None])
+    unit = np.where(own, unit, np.nan)
     for f in np.unique(samples.fiber):
         mine = samples.fiber == f
         out[f] = np.median(samples.width_px[mine])
         if mine.sum() >= _MIN_FIT_SAMPLES:
-            out[f] = _blurred_flat_width(t, np.median(unit[mine], axis=0), out[f], w)
+            with warnings.catch_warnings():  # offsets no profile reaches are NaN: not fitted
+                warnings.simplefilter("ignore", RuntimeWarning)
+                median = np.nanmedian(unit[mine], axis=0)
+            out[f] = _blurred_flat_width(t, median, out[f], w)
     return out
 
 
@@ -154,8 +170,11 @@ def _blurred_flat_width(t: np.ndarray, y: np.ndarray, fwhm: float, w: float) -> 
     lower = [0.25, 0.05, 0.5, -w / 2, -0.1]
     upper = [3.0 * w, 2.0 * w, _MAX_AMPLITUDE, w / 2, 0.5]
     start = np.clip([fwhm, 1.0, 1.0, 0.0, 0.0], lower, upper)
-    fit = optimize.least_squares(lambda p: model(p) - y, start, bounds=(lower, upper))
-    return float(fit.x[0]) if fit.success and np.all(np.isfinite(fit.x)) else fwhm
+    known = np.isfinite(y)
+    fit = optimize.least_squares(lambda p: (model(p) - y)[known], start, bounds=(lower, upper))
+    width = float(fit.x[0])
+    plausible = _FIT_RANGE[0] * fwhm <= width <= _FIT_RANGE[1] * fwhm
+    return width if fit.success and np.isfinite(width) and plausible else fwhm
 
 
 def _profiles(flat: np.ndarray, point: np.ndarray, normal: np.ndarray,
