@@ -3,8 +3,8 @@
 Columns (units in the names): ``fiber`` (int), ``diameter_um`` (width of a blurred flat
 profile fitted to the fiber's median profile), ``orientation_deg`` (axis of the end-to-end
 line, [0, 180)), ``tortuosity`` (contour / end-to-end, >= 1), ``contour_length_um``,
-``end_to_end_um``. An empty cell is a
-value that was not measured (e.g. a fiber whose every width sample was next to a crossing).
+``end_to_end_um``. An empty cell is a value that was not measured (e.g. a fiber whose every
+width sample was next to a crossing).
 A table made by hand needs only one of ``diameter_um``, ``orientation_deg``, ``tortuosity``.
 """
 

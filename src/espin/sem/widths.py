@@ -108,7 +108,7 @@ def fiber_diameters(flat: np.ndarray, samples: WidthSamples, n_fibers: int,
     maximum of a fiber that blur dims (a deeper, out-of-focus fiber) overestimates it, by
     0.2 px for an 8 px fiber blurred by 2 px and 1.4 px for one blurred by 3 px. A fiber
     keeps the median of its local widths (its FWHM) when it has fewer than three samples, when
-    the fit fails, or when W falls outside [0.838, 1.05] times that FWHM: blur that dims the
+    the fit fails, or when W falls outside [0.8, 1.05] times that FWHM: blur that dims the
     peak by 20 % narrows the FWHM by the factor 0.838 at most, so such a fit read something
     else (a neighbouring fiber inside the profile, a shoulder).
 
@@ -135,17 +135,15 @@ def fiber_diameters(flat: np.ndarray, samples: WidthSamples, n_fibers: int,
     centre = samples.point + samples.centre_px[:, None] * samples.normal
     t, profile = _profiles(flat, centre, samples.normal, 1.5 * w)
     half = len(t) // 2
+    rows, index = np.arange(len(profile)), np.arange(len(t))
     peak = profile[:, np.abs(t) <= w / 2.0].max(axis=1)
-    background = np.where(t < 0, profile[:, :half + 1].min(axis=1)[:, None],
-                          profile[:, half:].min(axis=1)[:, None])
-    unit = (profile - background) / np.maximum(peak[:, None] - background, 1e-12)
-    # Beyond a side's minimum lies the next fiber (or noise): left out of the median.
-    reach = np.abs(np.arange(len(t)) - half)
+    # Each side's background is its minimum; beyond it lies the next fiber (or noise), which
+    # is left out of the median.
     first = half - np.argmin(profile[:, half::-1], axis=1)
     last = half + np.argmin(profile[:, half:], axis=1)
-    own = np.where(np.arange(len(t)) < half, reach <= (half - first)[:, None],
-                   reach <= (last - half)[:, None])
-    unit = np.where(own, unit, np.nan)
+    background = np.where(t < 0, profile[rows, first][:, None], profile[rows, last][:, None])
+    unit = (profile - background) / np.maximum(peak[:, None] - background, 1e-12)
+    unit = np.where((index >= first[:, None]) & (index <= last[:, None]), unit, np.nan)
     for f in np.unique(samples.fiber):
         mine = samples.fiber == f
         out[f] = np.median(samples.width_px[mine])
