@@ -3,9 +3,9 @@
 Tolerances (from the acceptance criteria): mean diameter within 10 % or 1 px, whichever is
 larger; dominant direction within 5 deg on aligned mats; mean tortuosity within 0.02 on wavy
 (max deviation 20 deg) and aligned mats. Tightened where the method does better: per-fiber
-diameters within 7 % on wavy mats, tortuosity on wavy mats within 0.01 pooled and 0.015 image by image, aligned mats within 0.015, and straight
-fibers read a median tortuosity below 1.0125 (the floor of the tracer). The measured errors are
-listed in docs/sem.md.
+diameters within 7 % on wavy mats, tortuosity on wavy mats within 0.01 pooled and 0.015 image
+by image, aligned mats within 0.015, and straight fibers read a median tortuosity below 1.0125
+(the floor of the tracer). The measured errors are listed in docs/sem.md.
 """
 
 from __future__ import annotations
