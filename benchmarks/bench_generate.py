@@ -22,11 +22,11 @@ from pathlib import Path
 
 
 def run_case(size_ratio: float, layers: int) -> dict:
-    from espin.crosslinks import find_crosslinks
-    from espin.deposition import deposit
-    from espin.io.rve_file import save_rve
-    from espin.network import build_network
-    from espin.rve import RVE, resolve_config
+    from espin.geometry.crosslinks import find_crosslinks
+    from espin.geometry.deposition import deposit
+    from espin.geometry.rve_file import save_rve
+    from espin.geometry.network import build_network
+    from espin.geometry.rve import RVE, resolve_config
 
     cfg = resolve_config("plla", rve__size_ratio=size_ratio, rve__layers=layers)
     t0 = time.perf_counter()

@@ -123,7 +123,7 @@ def run_case(size_um: float, backend: str, threads: int | None) -> dict:
     """Time one backend on the tangents of one network size (call in a fresh process)."""
     from threadpoolctl import threadpool_limits
 
-    from espin.linear_solvers import make_linear_solver
+    from espin.mechanics.linear_solvers import make_linear_solver
 
     spd, indefinite = network_tangents(size_um)
     b = np.random.default_rng(0).standard_normal(spd.shape[0])

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-import espin.rve
-from espin.sem import measure, read_image, render_sem
+import espin.geometry.rve
+from espin.imaging import measure, read_image, render_sem
 
 D = 0.45
 SEM = Path(__file__).parents[2] / "shared" / "data" / "sem"
@@ -32,7 +32,7 @@ def synthetic_accuracy() -> None:
           "coherency | time [s]")
     for label, overrides, window, px in cases:
         for seed in (1, 2, 3):
-            mat = espin.rve.generate("plla", rve__size_ratio=100, rve__layers=4, rve__seed=seed,
+            mat = espin.geometry.rve.generate("plla", rve__size_ratio=100, rve__layers=4, rve__seed=seed,
                                      **overrides).mat
             image = render_sem(mat, side_um=window * D, um_per_px=D / px, seed=seed)
             start = time.perf_counter()

@@ -4,7 +4,7 @@ For mats of ``plla`` with a growing largest turn (``rve.max_deviation_deg``), re
 docs/sem.md (top 3 of 4 layers, 60 D window, 8 px per D), this prints per image:
 
 * the true mean and median tortuosity of the visible fiber portions (the ground truth of
-  :func:`espin.sem.render_sem`), and the spread of the true mean from image to image;
+  :func:`espin.imaging.render_sem`), and the spread of the true mean from image to image;
 * the error of the mean over the traced pieces (``espin measure``);
 * the error of the whole-fiber mean and median that ``calibrate_geometry`` infers;
 * how much of each true portion its longest traced piece covers, by depth of its layer
@@ -23,10 +23,10 @@ import time
 import numpy as np
 from scipy.spatial import cKDTree
 
-import espin.rve
-from espin.geometry_calibration import calibrate_geometry
-from espin.geometry_calibration.virtual import window_runs
-from espin.sem import measure, render_sem
+import espin.geometry.rve
+from espin.imaging.geometry_calibration import calibrate_geometry
+from espin.imaging.geometry_calibration.virtual import window_runs
+from espin.imaging import measure, render_sem
 
 D = 0.45  # plla mean diameter [um]
 WINDOW, PX_PER_D = 60, 8
@@ -73,7 +73,7 @@ def main(quick: bool) -> None:
         true_means = []
         for seed in seeds:
             start = time.perf_counter()
-            mat = espin.rve.generate("plla", rve__size_ratio=100, rve__layers=4, rve__seed=seed,
+            mat = espin.geometry.rve.generate("plla", rve__size_ratio=100, rve__layers=4, rve__seed=seed,
                                      rve__max_deviation_deg=turn).mat
             image = render_sem(mat, side_um=WINDOW * D, um_per_px=D / PX_PER_D, seed=seed)
             m = measure(image.image, um_per_px=image.um_per_px)

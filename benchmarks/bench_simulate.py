@@ -37,11 +37,11 @@ def _timed(owner, name, bucket, totals):
 
 def run_case(size_ratio: float, layers: int, strain: float, steps: int, linear: str,
              lateral: str, elastic: bool) -> dict:
-    import espin.equilibrium as equilibrium
-    import espin.linear_solvers as linear_solvers
-    from espin.assembly import NetworkAssembler
-    from espin.rve import generate
-    from espin.driver import run_program
+    import espin.mechanics.equilibrium as equilibrium
+    import espin.mechanics.linear_solvers as linear_solvers
+    from espin.mechanics.assembly import NetworkAssembler
+    from espin.geometry.rve import generate
+    from espin.mechanics.driver import run_program
 
     totals: dict[str, float] = defaultdict(float)
     _timed(equilibrium._ThreadedLaw, "__call__", "law", totals)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from espin.mat import FiberMat
+from espin.geometry.mat import FiberMat
 
 
 def make_mat(fibers: list[list[tuple[float, float]]], layers: list[int], size: float = 10.0,
@@ -25,8 +25,8 @@ def make_mat(fibers: list[list[tuple[float, float]]], layers: list[int], size: f
 
 def grid_network(n: int = 4, size: float = 10.0, diameter: float = 0.2):
     """n horizontal and n vertical straight fibers crossing on a regular grid (one layer)."""
-    from espin.crosslinks import find_crosslinks
-    from espin.network import build_network
+    from espin.geometry.crosslinks import find_crosslinks
+    from espin.geometry.network import build_network
 
     c = (np.arange(n) + 0.5) * size / n
     fibers = [[(0.0, y), (size, y)] for y in c] + [[(x, 0.0), (x, size)] for x in c]
@@ -37,6 +37,6 @@ def grid_network(n: int = 4, size: float = 10.0, diameter: float = 0.2):
 @pytest.fixture(scope="session")
 def small_rve():
     """A small plla-like RVE (L = 40 D, 3 layers), generated once per test session."""
-    import espin.rve
+    import espin.geometry.rve
 
-    return espin.rve.generate("plla", rve__size_ratio=40, rve__layers=3)
+    return espin.geometry.rve.generate("plla", rve__size_ratio=40, rve__layers=3)

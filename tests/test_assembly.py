@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from conftest import grid_network
-from espin.assembly import NetworkAssembler
-from espin.config import FiberConfig
-from espin.fiber_law import FiberLaw, axial_force_and_stiffness, update
-from espin.homogenization import cauchy_stress, nominal_stress, paper_stress
+from espin.mechanics.assembly import NetworkAssembler
+from espin.core.config import FiberConfig
+from espin.mechanics.fiber_law import FiberLaw, axial_force_and_stiffness, update
+from espin.mechanics.homogenization import cauchy_stress, nominal_stress, paper_stress
 
 
 def _state(asm, law, net, inner, F, plastic_old, dt):
@@ -90,8 +90,8 @@ def test_rigid_rotation_gives_zero_stress(small_rve):
 def test_virial_stress_equals_border_forces(small_rve):
     """At equilibrium P = (1 / V0) sum over border nodes f_b (x) X_b (SPEC 5): the element
     sum of P and the border-force sum agree, and the inner forces vanish."""
-    from espin.equilibrium import EquilibriumSolver, StepState
-    from espin.linear_solvers import make_linear_solver
+    from espin.mechanics.equilibrium import EquilibriumSolver, StepState
+    from espin.mechanics.linear_solvers import make_linear_solver
 
     net = small_rve.network
     law = FiberLaw.from_config(FiberConfig(flow_rate_per_s=0.0))

@@ -19,12 +19,12 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-import espin.calibration
-import espin.run
-from espin.calibration import fit, parameter_key, synthetic_curve
-from espin.config import load_config
-from espin.errors import ConfigError, SolverError
-from espin.rve import generate, resolve_config
+import espin.analysis.calibration
+import espin.mechanics.run
+from espin.analysis.calibration import fit, parameter_key, synthetic_curve
+from espin.core.config import load_config
+from espin.core.errors import ConfigError, SolverError
+from espin.geometry.rve import generate, resolve_config
 
 STRAIN = np.linspace(0.005, 0.15, 30)
 COARSE = np.linspace(0.01, 0.15, 15)  # for the tests that use one coarse step schedule
@@ -80,8 +80,8 @@ def test_scaling_moduli_and_flow_resistance_scales_every_stress(small_rve):
     plla = load_config("plla").fiber
     run = {"loading__max_strain": 0.08, "loading__steps": 8}
     k = 1.7
-    one = espin.run.simulate(small_rve, **run)
-    scaled = espin.run.simulate(
+    one = espin.mechanics.run.simulate(small_rve, **run)
+    scaled = espin.mechanics.run.simulate(
         small_rve, fiber__taut_modulus_MPa=k * plla.taut_modulus_MPa,
         fiber__slack_modulus_MPa=k * plla.slack_modulus_MPa,
         fiber__flow_resistance_MPa=k * plla.flow_resistance_MPa, **run,
@@ -196,7 +196,7 @@ def test_bad_input_fails_before_any_simulation(monkeypatch, kwargs, message):
     def no_simulation(*args, **kw):
         raise AssertionError("a simulation started")
 
-    monkeypatch.setattr(espin.run, "simulate", no_simulation)
+    monkeypatch.setattr(espin.mechanics.run, "simulate", no_simulation)
     curve = kwargs.pop("curve", (STRAIN, 40 * STRAIN))
     with pytest.raises(ConfigError) as info:
         fit(curve, base="plla", **kwargs)
@@ -226,14 +226,14 @@ def _analytic(fail):
 
 
 def test_a_failing_model_is_an_error_naming_the_parameters(monkeypatch, base):
-    monkeypatch.setattr(espin.calibration, "_simulate_task", _analytic(lambda eta, c_p: "step 2 did not converge"))
+    monkeypatch.setattr(espin.analysis.calibration, "_simulate_task", _analytic(lambda eta, c_p: "step 2 did not converge"))
     with pytest.raises(SolverError, match="fiber.hardening_exponent = 0.5.*step 2 did not converge"):
         fit((STRAIN, 40 * STRAIN), base=base, parameters=("c_p",), seeds=(1,))
 
 
 def test_a_failed_jacobian_column_is_retried_with_the_other_sign(monkeypatch, base):
     """Only the forward step of c_p from the start fails: the backward step replaces it."""
-    monkeypatch.setattr(espin.calibration, "_simulate_task",
+    monkeypatch.setattr(espin.analysis.calibration, "_simulate_task",
                         _analytic(lambda eta, c_p: "diverged" if 0.5005 < c_p < 0.5015 else None))
     data = (STRAIN, 200 * 0.19 * STRAIN + 80 * STRAIN**2)  # c_p = 0.8
     result = fit(data, base=base, parameters=("c_p",), seeds=(1,))
@@ -245,7 +245,7 @@ def test_a_failed_jacobian_column_is_retried_with_the_other_sign(monkeypatch, ba
 def test_an_eta_where_the_fit_fails_scores_infinite_sse(monkeypatch, base, tmp_path):
     """A model failing at eta > 0.26 (a grid point) does not end the fit: that eta counts as
     SSE = inf, logged, listed and counted."""
-    monkeypatch.setattr(espin.calibration, "_simulate_task",
+    monkeypatch.setattr(espin.analysis.calibration, "_simulate_task",
                         _analytic(lambda eta, c_p: "no convergence" if eta > 0.26 else None))
     data = (STRAIN, 200 * 0.2 * STRAIN + 80 * STRAIN**2)  # eta 0.2, c_p 0.8
     result = fit(data, base=base, parameters=("eta", "c_p"), seeds=(1,), bounds={"eta": (0.1, 0.3)},
@@ -265,7 +265,7 @@ def test_an_eta_where_the_fit_fails_scores_infinite_sse(monkeypatch, base, tmp_p
 def test_specimens_are_averaged_on_their_measured_strains(monkeypatch, base, tmp_path):
     """Several CSV specimens: their common strains (no interpolation), else the union of their
     strains within the common range; a number of points only when asked for."""
-    monkeypatch.setattr(espin.calibration, "_simulate_task", _analytic(lambda eta, c_p: None))
+    monkeypatch.setattr(espin.analysis.calibration, "_simulate_task", _analytic(lambda eta, c_p: None))
 
     def specimen(name, strain, c_p):
         path = tmp_path / name
@@ -295,7 +295,7 @@ def test_written_files_reproduce_the_fit(flow_fit, tmp_path):
     assert config.fiber.flow_resistance_MPa == flow_fit.values["fiber.flow_resistance_MPa"]
     assert config.loading.program[-1].to_strain == pytest.approx(STRAIN[-1])
     # Running the fitted config gives the first realization's model curve.
-    rerun = espin.run.simulate(generate(config))
+    rerun = espin.mechanics.run.simulate(generate(config))
     first = np.interp(STRAIN, rerun.strain, rerun.stress())
     np.testing.assert_allclose(first, flow_fit.curves[0].model_realizations_MPa[0], rtol=1e-6)
     report = json.loads((tmp_path / "fit.json").read_text())
@@ -311,7 +311,7 @@ def test_written_files_reproduce_the_fit(flow_fit, tmp_path):
 
 
 def test_cli_fit(tmp_path, base):
-    from espin.cli_fit import register
+    from espin.cli.fit import register
 
     app = typer.Typer()
     register(app)

@@ -13,7 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from espin.cli import app
-from espin.io.rve_file import load_rve
+from espin.geometry.rve_file import load_rve
 
 runner = CliRunner()
 EXAMPLES = Path(__file__).parents[1] / "examples"
@@ -133,10 +133,10 @@ def test_image_to_mechanics_end_to_end(tmp_path):
     """espin measure -> calibrate-geometry -> generate -> simulate, as a user runs it."""
     from PIL import Image
 
-    import espin.rve
-    from espin.sem import render_sem
+    import espin.geometry.rve
+    from espin.imaging import render_sem
 
-    mat = espin.rve.generate("plla", rve__size_ratio=60, rve__layers=3, rve__seed=4,
+    mat = espin.geometry.rve.generate("plla", rve__size_ratio=60, rve__layers=3, rve__seed=4,
                              rve__max_deviation_deg=20.0).mat
     sem = render_sem(mat, side_um=40 * 0.45, layers=2, seed=4)
     image = tmp_path / "mat.png"

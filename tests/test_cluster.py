@@ -6,8 +6,8 @@ import sys
 
 import pytest
 
-from espin.cluster import THREAD_VARIABLES, jobqueue_cluster
-from espin.errors import ConfigError
+from espin.core.cluster import THREAD_VARIABLES, jobqueue_cluster
+from espin.core.errors import ConfigError
 
 
 @pytest.mark.parametrize("system, directives", [

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from espin.config import (
+from espin.core.config import (
     Config,
     apply_overrides,
     HoldSegment,
@@ -16,8 +16,8 @@ from espin.config import (
     load_config,
     write_config,
 )
-from espin.errors import ConfigError
-from espin.rve import generate
+from espin.core.errors import ConfigError
+from espin.geometry.rve import generate
 
 
 def test_plla_preset_is_tables_2_and_3():
@@ -128,7 +128,7 @@ def test_config_is_immutable():
 
 
 def test_override_reaches_inside_a_table():
-    from espin.config import apply_overrides, load_config
+    from espin.core.config import apply_overrides, load_config
 
     config = apply_overrides(load_config("plla"), {"rve.orientation.von_mises.kappa": 3.0})
     assert config.rve.orientation.von_mises.kappa == 3.0

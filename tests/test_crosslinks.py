@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from conftest import make_mat
-from espin.config import load_config
-from espin.crosslinks import find_crosslinks, segment_pairs_in_cells
-from espin.deposition import deposit
+from espin.core.config import load_config
+from espin.geometry.crosslinks import find_crosslinks, segment_pairs_in_cells
+from espin.geometry.deposition import deposit
 
 
 def _pairs(x):

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from espin.config import load_config
-from espin.deposition import deposit
-from espin.orientation import orientation_distribution
+from espin.core.config import load_config
+from espin.geometry.deposition import deposit
+from espin.geometry.orientation import orientation_distribution
 
 VON_MISES = {"von_mises": {"mean_deg": 30.0, "kappa": 2.0}}
 

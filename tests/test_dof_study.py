@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from conftest import make_mat
-from espin.crosslinks import find_crosslinks
-from espin.dof_study import count_dof, dof_fit, dof_study, plot_dof_study
-from espin.errors import ConfigError
-from espin.network import build_network
+from espin.geometry.crosslinks import find_crosslinks
+from espin.studies.dof import count_dof, dof_fit, dof_study, plot_dof_study
+from espin.core.errors import ConfigError
+from espin.geometry.network import build_network
 
 
 def hand_built():

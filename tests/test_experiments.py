@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from espin.errors import EspinError
-from espin.experiments import AveragedCurve, Curve, CurveFileError, average_curves, read_curve
+from espin.core.errors import EspinError
+from espin.analysis.experiments import AveragedCurve, Curve, CurveFileError, average_curves, read_curve
 
 
 def write(tmp_path, text, name="curve.csv"):
@@ -93,7 +93,7 @@ def test_skip_rows_preamble(tmp_path):
 
 
 def test_espin_curve_csv_is_read_by_its_column_names(tmp_path):
-    from espin.run import simulate
+    from espin.mechanics.run import simulate
 
     result = simulate("plla", tmp_path / "run", rve__size_ratio=30, rve__layers=2, loading__steps=4,
                       loading__max_strain=0.04)

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from espin.config import FiberConfig
-from espin.errors import ConfigError
-from espin.fiber_law import (
+from espin.core.config import FiberConfig
+from espin.core.errors import ConfigError
+from espin.mechanics.fiber_law import (
     FiberLaw,
     axial_force_and_stiffness,
     elastic_stress,
@@ -16,7 +16,7 @@ from espin.fiber_law import (
     work_increment,
     yielded,
 )
-from espin.single_fiber import constant_rate_history, pull_fiber
+from espin.mechanics.single_fiber import constant_rate_history, pull_fiber
 
 PLLA = FiberLaw(taut_modulus=3000, slack_modulus=3, flow_rate=1e-8, flow_resistance=5,
                 hardening_exponent=0.5)

@@ -18,11 +18,11 @@ import typer
 from scipy import special, stats
 from typer.testing import CliRunner
 
-from espin.cli_calibrate_geometry import register
-from espin.config import load_config
-from espin.deposition import deposit
-from espin.errors import ConfigError, EspinError
-from espin.geometry_calibration import (
+from espin.cli.calibrate_geometry import register
+from espin.core.config import load_config
+from espin.geometry.deposition import deposit
+from espin.core.errors import ConfigError, EspinError
+from espin.imaging.geometry_calibration import (
     MECHANICS_NOTE,
     VirtualMeasurement,
     calibrate_geometry,
@@ -30,10 +30,10 @@ from espin.geometry_calibration import (
     persistence_ratio,
     truncated_normal_parameters,
 )
-from espin.geometry_targets import GeometryTargets, MeasurementError, equivalent_square_side
-from espin.orientation import VonMisesOrientation
-from espin.geometry_calibration.virtual import _point_at, window_runs
-from espin.statistics import centred_window, window_tortuosity
+from espin.geometry.targets import GeometryTargets, MeasurementError, equivalent_square_side
+from espin.geometry.orientation import VonMisesOrientation
+from espin.imaging.geometry_calibration.virtual import _point_at, window_runs
+from espin.geometry.statistics import centred_window, window_tortuosity
 
 FAST = {"seeds": 4, "min_portions": 400}
 TRUE_SEGMENT_RATIO, TRUE_DEVIATION_DEG = 5.0, 25.0
@@ -197,10 +197,10 @@ IMAGE_DEVIATION_DEG = 45.0
 @pytest.fixture(scope="module")
 def sem_image():
     """An SEM-like image (60 D window, 3 layers) of a mat with 45 deg turns, with its truth."""
-    import espin.rve
-    from espin.sem import render_sem
+    import espin.geometry.rve
+    from espin.imaging import render_sem
 
-    mat = espin.rve.generate("plla", rve__size_ratio=100, rve__layers=4, rve__seed=1,
+    mat = espin.geometry.rve.generate("plla", rve__size_ratio=100, rve__layers=4, rve__seed=1,
                              rve__max_deviation_deg=IMAGE_DEVIATION_DEG).mat
     return render_sem(mat, side_um=60 * 0.45, seed=1)
 
@@ -208,7 +208,7 @@ def sem_image():
 @pytest.fixture(scope="module")
 def sem_measurement(sem_image):
     """espin measure of that image."""
-    from espin.sem import measure
+    from espin.imaging import measure
 
     return measure(sem_image.image, um_per_px=sem_image.um_per_px)
 
@@ -344,9 +344,9 @@ def test_cli_writes_a_config_that_generate_takes(tmp_path):
     report = json.loads(out.with_name("calibrated.calibration.json").read_text())
     assert report["note"] == MECHANICS_NOTE
     assert {m["quantity"] for m in report["matches"]} == {"tortuosity", "orientation_deg", "diameter_um"}
-    import espin.rve
+    import espin.geometry.rve
 
-    rve = espin.rve.generate(out, rve__size_ratio=30, rve__layers=2)
+    rve = espin.geometry.rve.generate(out, rve__size_ratio=30, rve__layers=2)
     assert rve.config.rve.max_deviation_deg == config.rve.max_deviation_deg
 
 
@@ -364,7 +364,7 @@ def _csv(tmp_path, text: str):
     return path
 
 
-# The table is read by espin.sem.read_fibers_csv: its messages name the column, the data
+# The table is read by espin.imaging.read_fibers_csv: its messages name the column, the data
 # row and the allowed range.
 @pytest.mark.parametrize("text, message", [
     ("a,b\n1,2\n", "needs at least one of the columns diameter_um, orientation_deg, tortuosity"),
@@ -427,7 +427,7 @@ def test_typed_in_fixed_diameter_is_exact_and_matches_with_ks_zero(tmp_path):
     assert result.config.rve.diameter_um == 0.123456  # not rounded to 0.1235
     m = result.match("diameter_um")
     assert m.ks == 0.0  # every virtual diameter is the typed-in one (kstest said 1.0)
-    from espin.geometry_calibration.matching import _diameter_target
+    from espin.imaging.geometry_calibration.matching import _diameter_target
 
     target = _diameter_target(GeometryTargets(diameter_mean_um=0.5))
     assert target.ks(np.full(10, 0.5)) == 0.0
@@ -488,7 +488,7 @@ def test_orientation_rule_disagreement_with_espin_measure_is_printed():
     # does not reject isotropy.
     rng = np.random.default_rng(5)
     theta = np.degrees(VonMisesOrientation(0.0, 0.25).sample(rng, 150))
-    from espin.sem.distributions import fit_distributions
+    from espin.imaging.distributions import fit_distributions
 
     assert fit_distributions(np.empty(0), theta, np.empty(0)).orientation_model == "von_mises"
     assert 0.01 < fit_axial_von_mises(theta)[2]

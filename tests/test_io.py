@@ -7,10 +7,10 @@ import meshio
 import numpy as np
 import pytest
 
-from espin.errors import RVEFileError
-from espin.io.atomic import atomic_write
-from espin.io.rve_file import SCHEMA_VERSION, load_rve, save_rve
-from espin.io.vtk import write_mat_vtu, write_network_vtu
+from espin.core.errors import RVEFileError
+from espin.core.atomic import atomic_write
+from espin.geometry.rve_file import SCHEMA_VERSION, load_rve, save_rve
+from espin.geometry.vtk import write_mat_vtu, write_network_vtu
 
 
 def test_rve_round_trip(small_rve, tmp_path):

@@ -10,9 +10,9 @@ import pytest
 import scipy.sparse as sp
 from threadpoolctl import threadpool_limits
 
-import espin.linear_solvers as ls
-from espin.errors import ConfigError, SolverError
-from espin.linear_solvers import LINEAR_SOLVER_NAMES, make_linear_solver
+import espin.mechanics.linear_solvers as ls
+from espin.core.errors import ConfigError, SolverError
+from espin.mechanics.linear_solvers import LINEAR_SOLVER_NAMES, make_linear_solver
 
 
 def _pardiso_param() -> object:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from espin.config import load_config
-from espin.errors import ConfigError
-from espin.loading import load_program
+from espin.core.config import load_config
+from espin.core.errors import ConfigError
+from espin.mechanics.loading import load_program
 
 
 def _program(**loading):

@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 
 from conftest import grid_network
-from espin.config import apply_overrides, load_config
-from espin.equilibrium import EquilibriumSolver, StepState
-from espin.errors import SolverError
-from espin.fiber_law import FiberLaw, elastic_stress
-from espin.homogenization import nominal_stress
-from espin.linear_solvers import make_linear_solver
-from espin.driver import run_program
-from espin.single_fiber import pull_fiber
+from espin.core.config import apply_overrides, load_config
+from espin.mechanics.equilibrium import EquilibriumSolver, StepState
+from espin.core.errors import SolverError
+from espin.mechanics.fiber_law import FiberLaw, elastic_stress
+from espin.mechanics.homogenization import nominal_stress
+from espin.mechanics.linear_solvers import make_linear_solver
+from espin.mechanics.driver import run_program
+from espin.mechanics.single_fiber import pull_fiber
 
 
 @pytest.fixture(scope="module")
@@ -160,9 +160,9 @@ def test_faster_pulling_gives_higher_stress_and_holds_relax(small_rve, linear):
 
 
 def test_macroscopic_tangent_matches_finite_differences(linear):
-    import espin.rve
+    import espin.geometry.rve
 
-    rve = espin.rve.generate("plla", rve__size_ratio=30, rve__layers=2)
+    rve = espin.geometry.rve.generate("plla", rve__size_ratio=30, rve__layers=2)
     net = rve.network
     for fiber in (dict(flow_rate_per_s=0.0), dict()):
         config = apply_overrides(rve.config, {f"fiber.{k}": v for k, v in fiber.items()})
@@ -229,8 +229,8 @@ def test_a_failed_step_keeps_the_converged_ones(small_rve, linear, tmp_path, mon
     """A step that cannot converge is reported with its place, and the steps before it
     are written (curve and results) rather than lost."""
     import espin
-    from espin.driver import SimulationFailed
-    from espin.equilibrium import EquilibriumSolver, StepFailed
+    from espin.mechanics.driver import SimulationFailed
+    from espin.mechanics.equilibrium import EquilibriumSolver, StepFailed
 
     solve = EquilibriumSolver.solve
     calls = []
@@ -289,8 +289,8 @@ def test_superlu_gives_the_same_curves(small_rve, linear):
 
 def test_law_on_threads_equals_one_call(monkeypatch):
     """The threaded fiber-law update (used at plla size) is bit-identical to one call."""
-    import espin.equilibrium as equilibrium
-    from espin.fiber_law import update
+    import espin.mechanics.equilibrium as equilibrium
+    from espin.mechanics.fiber_law import update
 
     monkeypatch.setattr(equilibrium, "_ELEMENTS_PER_THREAD", 10)
     monkeypatch.setattr(equilibrium, "threadpool_info", lambda: [{"num_threads": 3}])
@@ -330,9 +330,9 @@ def test_openblas_threads_during_a_step(uses_openblas):
                 internal_api="openblas").lib_controllers))
             return self.inner.factorize(K)
 
-    import espin.rve
+    import espin.geometry.rve
 
-    rve = espin.rve.generate("plla", rve__size_ratio=30, rve__layers=2,
+    rve = espin.geometry.rve.generate("plla", rve__size_ratio=30, rve__layers=2,
                              loading__max_strain=0.02, loading__steps=2)
     with openblas.limit(limits=2):
         run_program(rve.network, rve.config, Recording())

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from conftest import make_mat
-from espin.crosslinks import find_crosslinks
-from espin.network import build_network
+from espin.geometry.crosslinks import find_crosslinks
+from espin.geometry.network import build_network
 
 
 def test_hand_built_network():

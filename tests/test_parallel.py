@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from espin.errors import ConfigError
-from espin.parallel import TaskPool, parallel_map
+from espin.core.errors import ConfigError
+from espin.core.parallel import TaskPool, parallel_map
 
 
 def square_or_fail(x: int) -> int:
@@ -18,8 +18,8 @@ def thread_counts(_: object) -> dict[str, int]:
     """Threads of every BLAS / MKL / OpenMP library loaded in the worker, as a task sees them."""
     from threadpoolctl import threadpool_info
 
-    from espin.errors import EspinError
-    from espin.linear_solvers import _load_mkl
+    from espin.core.errors import EspinError
+    from espin.mechanics.linear_solvers import _load_mkl
 
     try:
         _load_mkl()  # what a tensile task loads (PARDISO), loaded here inside the task

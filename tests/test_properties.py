@@ -8,8 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from espin.errors import EspinError
-from espin.properties import (
+from espin.core.errors import EspinError
+from espin.analysis.properties import (
     CurveError,
     CurveProperties,
     bilinear_stress,
@@ -295,7 +295,7 @@ def test_simulated_plla_curve(plla_result):
 def cli():
     import typer
 
-    from espin.cli_properties import register
+    from espin.cli.properties import register
 
     app = typer.Typer()
     register(app)
@@ -310,7 +310,7 @@ def invoke(*args):
 
 
 def test_command_reads_espin_curve_csv(plla_result, tmp_path):
-    from espin.io.results_file import write_results
+    from espin.mechanics.results_file import write_results
 
     curve = write_results(plla_result, tmp_path)["curve_csv"]
     result = invoke(curve, "--out", tmp_path / "props")

@@ -15,14 +15,14 @@ import numpy as np
 import pytest
 
 from conftest import make_mat
-from espin.config import load_config
-from espin.crosslinks import find_crosslinks
-from espin.errors import RVEFileError
-from espin.figures.curve import plot_curve, plot_deformed
-from espin.io.results_file import SCHEMA_VERSION, SimulationWriter, load_results, write_results
-from espin.loading import load_program
-from espin.network import build_network
-from espin.driver import SimulationResult, StepRecord
+from espin.core.config import load_config
+from espin.geometry.crosslinks import find_crosslinks
+from espin.core.errors import RVEFileError
+from espin.mechanics.figures import plot_curve, plot_deformed
+from espin.mechanics.results_file import SCHEMA_VERSION, SimulationWriter, load_results, write_results
+from espin.mechanics.loading import load_program
+from espin.geometry.network import build_network
+from espin.mechanics.driver import SimulationResult, StepRecord
 
 PNG = b"\x89PNG\r\n\x1a\n"
 _STACKED = ("time", "strain", "F", "P", "P_paper", "cauchy", "recruited_fraction",
@@ -115,7 +115,7 @@ def test_load_results_errors(network, tmp_path):
         load_results(tmp_path / "missing.h5")
     other = tmp_path / "other.h5"
     with h5py.File(other, "w") as f:
-        f.attrs["schema"] = "espin.rve"
+        f.attrs["schema"] = "espin.geometry.rve"
     with pytest.raises(RVEFileError, match="not an espin results file"):
         load_results(other)
     result, _ = fake_result(network)

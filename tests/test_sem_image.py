@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from espin.errors import ConfigError
-from espin.sem.errors import SEMError
-from espin.sem.image import parse_rows, read_image, row_slice
-from espin.sem.scale import detect_scale_bar
+from espin.core.errors import ConfigError
+from espin.imaging.errors import SEMError
+from espin.imaging.image import parse_rows, read_image, row_slice
+from espin.imaging.scale import detect_scale_bar
 
 
 def _gradient(rows: int = 40, cols: int = 60) -> np.ndarray:

@@ -10,17 +10,17 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-import espin.rve
-from espin.errors import ConfigError
-from espin.sem import FIBER_COLUMNS, SEMError, measure, read_fibers_csv, render_sem
-from espin.sem.distributions import fit_distributions
+import espin.geometry.rve
+from espin.core.errors import ConfigError
+from espin.imaging import FIBER_COLUMNS, SEMError, measure, read_fibers_csv, render_sem
+from espin.imaging.distributions import fit_distributions
 
 D = 0.45
 
 
 @pytest.fixture(scope="module")
 def synthetic():
-    mat = espin.rve.generate("plla", rve__size_ratio=60, rve__layers=3, rve__seed=4,
+    mat = espin.geometry.rve.generate("plla", rve__size_ratio=60, rve__layers=3, rve__seed=4,
                              rve__max_deviation_deg=20.0).mat
     return render_sem(mat, side_um=40 * D, layers=2, seed=4)
 
@@ -141,7 +141,7 @@ def test_orientation_model_selection_by_aic():
 def test_cli_measure(synthetic, tmp_path):
     from PIL import Image
 
-    from espin.cli_measure import register
+    from espin.cli.measure import register
 
     app = typer.Typer()
     register(app)

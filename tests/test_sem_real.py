@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from espin.sem import measure, read_image
+from espin.imaging import measure, read_image
 
 SEM = Path(__file__).parents[2] / "shared" / "data" / "sem"
 PLGA = SEM / "PLGA-1500_1.tif"

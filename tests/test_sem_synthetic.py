@@ -13,16 +13,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import espin.rve
-from espin.errors import ConfigError
-from espin.sem import measure, render_sem
+import espin.geometry.rve
+from espin.core.errors import ConfigError
+from espin.imaging import measure, render_sem
 
 D = 0.45  # um, plla diameter
 SEEDS = (1, 2, 3)
 
 
 def _mat(seed: int, **overrides):
-    return espin.rve.generate("plla", rve__size_ratio=100, rve__layers=4, rve__seed=seed,
+    return espin.geometry.rve.generate("plla", rve__size_ratio=100, rve__layers=4, rve__seed=seed,
                               **overrides).mat
 
 

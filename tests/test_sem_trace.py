@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from espin.sem import trace
-from espin.sem.trace import trace_fibers
+from espin.imaging import trace
+from espin.imaging.trace import trace_fibers
 
 N, WIDTH = 320, 8.0  # image side and fiber width [px]
 

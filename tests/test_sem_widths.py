@@ -7,8 +7,8 @@ import pytest
 from scipy import ndimage
 from scipy.special import erf
 
-from espin.sem.segment import segment_fibers
-from espin.sem.widths import fiber_diameters, local_widths
+from espin.imaging.segment import segment_fibers
+from espin.imaging.widths import fiber_diameters, local_widths
 
 WIDTH = 8.0  # px, true fiber width
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from scipy import stats as sps
 
-from espin.config import Config, OutputConfig, RVEConfig, VonMises, VonMisesParams
-from espin.mat import FiberMat
-from espin.network import Network
-from espin.statistics import (
+from espin.core.config import Config, OutputConfig, RVEConfig, VonMises, VonMisesParams
+from espin.geometry.mat import FiberMat
+from espin.geometry.network import Network
+from espin.geometry.statistics import (
     DEFAULT_MIN_CHORD_FRACTION,
     MeasuredTargets,
     centred_window,
@@ -323,7 +323,7 @@ def test_summary_is_flat_json_and_table_lists_it():
 # figures
 # --------------------------------------------------------------------------------------------
 def test_figures_are_written(tmp_path):
-    from espin.figures.mat import plot_mat, plot_statistics
+    from espin.geometry.figures import plot_mat, plot_statistics
 
     rng = np.random.default_rng(5)
     n = 200

@@ -8,9 +8,9 @@ import pytest
 import typer
 from typer.testing import CliRunner
 
-from espin.cli_studies import parse_grid, register
-from espin.errors import ConfigError
-from espin.studies import rve_size_study, sweep
+from espin.cli.study import parse_grid, register
+from espin.core.errors import ConfigError
+from espin.studies.sweeps import rve_size_study, sweep
 
 TINY = {"loading__max_strain": 0.08, "loading__steps": 8}
 

@@ -1,0 +1,130 @@
+"""The ``espin calibrate-geometry`` command: deposition parameters from measured mat statistics.
+
+The lead wires it into the main application with ``register(app)``. Heavy imports happen
+inside the command, so ``espin --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+__all__ = ["register"]
+
+
+def _fail(message: str) -> None:
+    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code=2)
+
+
+def calibrate_geometry_command(
+    measured: Annotated[
+        Optional[Path],
+        typer.Argument(help="Folder written by espin measure (fibers.csv + measurement.toml) "
+                            "or a fibers.csv. Optional: targets may be typed in instead."),
+    ] = None,
+    diameter_um: Annotated[
+        Optional[float], typer.Option(help="Typed-in target: mean fiber diameter, um.")
+    ] = None,
+    diameter_sd_um: Annotated[
+        Optional[float], typer.Option(help="Typed-in target: sd of the diameter, um.")
+    ] = None,
+    tortuosity_scale: Annotated[
+        Optional[float],
+        typer.Option(help="Typed-in target: half-normal tortuosity halfnorm(loc=1, scale); "
+                          "the paper's PLLA mats: 0.14."),
+    ] = None,
+    orientation: Annotated[
+        Optional[str], typer.Option(help="Typed-in target: uniform.")
+    ] = None,
+    orientation_mean_deg: Annotated[
+        Optional[float], typer.Option(help="Typed-in target: von Mises mean axis, degrees in [0, 180).")
+    ] = None,
+    orientation_kappa: Annotated[
+        Optional[float], typer.Option(help="Typed-in target: von Mises concentration in [0, 700].")
+    ] = None,
+    window_um: Annotated[
+        Optional[float],
+        typer.Option(help="Observation window side, um, when the measurement has no "
+                          "field_of_view_um. Default: 50 fiber diameters."),
+    ] = None,
+    base: Annotated[
+        str, typer.Option(help="Preset (plla) or TOML config whose other keys are kept.")
+    ] = "plla",
+    fit: Annotated[
+        str,
+        typer.Option(help="Walk parameter matched to the tortuosity: deviation "
+                          "(rve.max_deviation_deg), segment (rve.segment_ratio) or both."),
+    ] = "deviation",
+    segment_ratio: Annotated[
+        Optional[float], typer.Option(help="Fixed rve.segment_ratio when it is not fitted.")
+    ] = None,
+    max_deviation_deg: Annotated[
+        Optional[float], typer.Option(help="Fixed rve.max_deviation_deg when it is not fitted.")
+    ] = None,
+    correct_orientation: Annotated[
+        bool,
+        typer.Option(help="Raise the deposition kappa of an aligned target so the visible "
+                          "orientation matches (the deposition walk widens it)."),
+    ] = True,
+    seeds: Annotated[int, typer.Option(help="Mats per evaluation (fixed seeds).")] = 8,
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Where to write. A path ending in .toml is the "
+                                                "calibrated config, with the report beside it as "
+                                                "<name>.calibration.json; any other path is a "
+                                                "folder (created if needed) that gets config.toml, "
+                                                "calibration.json and calibration.txt.")
+    ] = Path("calibrated.toml"),
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or table.")] = False,
+) -> None:
+    """Find deposition parameters whose mat, measured in the same window, matches measured
+    fiber diameter, orientation and tortuosity distributions; write a config for espin
+    generate / simulate. The mechanics change with the geometry: run espin fit next."""
+    from rich.console import Console
+
+    from espin.core.errors import EspinError
+    from espin.imaging.geometry_calibration import MECHANICS_NOTE, calibrate_geometry
+    from espin.geometry.targets import GeometryTargets, MeasurementError
+
+    console = Console(stderr=True, quiet=quiet)
+    try:
+        if orientation not in (None, "uniform"):
+            raise MeasurementError(
+                f"--orientation must be uniform (or give --orientation-mean-deg and "
+                f"--orientation-kappa), got {orientation!r}"
+            )
+        typed = {
+            "diameter_mean_um": diameter_um, "diameter_sd_um": diameter_sd_um,
+            "tortuosity_scale": tortuosity_scale, "orientation_uniform": orientation == "uniform",
+            "orientation_mean_deg": orientation_mean_deg, "orientation_kappa": orientation_kappa,
+        }
+        if measured is not None:
+            targets = GeometryTargets.from_path(measured).with_typed(**typed)
+        else:
+            targets = GeometryTargets(**typed)
+        with console.status("calibrating the deposition") as status:
+            result = calibrate_geometry(
+                targets, base, fit=fit, segment_ratio=segment_ratio,
+                max_deviation_deg=max_deviation_deg, window_um=window_um,
+                correct_orientation=correct_orientation, seeds=seeds,
+                progress=lambda message: status.update(f"calibrating: {message}"),
+            )
+        files = result.write(out)
+    except EspinError as err:
+        _fail(str(err))
+    console.print(result.format_table(), highlight=False, soft_wrap=True)
+    console.print("wrote " + ", ".join(str(f) for f in files.values()), highlight=False)
+    # The note (last line of the table) and the next steps are printed even with --quiet.
+    if quiet:
+        typer.echo(f"note: {MECHANICS_NOTE}", err=True)
+    typer.echo("next:\n"
+               f"  espin generate {files['config']}\n"
+               "  espin fit            (fit the fiber parameters again for this geometry)\n"
+               f"  espin simulate {files['config']}", err=True)
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``calibrate-geometry`` command to ``app``."""
+    app.command("calibrate-geometry")(calibrate_geometry_command)

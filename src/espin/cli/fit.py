@@ -1,0 +1,322 @@
+"""The ``espin fit`` command: calibrate eta and fiber-law parameters to measured curves.
+
+``register(app)`` adds the command to espin's typer app. Heavy imports happen inside the
+command, so ``espin --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any, Optional
+
+import typer
+
+if TYPE_CHECKING:  # pragma: no cover
+    from espin.analysis.calibration import FitResult
+
+from espin.cli.properties import (
+    DelimiterOpt,
+    PercentStrainOpt,
+    SkipRowsOpt,
+    StrainColumnOpt,
+    StressColumnOpt,
+    read_options,
+)
+
+__all__ = ["register"]
+
+
+def _number(text: str, what: str) -> float:
+    from espin.core.errors import ConfigError
+
+    try:
+        return float(text)
+    except ValueError:
+        raise ConfigError(f"{what}: {text!r} is not a number") from None
+
+
+def _parse_seeds(text: str) -> list[int]:
+    """``1,2,3`` -> [1, 2, 3]; a seed that is not an integer is an error (never truncated)."""
+    from espin.core.errors import ConfigError
+
+    seeds = []
+    for item in text.split(","):
+        try:
+            seeds.append(int(item.strip()))
+        except ValueError:
+            raise ConfigError(f"--seeds: {item.strip()!r} is not an integer") from None
+    return seeds
+
+
+def _parse_grid(text: str) -> Any:
+    """``measured`` or a number of evenly spaced strains (>= 2)."""
+    from espin.core.errors import ConfigError
+
+    if text.strip() == "measured":
+        return "measured"
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 2:
+        raise ConfigError(f"--average-grid: 'measured' or a number of points >= 2 (got {text!r})")
+    return n
+
+
+def _parse_bounds(items: list[str] | None) -> dict[str, tuple[float, float]]:
+    """``key=low:high`` items -> {key: (low, high)}."""
+    from espin.core.errors import ConfigError
+
+    out = {}
+    for item in items or []:
+        key, sep, text = item.partition("=")
+        low, colon, high = text.partition(":")
+        if not (sep and colon):
+            raise ConfigError(f"--bounds {item!r}: expected key=low:high, e.g. b_p=1:20")
+        out[key.strip()] = (_number(low, f"--bounds {key}"), _number(high, f"--bounds {key}"))
+    return out
+
+
+def _parse_fixed(items: list[str] | None) -> dict[str, float]:
+    """``key=value`` items -> {key: value}."""
+    from espin.core.errors import ConfigError
+
+    out = {}
+    for item in items or []:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise ConfigError(f"--fix {item!r}: expected key=value, e.g. E_t=3000")
+        out[key.strip()] = _number(text, f"--fix {key}")
+    return out
+
+
+def _parse_rates(items: list[str] | None) -> dict[float, list[Path]]:
+    """``RATE=FILE,FILE`` items -> {rate [1/s]: [files]}."""
+    from espin.core.errors import ConfigError
+
+    out: dict[float, list[Path]] = {}
+    for item in items or []:
+        rate, sep, files = item.partition("=")
+        paths = [Path(f) for f in files.split(",") if f.strip()]
+        if not (sep and paths):
+            raise ConfigError(f"--curves-at-rate {item!r}: expected RATE=FILE[,FILE...], e.g. 5e-2=a.csv,b.csv")
+        out[_number(rate, "--curves-at-rate rate")] = paths
+    return out
+
+
+def _curves(curves: list[Path], rate: float | None, other_rates: dict[float, list[Path]]) -> tuple[Any, float | None]:
+    """The ``curve`` and ``strain_rate_per_s`` arguments of :func:`espin.analysis.calibration.fit`."""
+    from espin.core.errors import ConfigError
+
+    if not other_rates:
+        return curves, rate
+    if rate is None:
+        raise ConfigError("--rate: give the strain rate of the CURVES when --curves-at-rate is used")
+    if rate in other_rates:
+        raise ConfigError(f"--curves-at-rate {rate:g}: the CURVES are already at that rate (--rate)")
+    return {rate: curves, **other_rates}, None
+
+
+def _sd_text(result: FitResult, key: str, sd: float | None) -> str:
+    """An sd as the table shows it: ± sd, or ×/÷ factor for a log-scale parameter."""
+    import math
+
+    from espin.analysis.calibration import FIT_PARAMETERS
+
+    if sd is None:
+        return "-"
+    if not math.isfinite(sd):
+        return "n/a"
+    if FIT_PARAMETERS[key].log_scale:
+        return f"×/÷ {math.exp(sd / result.values[key]):.3g}"
+    return f"± {sd:.2g}"
+
+
+def _table(result: FitResult) -> Any:
+    from rich.table import Table
+
+    from espin.analysis.calibration import ETA_KEY, FIT_PARAMETERS
+
+    table = Table(title=f"fit: R^2 = {result.r_squared:.5f}, RMSE = {result.rmse_MPa:.3g} MPa",
+                  caption_justify="left")
+    table.add_column("parameter", no_wrap=True)
+    for name in ("value", "sd", "1-sd interval", "Gauss-Newton sd", "sd over RVEs", "bounds", "note"):
+        table.add_column(name)
+    for key in result.parameters:
+        spread = result.realization_sd[key] if result.realization_sd else None
+        low, high = result.bounds[key]
+        lo, hi = result.interval(key)
+        note = f"at {result.at_bound[key]} bound" if result.at_bound[key] else ""
+        if key == ETA_KEY and result.eta_profile_sd is not None:
+            note = ", ".join(filter(None, [note, f"profile sd {result.eta_profile_sd:.2g}"]))
+        table.add_row(f"{FIT_PARAMETERS[key].symbol} ({key})", f"{result.values[key]:.5g}",
+                      _sd_text(result, key, result.uncertainties[key]), f"{lo:.4g} .. {hi:.4g}",
+                      _sd_text(result, key, result.gauss_newton_sd[key]), _sd_text(result, key, spread),
+                      f"{low:.3g} .. {high:.3g}", note)
+    lines = ["sd = sqrt(Gauss-Newton sd^2 + (sd over RVEs)^2 / R); ×/÷: log-scale parameter, "
+             "1-sd interval value / f .. value * f"]
+    gn = result.gauss_newton_sd.get(ETA_KEY)
+    if result.eta_resolution is not None and gn is not None and gn < result.eta_resolution:
+        lines.append(f"eta: its Gauss-Newton sd ({gn:.2g}) is below the network's step, one fiber per "
+                     f"layer = {result.eta_resolution:.2g} of volume fraction: eta is not resolved finer "
+                     "than that")
+    table.caption = "\n".join(lines)
+    return table
+
+
+def _live_warnings(console: Any) -> Any:
+    """A logging handler that shows the fit's warnings as they happen (failed simulations,
+    failed etas), except the result's own, which follow the table."""
+    import logging
+
+    class Live(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            if record.name != "espin.analysis.calibration.result":
+                console.print(f"warning: {record.getMessage()}", style="yellow", highlight=False,
+                              soft_wrap=True)
+
+    return Live(logging.WARNING)
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``fit`` command to ``app``."""
+
+    @app.command("fit")
+    def fit_command(
+        curves: Annotated[
+            list[Path],
+            typer.Argument(help="CSV files of the measured curve (specimens: they are averaged)."),
+        ],
+        params: Annotated[
+            str,
+            typer.Option(help="Parameters to fit, comma-separated: eta (volume_fraction), E_t "
+                              "(taut_modulus_MPa), E_b, a_p (needs two rates), b_p, c_p; keys or "
+                              "short names also work."),
+        ] = "eta,b_p,c_p",
+        bounds: Annotated[
+            Optional[list[str]],
+            typer.Option("--bounds", help="Bounds of a fitted parameter: key=low:high. Repeatable."),
+        ] = None,
+        fix: Annotated[
+            Optional[list[str]],
+            typer.Option("--fix", help="Hold a parameter at a value: key=value. Repeatable."),
+        ] = None,
+        realizations: Annotated[
+            Optional[int], typer.Option(help="RVE realizations per evaluation (default 3).")
+        ] = None,
+        seeds: Annotated[
+            Optional[str],
+            typer.Option(help="Seeds of the realizations, comma-separated. Default: base seed, +1, ..."),
+        ] = None,
+        rate: Annotated[
+            Optional[float],
+            typer.Option("--rate", help="Strain rate of the CURVES, 1/s. Default: the base config's."),
+        ] = None,
+        curves_at_rate: Annotated[
+            Optional[list[str]],
+            typer.Option("--curves-at-rate",
+                         help="Curves at another strain rate: RATE=FILE[,FILE...] (1/s). Repeatable; "
+                              "two rates or more let a_p be fitted."),
+        ] = None,
+        step_strain: Annotated[
+            float,
+            typer.Option(help="Largest load step (strain) up to twice the curve's knee; beyond, up to "
+                              "0.01. Segments end at the measured strains."),
+        ] = 1e-3,
+        average_grid: Annotated[
+            str,
+            typer.Option(help="Where several CURVES are averaged: 'measured' (their common strains, else "
+                              "the union within the common range) or a number of evenly spaced strains."),
+        ] = "measured",
+        large_strain: Annotated[
+            bool,
+            typer.Option("--large-strain",
+                         help="Accept strains above 1 (100 %); otherwise refused as probably percent."),
+        ] = False,
+        eta_points: Annotated[int, typer.Option(help="Points of the eta grid.")] = 5,
+        eta_tolerance: Annotated[float, typer.Option(help="Tolerance of the eta bracket search.")] = 0.002,
+        workers: Annotated[
+            Optional[int], typer.Option(help="Worker processes (default: all cores; 1 = serial).")
+        ] = None,
+        scheduler: Annotated[
+            Optional[str],
+            typer.Option(help="Dask scheduler: 'local' or an address such as tcp://host:8786."),
+        ] = None,
+        base: Annotated[
+            str, typer.Option(help="Preset or TOML config holding every value not fitted.")
+        ] = "plla",
+        set_: Annotated[
+            Optional[list[str]],
+            typer.Option("--set", help="Override a key of the base config: section.key=VALUE. Repeatable."),
+        ] = None,
+        out: Annotated[
+            Path, typer.Option("--out", "-o", help="Folder for fitted.toml, fit.csv, fit.json, fit.png.")
+        ] = Path("fit"),
+        strain_column: StrainColumnOpt = None,
+        stress_column: StressColumnOpt = None,
+        percent_strain: PercentStrainOpt = False,
+        delimiter: DelimiterOpt = None,
+        skip_rows: SkipRowsOpt = 0,
+        quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or table.")] = False,
+    ) -> None:
+        """Calibrate eta and fiber-law parameters to a measured stress-strain curve (paper 4.2).
+
+        eta by a grid and bracket search, the fiber parameters by least squares for each eta,
+        over RVE realizations with common seeds. Prints the fitted values with their
+        uncertainty and writes fitted.toml (runs with espin simulate), fit.csv, fit.json, fit.png.
+        """
+        import logging
+
+        from rich.console import Console
+
+        from espin.analysis.calibration import fit
+        from espin.cli import _fail, _parse_set
+        from espin.core.errors import EspinError
+        from espin.geometry.rve import resolve_config
+
+        console = Console(stderr=True, quiet=quiet, width=140)
+        live = _live_warnings(console)
+        logging.getLogger("espin.analysis.calibration").addHandler(live)
+        csv_options = read_options(strain_column, stress_column, percent_strain, delimiter, skip_rows)
+        try:
+            overrides = _parse_set(set_)
+            config = resolve_config(base, **{k.replace(".", "__"): v for k, v in overrides.items()})
+            curve, strain_rate = _curves(curves, rate, _parse_rates(curves_at_rate))
+            seed_list = None if seeds is None else _parse_seeds(seeds)
+            grid = _parse_grid(average_grid)
+            with console.status("fitting") as status:
+
+                def on_evaluation(record: dict) -> None:
+                    status.update(f"evaluation {record['evaluation']} ({record['stage']}): "
+                                  f"SSE {record['sse_MPa2']:.4g} MPa^2")
+
+                result = fit(
+                    curve, base=config, parameters=[p for p in params.split(",") if p.strip()],
+                    bounds=_parse_bounds(bounds), fixed=_parse_fixed(fix), realizations=realizations,
+                    seeds=seed_list, strain_rate_per_s=strain_rate, step_strain=step_strain,
+                    average_grid=grid, large_strain=large_strain, eta_points=eta_points,
+                    eta_tolerance=eta_tolerance, workers=workers, scheduler=scheduler,
+                    read_options=csv_options, on_evaluation=on_evaluation,
+                )
+            written = result.write(out)
+        except EspinError as err:
+            _fail(str(err))
+        finally:
+            logging.getLogger("espin.analysis.calibration").removeHandler(live)
+        console.print(_table(result))
+        for curve, steps in zip(result.curves, result.load_steps):
+            console.print(
+                f"curve {curve.source} ({curve.strain_rate_per_s:g} 1/s): {curve.strain.size} points from "
+                f"{curve.points_from}; {steps['load_steps']} load steps, at most {steps['step_strain']:g} "
+                f"to strain {steps['fine_steps_to_strain']:.3g}, largest {steps['largest_step_strain']:.3g} "
+                "overall", highlight=False, soft_wrap=True)
+        for warning in result.warnings:
+            console.print(f"warning: {warning}", style="yellow", highlight=False, soft_wrap=True)
+        console.print(
+            f"{result.simulations} simulations ({result.failed_simulations} failed) in "
+            f"{result.elapsed_s:.1f} s, {result.pool}; seeds {', '.join(map(str, result.seeds))}",
+            highlight=False,
+        )
+        console.print(f"wrote {out}/: " + ", ".join(p.name for p in written.values()), highlight=False)
+        console.print(f"next: espin simulate {out}/fitted.toml -o {out}/check", highlight=False,
+                      soft_wrap=True)

@@ -1,0 +1,266 @@
+"""The ``espin properties`` command: mechanical properties of measured or simulated curves.
+
+``register(app)`` adds the command to espin's typer app. Heavy imports happen inside the
+command, so ``espin --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Optional
+
+import typer
+
+if TYPE_CHECKING:  # pragma: no cover
+    from espin.analysis.experiments import AveragedCurve, Curve
+    from espin.analysis.properties import CurveProperties
+
+__all__ = ["register", "StrainColumnOpt", "StressColumnOpt", "PercentStrainOpt", "DelimiterOpt", "SkipRowsOpt",
+           "read_options"]
+
+_DELIMITER_NAMES = {"tab": "\t", "\\t": "\t", "space": " ", "whitespace": " "}
+
+# Options of every command that reads curve CSV files (properties, fit).
+StrainColumnOpt = Annotated[
+    Optional[str],
+    typer.Option(help="Strain column: 0-based index or header name (any case). "
+                      "Default: the header's 'strain' column; 0 without a header or with two columns."),
+]
+StressColumnOpt = Annotated[
+    Optional[str],
+    typer.Option(help="Stress column [MPa]: 0-based index or header name (any case). "
+                      "Default: the header's 'stress_MPa', 'stress [MPa]', 'stress (MPa)', 'stress' or "
+                      "'mean_MPa' column; 1 without a header or with two columns."),
+]
+PercentStrainOpt = Annotated[bool, typer.Option(help="The strain column is in percent.")]
+DelimiterOpt = Annotated[
+    Optional[str], typer.Option(help="Field separator (',', ';', tab, space). Default: detected.")
+]
+SkipRowsOpt = Annotated[int, typer.Option(help="Lines to skip at the top of each file.")]
+
+
+def read_options(strain_column: str | None, stress_column: str | None, percent_strain: bool,
+                 delimiter: str | None, skip_rows: int) -> dict:
+    """The CSV options of the command line as keyword arguments of :func:`espin.analysis.experiments.read_curve`."""
+    return {
+        "strain_column": _column(strain_column),
+        "stress_column": _column(stress_column),
+        "percent_strain": percent_strain,
+        "delimiter": _DELIMITER_NAMES.get(delimiter.lower(), delimiter) if delimiter else None,
+        "skip_rows": skip_rows,
+    }
+
+
+def _column(text: str | None) -> int | str | None:
+    """A column option: a 0-based index when it is a number, else a header name."""
+    if text is None:
+        return None
+    return int(text) if text.strip().isdigit() else text
+
+
+def _strain_range(text: str | None, percent: bool) -> tuple[float | None, float | None] | None:
+    """``--strain-range LO:HI`` as fractions (either end may be empty; percent when ``percent``).
+
+    Raises
+    ------
+    CurveError
+        If the text is not ``LO:HI`` with finite numbers and LO < HI.
+    """
+    import math
+
+    from espin.analysis.properties import CurveError
+
+    if text is None:
+        return None
+    rule = ("--strain-range: LO:HI strains with LO < HI, either end may be left empty (e.g. 0.02: "
+            "or, with --percent-strain, 2:)")
+    parts = text.split(":")
+    if len(parts) != 2:
+        raise CurveError(f"{rule}; got {text!r}")
+    bounds: list[float | None] = []
+    for part in parts:
+        if not part.strip():
+            bounds.append(None)
+            continue
+        try:
+            value = float(part)
+        except ValueError:
+            raise CurveError(f"{rule}; got {text!r}") from None
+        if not math.isfinite(value):
+            raise CurveError(f"{rule}; got {text!r}")
+        bounds.append(value / 100.0 if percent else value)
+    lo, hi = bounds
+    if lo is not None and hi is not None and not lo < hi:
+        raise CurveError(f"{rule}; got {text!r}")
+    return lo, hi
+
+
+def _row(name: str, props: CurveProperties) -> list[str]:
+    yield_strain = f"{100 * props.yield_strain:.3g}" if props.has_yield else "-"
+    return [
+        name,
+        f"{props.modulus_MPa:.4g}",
+        f"{props.yield_stress_MPa:.4g}" if props.has_yield else "-",
+        yield_strain,
+        f"{props.post_yield_modulus_MPa:.4g}" if props.has_yield else "-",
+        f"{props.r_squared:.4f}",
+        props.note,
+    ]
+
+
+def _summary_row(summary: dict[str, dict[str, float]], n_curves: int) -> list[str]:
+    def cell(name: str, scale: float = 1.0) -> str:
+        s = summary[name]
+        if s["n"] == 0:
+            return "-"
+        sd = f" ± {scale * s['sd']:.2g}" if s["n"] > 1 else ""
+        return f"{scale * s['mean']:.4g}{sd}"
+
+    with_yield = summary["yield_stress_MPa"]["n"]
+    note = "" if with_yield == n_curves else f"yield in {with_yield} of {n_curves}"
+    return [f"mean ± sd (N = {n_curves})", cell("modulus_MPa"), cell("yield_stress_MPa"),
+            cell("yield_strain", 100.0), cell("post_yield_modulus_MPa"), cell("r_squared"), note]
+
+
+_HEADER = ["curve", "E [MPa]", "yield stress [MPa]", "yield strain [%]", "post-yield modulus [MPa]",
+           "R^2", "note"]
+
+
+def _write_table(records: list[dict], path: Path) -> Path:
+    """The properties as CSV, full precision, one row per curve (and summary rows)."""
+    import pandas as pd
+
+    from espin.core.atomic import atomic_write_bytes
+
+    text = pd.DataFrame(records).to_csv(index=False, float_format="%.10g")
+    return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def _summary_records(summary: dict[str, dict[str, float]], n_curves: int) -> list[dict]:
+    """Rows ``mean`` and ``sd`` over the specimens for properties.csv."""
+    with_yield = summary["yield_stress_MPa"]["n"]
+    note = f"yield quantities over the {with_yield} of {n_curves} specimens with a yield"
+    return [{"curve": stat} | {name: s[stat] for name, s in summary.items()} | {"note": note}
+            for stat in ("mean", "sd")]
+
+
+@dataclass
+class _Analysis:
+    """What the command computed: curves, their properties, the average and the table."""
+
+    names: list[str]
+    curves: list[Curve]
+    fitted: list[CurveProperties]
+    average: AveragedCurve | None
+    average_props: CurveProperties | None
+    rows: list[list[str]]
+    records: list[dict]
+
+
+def _analyse(curves: list[Curve],
+             strain_range: tuple[float | None, float | None] | None = None) -> _Analysis:
+    """Fit each curve (on ``strain_range``, fractions); with several, summarize them and fit
+    their average.
+
+    Raises
+    ------
+    CurveError
+        If a curve cannot be fitted; the message starts with the curve's source.
+    """
+    from espin.analysis.experiments import average_curves
+    from espin.analysis.properties import CurveError, curve_properties, summarize_properties
+
+    def fit(source: str, strain, stress) -> CurveProperties:
+        try:
+            return curve_properties(strain, stress, strain_range=strain_range)
+        except CurveError as err:
+            raise CurveError(f"{source}: {err}") from None
+
+    short = [Path(c.source).name for c in curves]
+    names = short if len(set(short)) == len(short) else [c.source for c in curves]
+    fitted = [fit(c.source, c.strain, c.stress_MPa) for c in curves]
+    rows = [_row(name, props) for name, props in zip(names, fitted)]
+    records = [{"curve": c.source} | p.as_dict() for c, p in zip(curves, fitted)]
+    average = average_props = None
+    if len(curves) > 1:
+        summary = summarize_properties(fitted)
+        rows.append(_summary_row(summary, len(curves)))
+        records += _summary_records(summary, len(curves))
+        average = average_curves(curves)
+        average_props = fit("the average curve", average.strain, average.mean_MPa)
+        rows.append(_row("average curve", average_props))
+        records.append({"curve": "average"} | average_props.as_dict())
+    return _Analysis(names, curves, fitted, average, average_props, rows, records)
+
+
+def _write_outputs(analysis: _Analysis, folder: Path) -> list[Path]:
+    """properties.csv, average_curve.csv (several curves) and properties.png in ``folder``."""
+    from espin.analysis.properties import plot_bilinear_fits
+
+    written = [_write_table(analysis.records, folder / "properties.csv")]
+    plotted = [(name, c.strain, c.stress_MPa, p)
+               for name, c, p in zip(analysis.names, analysis.curves, analysis.fitted)]
+    band = None
+    average = analysis.average
+    if average is not None:
+        written.append(average.to_csv(folder / "average_curve.csv"))
+        plotted.append(("average", average.strain, average.mean_MPa, analysis.average_props))
+        band = (average.strain, average.mean_MPa, average.sd_MPa)
+    written.append(plot_bilinear_fits(plotted, folder / "properties.png", band=band))
+    return written
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``properties`` command to ``app``."""
+
+    @app.command("properties")
+    def properties(
+        curves: Annotated[
+            list[Path],
+            typer.Argument(help="CSV files of stress-strain curves (specimens, or espin's curve.csv)."),
+        ],
+        strain_column: StrainColumnOpt = None,
+        stress_column: StressColumnOpt = None,
+        percent_strain: PercentStrainOpt = False,
+        delimiter: DelimiterOpt = None,
+        skip_rows: SkipRowsOpt = 0,
+        strain_range: Annotated[
+            Optional[str],
+            typer.Option(metavar="LO:HI",
+                         help="Fit only the points with LO <= strain <= HI, in the strain "
+                              "column's units (percent with --percent-strain); either end may "
+                              "be empty, e.g. 0.02: to leave out a toe region. Default: all."),
+        ] = None,
+        out: Annotated[
+            Optional[Path],
+            typer.Option("--out", "-o", help="Folder for properties.csv, the averaged curve "
+                                             "(average_curve.csv, 2+ curves) and properties.png."),
+        ] = None,
+    ) -> None:
+        """Elastic modulus, yield and post-yield modulus of curves by a bilinear fit (SPEC 7).
+
+        With several curves (specimens) also their mean ± sd and the properties of their
+        average curve.
+        """
+        from rich.console import Console
+        from rich.table import Table
+
+        from espin.cli import _fail
+        from espin.core.errors import EspinError
+        from espin.analysis.experiments import read_curve
+
+        options = read_options(strain_column, stress_column, percent_strain, delimiter, skip_rows)
+        try:
+            fit_range = _strain_range(strain_range, percent_strain)
+            analysis = _analyse([read_curve(path, **options) for path in curves], fit_range)
+            written = [] if out is None else _write_outputs(analysis, out)
+        except EspinError as err:
+            _fail(str(err))
+        table = Table(*_HEADER, title="bilinear fit: E = initial slope, yield = intersection of the lines")
+        for row in analysis.rows:
+            table.add_row(*row)
+        console = Console(width=140)
+        console.print(table)
+        if out is not None:
+            console.print(f"wrote {out}/: " + ", ".join(p.name for p in written), highlight=False)

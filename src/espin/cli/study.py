@@ -1,0 +1,284 @@
+"""``espin study ...``: RVE-size, DOF and parameter-sweep studies from the command line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Optional
+
+import typer
+
+__all__ = ["register", "parse_grid"]
+
+study_app = typer.Typer(
+    help="Ensembles of virtual tests: RVE size (Appendix A), DOF (Fig. 14), parameter sweeps.",
+    no_args_is_help=True,
+)
+
+BaseArg = Annotated[Optional[str], typer.Argument(help="Preset (plla) or TOML config. Default: plla.")]
+RealizationsOpt = Annotated[int, typer.Option(help="RVE realizations (seeds) per point.")]
+SeedStartOpt = Annotated[
+    Optional[int], typer.Option(help="First seed of the realizations. Default: the config's rve.seed.")
+]
+WorkersOpt = Annotated[
+    Optional[int], typer.Option(help="Local worker processes. Default: all cores; 1 = serial.")
+]
+SchedulerOpt = Annotated[
+    Optional[str],
+    typer.Option(help="Dask scheduler address (tcp://host:8786) or 'local' (a Dask LocalCluster). "
+                      "Default: local processes without Dask."),
+]
+BlasThreadsOpt = Annotated[int, typer.Option(help="BLAS / MKL threads per worker.")]
+SetOpt = Annotated[
+    Optional[list[str]],
+    typer.Option("--set", help="Override a config key of the base: --set section.key=VALUE. Repeatable."),
+]
+QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress or table.")]
+
+
+def parse_grid(items: list[str] | None) -> dict[str, list[Any]]:
+    """``key=v1,v2,...`` or ``key=start:stop:count`` (evenly spaced, ends included) to a grid.
+
+    Values are read as TOML (numbers, true/false, quoted strings); a bare word is a string.
+    """
+    import tomllib
+
+    import numpy as np
+
+    from espin.core.errors import ConfigError
+
+    grid: dict[str, list[Any]] = {}
+    for item in items or []:
+        key, sep, text = item.partition("=")
+        key, text = key.strip(), text.strip()
+        if not sep or not key or not text:
+            raise ConfigError(f"--grid {item!r}: expected section.key=v1,v2,... or section.key=start:stop:count")
+        if key in grid:
+            raise ConfigError(f"--grid {key}: given twice")
+        parts = text.split(":")
+        if len(parts) == 3:
+            try:
+                start, stop, count = float(parts[0]), float(parts[1]), int(parts[2])
+            except ValueError:
+                raise ConfigError(f"--grid {item!r}: start:stop:count needs two numbers and an integer") from None
+            if count < 1:
+                raise ConfigError(f"--grid {key}: count must be >= 1 (got {count})")
+            grid[key] = [float(v) for v in np.linspace(start, stop, count)]
+            continue
+        values = []
+        for word in text.split(","):
+            try:
+                values.append(tomllib.loads(f"v = {word.strip()}")["v"])
+            except tomllib.TOMLDecodeError:
+                values.append(word.strip())
+        grid[key] = values
+    return grid
+
+
+def _overrides(set_: list[str] | None) -> dict[str, Any]:
+    from espin.cli import _parse_set
+
+    return {k.replace(".", "__"): v for k, v in _parse_set(set_).items()}
+
+
+def _run_with_progress(run, n_tasks: int, quiet: bool):
+    """Call ``run(on_outcome)`` under a progress bar (on stderr)."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    console = Console(stderr=True, quiet=quiet)
+    failed = 0
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=console, transient=True) as bar:
+        task_id = bar.add_task("tensile tests", total=n_tasks)
+
+        def on_outcome(outcome, task) -> None:
+            nonlocal failed
+            failed += not outcome.ok
+            bar.update(task_id, advance=1, description=f"tensile tests ({failed} failed)" if failed else "tensile tests")
+
+        return run(on_outcome)
+
+
+def _run_study(prepare, out: Path, columns: list[str], quiet: bool) -> None:
+    """``prepare()`` -> (run, number of tasks), inside the CLI's error handling; run under a
+    progress bar, then report."""
+    from espin.cli import _fail
+    from espin.core.errors import EspinError
+
+    try:
+        run, n_tasks = prepare()
+        result = _run_with_progress(run, n_tasks, quiet)
+    except EspinError as err:
+        _fail(str(err))
+    _report(result, out, columns, quiet)
+
+
+def _report(result, folder: Path, columns: list[str], quiet: bool) -> None:
+    """Summary table on stdout; notes, failures and the files written on stderr."""
+    from rich.console import Console
+
+    console = Console(stderr=True, quiet=quiet)
+    ensemble = result.ensemble
+    if ensemble.skipped:
+        console.print(f"{ensemble.skipped} task(s) were already finished in {folder}/ and were not run again",
+                      highlight=False)
+    if ensemble.unplanned:
+        console.print(f"{ensemble.unplanned} finished task(s) in {folder}/tasks/ belong to other settings "
+                      "(kept, not used)", highlight=False)
+    if ensemble.records:
+        table = result.summary[[c for c in result.summary.columns if c in columns or c.startswith("rve.")
+                                or c.startswith(("fiber.", "loading.", "solver.")) or c in ("n", "n_yield")]]
+        if not quiet:
+            typer.echo(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+        console.print(f"wrote {folder}/: " + ", ".join(p.name for p in result.files.values()), highlight=False)
+    else:
+        console.print("no task finished", highlight=False)
+    if ensemble.failures:
+        for failure in ensemble.failures:
+            first_line = (failure["error"] or "").splitlines()[0][:200]
+            console.print(f"[red]failed[/red] {failure['parameters']} seed {failure['seed']}: {first_line}")
+        console.print(f"{len(ensemble.failures)} task(s) failed (tracebacks in {folder}/failed/); rerun the "
+                      "same command to retry them: finished tasks are skipped")
+        raise typer.Exit(code=1)
+
+
+_MEANS = [f"{p}_mean" for p in ("modulus_MPa", "yield_stress_MPa", "post_yield_modulus_MPa")]
+_SDS = [f"{p}_sd" for p in ("modulus_MPa", "yield_stress_MPa", "post_yield_modulus_MPa")]
+_RSDS = [f"{p}_rsd" for p in ("modulus_MPa", "yield_stress_MPa", "post_yield_modulus_MPa")]
+
+
+@study_app.command("rve-size")
+def rve_size(
+    base: BaseArg = None,
+    size_ratios: Annotated[str, typer.Option(help="L/D values at --layers-for-sizes layers, comma-separated.")] = "50,100,150,200",
+    layer_counts: Annotated[str, typer.Option(help="N_l values at --size-for-layers, comma-separated.")] = "5,10,15,20",
+    layers_for_sizes: Annotated[int, typer.Option(help="N_l of the L/D series.")] = 5,
+    size_for_layers: Annotated[float, typer.Option(help="L/D of the N_l series.")] = 200,
+    realizations: RealizationsOpt = 10,
+    seed_start: SeedStartOpt = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Results folder.")] = Path("rve_size_study"),
+    workers: WorkersOpt = None,
+    scheduler: SchedulerOpt = None,
+    blas_threads: BlasThreadsOpt = 1,
+    set_: SetOpt = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """Mean, sd and RSD of modulus, yield stress, post-yield modulus versus L/D and N_l (Appendix A).
+
+    Reruns skip finished realizations (resume after a crash or a killed job).
+    """
+    from espin.studies.sweeps import rve_size_study
+
+    def prepare():
+        sizes = _numbers("--size-ratios", size_ratios, float)
+        layers = _numbers("--layer-counts", layer_counts, int)
+        n_points = len({*((s, layers_for_sizes) for s in sizes), *((size_for_layers, n) for n in layers)})
+        return (lambda on_outcome: rve_size_study(
+            base, size_ratios=sizes, layer_counts=layers, layers_for_sizes=layers_for_sizes,
+            size_for_layers=size_for_layers, realizations=realizations, seed_start=seed_start,
+            folder=out, workers=workers, scheduler=scheduler, blas_threads=blas_threads,
+            on_outcome=on_outcome, **_overrides(set_))), n_points * realizations
+
+    _run_study(prepare, out, _MEANS + _RSDS, quiet)
+
+
+@study_app.command("sweep")
+def sweep(
+    base: BaseArg = None,
+    grid: Annotated[
+        Optional[list[str]],
+        typer.Option("--grid", help="A swept key: section.key=v1,v2,... or section.key=start:stop:count; "
+                                    "e.g. --grid rve.orientation.von_mises.kappa=0,2,8. Repeatable (full grid). "
+                                    "None: an ensemble of the base config."),
+    ] = None,
+    realizations: RealizationsOpt = 1,
+    seed_start: SeedStartOpt = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Results folder.")] = Path("sweep"),
+    table_format: Annotated[str, typer.Option("--format", help="Table format: csv or parquet.")] = "csv",
+    workers: WorkersOpt = None,
+    scheduler: SchedulerOpt = None,
+    blas_threads: BlasThreadsOpt = 1,
+    set_: SetOpt = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """Properties (modulus, yield stress, post-yield modulus) over any parameter grid, in parallel.
+
+    Writes a tidy table (one row per realization), a summary per point and plots. Reruns skip
+    finished tasks.
+    """
+    import math
+
+    from espin.studies.sweeps import sweep as run_sweep
+
+    def prepare():
+        parsed = parse_grid(grid)
+        n_points = math.prod(len(values) for values in parsed.values())
+        return (lambda on_outcome: run_sweep(
+            base, parsed, realizations=realizations, seed_start=seed_start, folder=out,
+            table_format=table_format, workers=workers, scheduler=scheduler, blas_threads=blas_threads,
+            on_outcome=on_outcome, **_overrides(set_))), n_points * realizations
+
+    _run_study(prepare, out, _MEANS + _SDS, quiet)
+
+
+@study_app.command("dof")
+def dof(
+    base: BaseArg = None,
+    size_ratios: Annotated[str, typer.Option(help="L/D values, comma-separated.")] = "50,100,150,200,250,300",
+    layers: Annotated[str, typer.Option(help="N_l values, comma-separated.")] = "15",
+    realizations: RealizationsOpt = 1,
+    seed_start: SeedStartOpt = None,
+    elements_per_segment: Annotated[
+        int, typer.Option(help="Beam elements per piece of fiber between nodes of the beam model.")
+    ] = 1,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Results folder.")] = Path("dof_study"),
+    set_: SetOpt = None,
+    quiet: QuietOpt = False,
+) -> None:
+    """DOF of espin's model versus RVE size beside a beam finite-element model (paper Fig. 14).
+
+    Writes dof.csv, dof.png and the quadratic fits DOF = c0 + c1 L + c2 L^2 (dof_fit.csv).
+    """
+    from rich.console import Console
+
+    from espin.cli import _fail
+    from espin.studies.dof import dof_fit_table, dof_study, plot_dof_study
+    from espin.core.errors import EspinError
+    from espin.core.atomic import atomic_write
+    from espin.geometry.rve import resolve_config
+    from espin.studies.sweeps import realization_seeds
+
+    try:
+        sizes = _numbers("--size-ratios", size_ratios, float)
+        layer_list = _numbers("--layers", layers, int)
+        config = resolve_config(base, **_overrides(set_))
+        table = dof_study(sizes, layer_list, base=config, seeds=realization_seeds(config, realizations, seed_start),
+                          elements_per_segment=elements_per_segment)
+        fits = dof_fit_table(table)
+        files = [atomic_write(out / "dof.csv", lambda tmp: table.to_csv(tmp, index=False)),
+                 plot_dof_study(table, out / "dof.png"),
+                 atomic_write(out / "dof_fit.csv", lambda tmp: fits.to_csv(tmp, index=False))]
+    except EspinError as err:
+        _fail(str(err))
+    if not quiet:
+        typer.echo(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
+        typer.echo(fits.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    Console(stderr=True, quiet=quiet).print(f"wrote {out}/: " + ", ".join(p.name for p in files), highlight=False)
+
+
+def _numbers(option: str, text: str, kind: type) -> list:
+    """A comma-separated list of numbers, or an error naming the option."""
+    from espin.core.errors import ConfigError
+
+    try:
+        values = [kind(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise ConfigError(f"{option}: comma-separated {'integers' if kind is int else 'numbers'} (got {text!r})") from None
+    if not values:
+        raise ConfigError(f"{option}: give at least one value")
+    return values
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``study`` command group to ``app``."""
+    app.add_typer(study_app, name="study")

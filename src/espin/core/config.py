@@ -1,0 +1,547 @@
+"""The run configuration: one validated model for every section of a run.
+
+A run is described by one TOML file (or a preset name such as ``plla``) with the sections
+``rve``, ``fiber``, ``loading``, ``solver`` and ``output``. Every key that carries a unit names
+it (``diameter_um``, ``strain_rate_per_s``); angles are degrees here and radians inside the
+code. Unknown keys and out-of-range values raise :class:`ConfigError`, which names the key and
+the allowed range, before any work starts.
+
+Units inside espin: length um, stress MPa, force uN (= MPa um^2), time s, angles rad.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import tomli_w
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Discriminator,
+    Field,
+    Tag,
+    ValidationError,
+    model_validator,
+)
+
+from espin.core.errors import ConfigError
+
+__all__ = [
+    "Config",
+    "RVEConfig",
+    "FiberConfig",
+    "LoadingConfig",
+    "SolverConfig",
+    "OutputConfig",
+    "VonMises",
+    "Histogram",
+    "LoadSegment",
+    "HoldSegment",
+    "PRESETS",
+    "load_config",
+    "config_from_dict",
+    "config_to_toml",
+    "write_config",
+    "apply_overrides",
+]
+
+PRESETS = ("plla",)
+
+
+class _Section(BaseModel):
+    """Base of every section: unknown keys are errors, values are validated on assignment."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+# --------------------------------------------------------------------------------------------
+# rve
+# --------------------------------------------------------------------------------------------
+class VonMisesParams(_Section):
+    mean_deg: Annotated[float, Field(ge=0.0, lt=180.0)] = 0.0
+    """Mean fiber axis [deg], in [0, 180)."""
+    kappa: Annotated[float, Field(ge=0.0, le=700.0)] = 1.0
+    """Concentration of p(theta) ~ exp(kappa cos 2(theta - mean)), in [0, 700]."""
+
+
+class VonMises(_Section):
+    """Axial von Mises orientation distribution ``{von_mises = {mean_deg, kappa}}``."""
+
+    von_mises: VonMisesParams
+
+
+class HistogramParams(_Section):
+    edges_deg: list[float]
+    """Bin edges [deg], strictly increasing, within [0, 180]."""
+    weights: list[Annotated[float, Field(ge=0.0)]]
+    """Relative weight of each bin (>= 0, not all zero); len(weights) = len(edges_deg) - 1."""
+
+    @model_validator(mode="after")
+    def _check(self) -> HistogramParams:
+        e = self.edges_deg
+        if len(e) < 2 or any(b <= a for a, b in zip(e, e[1:])) or e[0] < 0 or e[-1] > 180:
+            raise ValueError("edges_deg must be strictly increasing within [0, 180], at least 2")
+        if len(self.weights) != len(e) - 1:
+            raise ValueError("weights must have len(edges_deg) - 1 entries")
+        if sum(self.weights) <= 0:
+            raise ValueError("weights must not all be zero")
+        return self
+
+
+class Histogram(_Section):
+    """User orientation histogram ``{histogram = {edges_deg, weights}}`` over [0, 180) deg."""
+
+    histogram: HistogramParams
+
+
+def _tagged_union(key: str, choices: dict[str, str], description: str) -> tuple[Any, Any]:
+    """A union routed by shape: a plain string, or a one-key table naming the variant.
+
+    Returns the discriminator and a before-validator that rejects any other shape with one
+    clear message listing the allowed forms (instead of one error per union member).
+    """
+
+    def tag(value: Any) -> str | None:
+        if isinstance(value, str):
+            return "plain"
+        if isinstance(value, dict) and len(value) == 1:
+            return choices.get(next(iter(value)))
+        if isinstance(value, BaseModel):
+            return type(value).__name__
+        return None
+
+    def check(value: Any) -> Any:
+        if tag(value) is None:
+            raise ValueError(f"{key} must be {description}")
+        return value
+
+    return Discriminator(tag), BeforeValidator(check)
+
+
+_orientation_tag, _orientation_check = _tagged_union(
+    "rve.orientation",
+    {"von_mises": "VonMises", "histogram": "Histogram"},
+    '"uniform", {von_mises = {mean_deg, kappa}} or {histogram = {edges_deg, weights}}',
+)
+Orientation = Annotated[
+    Annotated[Literal["uniform"], Tag("plain")]
+    | Annotated[VonMises, Tag("VonMises")]
+    | Annotated[Histogram, Tag("Histogram")],
+    _orientation_tag,
+    _orientation_check,
+]
+
+
+class RVEConfig(_Section):
+    """Geometry of the virtual mat (paper Table 2, SPEC 0-2)."""
+
+    diameter_um: Annotated[float, Field(gt=0.0)] = 0.45
+    """Mean fiber diameter D [um], > 0. Also the layer thickness."""
+    diameter_sd_um: Annotated[float, Field(ge=0.0)] = 0.0
+    """Standard deviation of the (truncated) normal diameter distribution [um], >= 0."""
+    diameter_min_um: Annotated[float, Field(gt=0.0)] | None = None
+    """Truncation of the diameter distribution [um], > 0 and < diameter_um; default 0.1 D."""
+    volume_fraction: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.19
+    """Target volume fraction eta of each layer, in (0, 1)."""
+    size_ratio: Annotated[float, Field(gt=0.0)] | None = None
+    """Layer side over D (L_tilde), > segment_ratio. Give this or size_um (default 200)."""
+    size_um: Annotated[float, Field(gt=0.0)] | None = None
+    """Layer side L [um]; alternative to size_ratio."""
+    segment_ratio: Annotated[float, Field(gt=0.0)] | None = None
+    """Segment length over D (ls_tilde), > 0. Give this or segment_um (default 5)."""
+    segment_um: Annotated[float, Field(gt=0.0)] | None = None
+    """Segment length l_s [um]; alternative to segment_ratio."""
+    max_deviation_deg: Annotated[float, Field(ge=0.0, lt=90.0)] = 5.0
+    """Largest turn between consecutive segments [deg], in [0, 90)."""
+    layers: Annotated[int, Field(ge=1, le=1000)] = 15
+    """Number of layers N_l, in [1, 1000]."""
+    orientation: Orientation = "uniform"
+    """Fiber axis distribution: "uniform", {von_mises = {...}} or {histogram = {...}}."""
+    seeding: Literal["border", "lines"] | None = None
+    """"border" (paper) or "lines" (stationary); default: border if uniform, else lines."""
+    merge_tolerance_ratio: Annotated[float, Field(gt=0.0, le=0.1)] = 1e-2
+    """Node candidates closer than this times D along a fiber are merged into one node, in
+    (0, 0.1]. Default 1e-2 (SPEC 2 suggests about 1e-3): elements a few 1e-4 um long make
+    Newton's linearized rotations fail, and at 1e-2 the plla curve moves by < 0.01 %
+    (docs/geometry.md)."""
+    seed: Annotated[int, Field(ge=0)] = 1
+    """Random seed, an integer >= 0."""
+
+    @model_validator(mode="after")
+    def _resolve(self) -> RVEConfig:
+        if self.size_ratio is not None and self.size_um is not None:
+            raise ValueError("give rve.size_ratio or rve.size_um, not both")
+        if self.segment_ratio is not None and self.segment_um is not None:
+            raise ValueError("give rve.segment_ratio or rve.segment_um, not both")
+        updates: dict[str, Any] = {}
+        if self.size_ratio is None and self.size_um is None:
+            updates["size_ratio"] = 200.0
+        if self.segment_ratio is None and self.segment_um is None:
+            updates["segment_ratio"] = 5.0
+        if self.diameter_min_um is None:
+            updates["diameter_min_um"] = round(0.1 * self.diameter_um, 12)
+        if self.seeding is None:
+            updates["seeding"] = "border" if self.orientation == "uniform" else "lines"
+        for key, value in updates.items():
+            object.__setattr__(self, key, value)
+        if self.diameter_min_um >= self.diameter_um:
+            raise ValueError(
+                f"rve.diameter_min_um must be > 0 and < rve.diameter_um = {self.diameter_um}"
+            )
+        if self.side_um <= self.segment_length_um:
+            raise ValueError(
+                "the layer side must exceed the segment length: rve.size_ratio (or size_um) "
+                f"must be > rve.segment_ratio; got side {self.side_um:g} um, "
+                f"segment {self.segment_length_um:g} um"
+            )
+        return self
+
+    @property
+    def side_um(self) -> float:
+        """Layer side L [um]."""
+        return self.size_um if self.size_um is not None else self.size_ratio * self.diameter_um
+
+    @property
+    def segment_length_um(self) -> float:
+        """Segment length l_s [um]."""
+        if self.segment_um is not None:
+            return self.segment_um
+        return self.segment_ratio * self.diameter_um
+
+    @property
+    def merge_tolerance_um(self) -> float:
+        """Distance below which cross-links are merged [um]."""
+        return self.merge_tolerance_ratio * self.diameter_um
+
+
+# --------------------------------------------------------------------------------------------
+# fiber
+# --------------------------------------------------------------------------------------------
+class FiberConfig(_Section):
+    """Fiber constitutive law (paper Eq. 4-5, Table 3, SPEC 3)."""
+
+    taut_modulus_MPa: Annotated[float, Field(gt=0.0)] = 3000.0
+    """Modulus of a straight (recruited) fiber E_t [MPa], > slack_modulus_MPa."""
+    slack_modulus_MPa: Annotated[float, Field(gt=0.0)] = 3.0
+    """Modulus of a wrinkled fiber, and in compression, E_b [MPa], > 0."""
+    flow_rate_per_s: Annotated[float, Field(ge=0.0)] = 1e-8
+    """Plastic flow rate coefficient a_p [1/s], >= 0 (0 = elastic)."""
+    flow_resistance_MPa: Annotated[float, Field(gt=0.0)] = 5.0
+    """Initial resistance to flow b_p [MPa], > 0."""
+    hardening_exponent: Annotated[float, Field(ge=0.0)] = 0.5
+    """Post-yield hardening exponent c_p, >= 0."""
+
+    @model_validator(mode="after")
+    def _check(self) -> FiberConfig:
+        if self.taut_modulus_MPa <= self.slack_modulus_MPa:
+            raise ValueError(
+                "fiber.taut_modulus_MPa must be > fiber.slack_modulus_MPa "
+                f"(= {self.slack_modulus_MPa:g})"
+            )
+        return self
+
+
+# --------------------------------------------------------------------------------------------
+# loading
+# --------------------------------------------------------------------------------------------
+class LoadSegment(_Section):
+    """Drive the load parameter to ``to_strain`` at ``rate_per_s`` in ``steps`` steps."""
+
+    to_strain: Annotated[float, Field(gt=-1.0, le=10.0)]
+    """Target strain (engineering for uniaxial, lambda - 1 for biaxial / pure shear,
+    gamma for simple shear), in (-1, 10]."""
+    rate_per_s: Annotated[float, Field(gt=0.0)] = 5e-3
+    """Magnitude of the strain rate [1/s], > 0."""
+    steps: Annotated[int, Field(ge=1, le=100000)] | None = None
+    """Number of load steps, in [1, 100000]; default 1 per percent of strain (at least 1)."""
+
+
+class HoldSegment(_Section):
+    """Hold the deformation for ``hold_s`` seconds (relaxation) in ``steps`` steps."""
+
+    hold_s: Annotated[float, Field(gt=0.0)]
+    """Hold time [s], > 0."""
+    steps: Annotated[int, Field(ge=1, le=100000)] = 10
+    """Number of time steps, in [1, 100000]."""
+
+
+def _segment_tag(value: Any) -> str:
+    if isinstance(value, BaseModel):
+        return type(value).__name__
+    return "HoldSegment" if isinstance(value, dict) and "hold_s" in value else "LoadSegment"
+
+
+Segment = Annotated[
+    Annotated[LoadSegment, Tag("LoadSegment")] | Annotated[HoldSegment, Tag("HoldSegment")],
+    Discriminator(_segment_tag),
+]
+"""A program segment: a hold if it has ``hold_s``, else a load segment."""
+
+
+class PoissonLateral(_Section):
+    poisson_ratio: Annotated[float, Field(ge=-1.0, le=50.0)]
+    """Prescribed lateral contraction F'22 = 1 - nu * strain, nu in [-1, 50]."""
+
+
+class TransverseCSVLateral(_Section):
+    transverse_csv: Path
+    """CSV with columns axial_strain, transverse_strain (measured transverse strain)."""
+
+
+_lateral_tag, _lateral_check = _tagged_union(
+    "loading.lateral",
+    {"poisson_ratio": "PoissonLateral", "transverse_csv": "TransverseCSVLateral"},
+    '"fixed", "free", {poisson_ratio = nu} or {transverse_csv = path}',
+)
+Lateral = Annotated[
+    Annotated[Literal["fixed", "free"], Tag("plain")]
+    | Annotated[PoissonLateral, Tag("PoissonLateral")]
+    | Annotated[TransverseCSVLateral, Tag("TransverseCSVLateral")],
+    _lateral_tag,
+    _lateral_check,
+]
+
+
+class LoadingConfig(_Section):
+    """Macroscopic loading program (SPEC 6)."""
+
+    test: Literal["uniaxial", "equibiaxial", "pure_shear", "simple_shear", "path"] = "uniaxial"
+    """Kind of test."""
+    direction_deg: Annotated[float, Field(ge=0.0, lt=180.0)] = 0.0
+    """Loading axis of the uniaxial test [deg] from +x, in [0, 180)."""
+    lateral: Lateral = "fixed"
+    """Lateral condition of the uniaxial test."""
+    program: list[Segment] | None = None
+    """Sequence of load / unload / hold segments; default one monotonic segment."""
+    max_strain: Annotated[float, Field(gt=-1.0, le=10.0)] = 0.30
+    """Shorthand for one monotonic segment: its target strain, in (-1, 10]."""
+    strain_rate_per_s: Annotated[float, Field(gt=0.0)] = 5e-3
+    """Shorthand: strain rate [1/s] (plla: 6 mm/min over an assumed 20 mm gauge)."""
+    steps: Annotated[int, Field(ge=1, le=100000)] = 30
+    """Shorthand: number of load steps, in [1, 100000]."""
+    path_csv: Path | None = None
+    """For test = "path": CSV with columns time_s, F11, F12, F21, F22."""
+
+    @model_validator(mode="after")
+    def _check(self) -> LoadingConfig:
+        shorthand = sorted(self.model_fields_set & {"max_strain", "strain_rate_per_s", "steps"})
+        if self.program is not None and shorthand:
+            raise ValueError(
+                f"loading.program replaces the shorthand loading.{', loading.'.join(shorthand)}: "
+                "give one or the other"
+            )
+        if self.test == "path" and self.path_csv is None:
+            raise ValueError('loading.path_csv is required when loading.test = "path"')
+        if self.test != "path" and self.path_csv is not None:
+            raise ValueError('loading.path_csv is only allowed with loading.test = "path"')
+        return self
+
+    @property
+    def segments(self) -> list[LoadSegment | HoldSegment]:
+        """The loading program, with the shorthand expanded into one segment."""
+        if self.program is not None:
+            return list(self.program)
+        return [
+            LoadSegment(
+                to_strain=self.max_strain, rate_per_s=self.strain_rate_per_s, steps=self.steps
+            )
+        ]
+
+
+# --------------------------------------------------------------------------------------------
+# solver, output
+# --------------------------------------------------------------------------------------------
+class SolverConfig(_Section):
+    """Equilibrium solver (SPEC 4)."""
+
+    linear: Literal["auto", "superlu", "pardiso"] = "auto"
+    """Sparse linear solver: auto (pardiso if installed, else superlu), superlu, pardiso."""
+    rtol: Annotated[float, Field(gt=0.0, lt=1.0)] = 1e-6
+    """Relative tolerance: max |residual| <= rtol max|T_e| + atol E_t mean(A_e), in (0, 1)."""
+    atol: Annotated[float, Field(gt=0.0, lt=1.0)] = 1e-8
+    """Absolute tolerance, in units of E_t mean(A_e), in (0, 1)."""
+    max_iterations: Annotated[int, Field(ge=1, le=10000)] | None = None
+    """Newton iterations per load step before the step is cut, in [1, 10000]. Default 50,
+    or 500 under mixed control (lateral free), where buckling chains need hundreds."""
+    max_cuts: Annotated[int, Field(ge=0, le=60)] = 12
+    """Times a load step may be halved before the solve fails, in [0, 60]."""
+
+
+class OutputConfig(_Section):
+    """What is reported and written."""
+
+    stress_measure: Literal["nominal", "paper"] = "nominal"
+    """Stress on curves, plots and properties: nominal P or the paper's Eq. 17 (both written)."""
+    yield_threshold: Annotated[float, Field(gt=0.0, lt=1.0)] = 1e-3
+    """An element counts as yielded when lambda_p - 1 exceeds this, in (0, 1)."""
+    window_ratio: Annotated[float, Field(gt=0.0)] = 50.0
+    """Side of the square observation window (an SEM field) over D, for the visible
+    tortuosity statistic; clipped to the layer side. > 0."""
+    figures: bool = True
+    """Write PNG figures."""
+    vtk: bool = True
+    """Write VTK files for ParaView."""
+
+
+class Config(_Section):
+    """A whole run: ``rve``, ``fiber``, ``loading``, ``solver``, ``output``."""
+
+    rve: RVEConfig = RVEConfig()
+    fiber: FiberConfig = FiberConfig()
+    loading: LoadingConfig = LoadingConfig()
+    solver: SolverConfig = SolverConfig()
+    output: OutputConfig = OutputConfig()
+
+    @property
+    def observation_window_um(self) -> float:
+        """Side of the observation window [um] (window_ratio D, at most the layer side)."""
+        return min(self.output.window_ratio * self.rve.diameter_um, self.rve.side_um)
+
+
+# --------------------------------------------------------------------------------------------
+# reading and writing
+# --------------------------------------------------------------------------------------------
+_UNION_TAGS = {
+    "plain", "VonMises", "Histogram", "PoissonLateral", "TransverseCSVLateral", "LoadSegment", "HoldSegment",
+}
+
+
+def _format_validation_error(err: ValidationError, source: str) -> ConfigError:
+    lines = []
+    for e in err.errors(include_url=False):
+        loc = ".".join(str(p) for p in e["loc"] if str(p) not in _UNION_TAGS)
+        msg = e["msg"].removeprefix("Value error, ")
+        if e["type"] == "extra_forbidden":
+            msg = "unknown key"
+        got = e.get("input")
+        shown = "" if isinstance(got, dict) or e["type"] == "extra_forbidden" else f" (got {got!r})"
+        lines.append(f"{loc or '<top>'}: {msg}{shown}")
+    # Unions report every alternative; keep each distinct line once.
+    unique = list(dict.fromkeys(lines))
+    return ConfigError(f"invalid configuration {source}:\n  " + "\n  ".join(unique))
+
+
+def config_from_dict(data: dict[str, Any], source: str = "") -> Config:
+    """Validate a nested dict (as read from TOML) into a :class:`Config`.
+
+    Raises
+    ------
+    ConfigError
+        Naming each offending key and its allowed range.
+    """
+    try:
+        return Config.model_validate(data)
+    except ValidationError as err:
+        raise _format_validation_error(err, source) from None
+
+
+def _preset_dict(name: str) -> dict[str, Any]:
+    if name not in PRESETS:
+        raise ConfigError(f"unknown preset {name!r}; available presets: {', '.join(PRESETS)}")
+    text = resources.files("espin.core.presets").joinpath(f"{name}.toml").read_text("utf-8")
+    return tomllib.loads(text)
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"config file not found: {path}") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"config file {path} is not valid TOML: {err}") from None
+
+
+def _apply_dotted(data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    """``data`` with each ``section.key[.sub...]`` override set along its path.
+
+    A value replaces what is at its full path; deeper paths reach inside tables, e.g.
+    ``rve.orientation.von_mises.kappa`` (a non-table on the way, such as ``"uniform"``, is
+    replaced by a table).
+    """
+    out = copy.deepcopy(data)
+    for dotted, value in overrides.items():
+        parts = dotted.split(".")
+        if len(parts) < 2 or parts[0] not in Config.model_fields or not all(parts):
+            raise ConfigError(
+                f"override key {dotted!r} must be section.key (or section.key.sub...) with "
+                f"section one of {', '.join(Config.model_fields)}"
+            )
+        node = out
+        for part in parts[:-1]:
+            if not isinstance(node.get(part), dict):
+                node[part] = {}
+            node = node[part]
+        node[parts[-1]] = value
+    return out
+
+
+def load_config(source: str | Path | None = None, overrides: dict[str, Any] | None = None) -> Config:
+    """Read a run configuration from a preset name or a TOML file.
+
+    Parameters
+    ----------
+    source
+        A preset name (``"plla"``), a path to a TOML file, or None for the built-in
+        defaults (which are the ``plla`` values).
+    overrides
+        Dotted keys and values applied on top, e.g. ``{"rve.layers": 5}``.
+
+    Returns
+    -------
+    Config
+        The validated configuration.
+    """
+    if source is None:
+        data: dict[str, Any] = {}
+        label = "(defaults)"
+    elif isinstance(source, str) and source in PRESETS:
+        data = _preset_dict(source)
+        label = f"(preset {source})"
+    else:
+        path = Path(source)
+        if not path.suffix and not path.exists():
+            raise ConfigError(
+                f"{source!r} is neither a preset ({', '.join(PRESETS)}) nor an existing file"
+            )
+        data = _read_toml(path)
+        label = f"({path})"
+    if overrides:
+        data = _apply_dotted(data, overrides)
+    return config_from_dict(data, label)
+
+
+def apply_overrides(config: Config, overrides: dict[str, Any]) -> Config:
+    """Return ``config`` with dotted-key ``overrides`` applied, validated again."""
+    # Only what was given: derived values (seeding, diameter_min_um, ...) are resolved anew.
+    data = _apply_dotted(config.model_dump(mode="json", exclude_none=True, exclude_unset=True), overrides)
+    return config_from_dict(data, "(with overrides)")
+
+
+def config_to_dict(config: Config) -> dict[str, Any]:
+    """The resolved configuration as plain TOML-ready data (None values left out; the
+    loading shorthand left out when a program is given)."""
+    data = config.model_dump(mode="json", exclude_none=True)
+    if config.loading.program is not None:
+        for key in ("max_strain", "strain_rate_per_s", "steps"):
+            data["loading"].pop(key)
+    return data
+
+
+def config_to_toml(config: Config) -> str:
+    """The resolved configuration as TOML text; reading it back gives the same run."""
+    return tomli_w.dumps(config_to_dict(config))
+
+
+def write_config(config: Config, path: str | Path) -> Path:
+    """Write the resolved configuration to a TOML file (atomically)."""
+    from espin.core.atomic import atomic_write_bytes
+
+    return atomic_write_bytes(Path(path), config_to_toml(config).encode("utf-8"))
+

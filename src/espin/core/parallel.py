@@ -1,0 +1,312 @@
+"""Run independent tasks (RVE realizations, sweep points, fit evaluations) in parallel.
+
+One code path for every back end: a :class:`concurrent.futures.Executor`. Locally it is a pool of
+worker processes (all cores by default); on a Dask cluster it is the executor of a
+``distributed.Client`` (``scheduler="tcp://host:8786"``, a ``Client``, or ``"local"`` for a
+``LocalCluster`` of processes on this machine). Each worker limits BLAS / MKL to
+``blas_threads`` threads (default 1), so N workers use N cores without oversubscription.
+
+A task that raises is reported as a failed :class:`TaskOutcome` (with its traceback); the
+others go on.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+import traceback
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import Any
+
+from espin.core.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+__all__ = ["TaskOutcome", "TaskPool", "parallel_map", "default_workers"]
+
+
+@dataclass(frozen=True)
+class TaskOutcome:
+    """What became of one task.
+
+    Attributes
+    ----------
+    index : int
+        Position of the task in the submitted sequence.
+    value : Any
+        The task's return value (None if it failed).
+    error : str or None
+        ``"ExceptionType: message"`` if the task raised, else None.
+    traceback : str or None
+        The formatted traceback of a failed task.
+    seconds : float [s]
+        Wall time the task took in its worker.
+    """
+
+    index: int
+    value: Any
+    error: str | None = None
+    traceback: str | None = None
+    seconds: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        """True when the task returned a value."""
+        return self.error is None
+
+
+def default_workers() -> int:
+    """Cores this process may use (the affinity mask where the OS tells it)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - macOS, Windows
+        return os.cpu_count() or 1
+
+
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+
+
+def _limit_threads(blas_threads: int | None) -> None:
+    """Process initializer: thread caps in the environment, read by BLAS / MKL / OpenMP at load."""
+    if blas_threads is not None:
+        for variable in THREAD_VARIABLES:
+            os.environ[variable] = str(blas_threads)
+
+
+def _load_threaded_libraries() -> None:
+    """Load numpy's BLAS and MKL (PARDISO) now, so that a thread limit reaches them.
+
+    ``threadpoolctl`` only limits libraries already loaded; MKL is otherwise loaded inside the
+    first task, which would then run with all cores.
+    """
+    import numpy  # noqa: F401 - loads its BLAS
+
+    from espin.core.errors import EspinError
+    from espin.mechanics.linear_solvers import _load_mkl
+
+    try:
+        _load_mkl()
+    except EspinError:  # no MKL on this machine: SuperLU needs no threads
+        pass
+
+
+def _call(fn: Callable[[Any], Any], item: Any, blas_threads: int | None) -> tuple[Any, str | None, str | None, float]:
+    """Run one task in a worker; exceptions come back as text, never as a raised error."""
+    from threadpoolctl import threadpool_limits
+
+    if blas_threads is not None:
+        _load_threaded_libraries()
+    start = time.perf_counter()
+    try:
+        with threadpool_limits(limits=blas_threads):
+            value = fn(item)
+    except Exception as exc:  # noqa: BLE001 - a task's failure is data, reported to the caller
+        return None, f"{type(exc).__name__}: {exc}", traceback.format_exc(), time.perf_counter() - start
+    return value, None, None, time.perf_counter() - start
+
+
+class TaskPool:
+    """Workers that run tasks; a context manager, reusable for many :meth:`map` calls.
+
+    Parameters
+    ----------
+    workers
+        Local worker processes (default: all cores). ``1`` runs tasks one after another in
+        this process (no pickling). Ignored by a Dask scheduler given as an address or Client;
+        for ``scheduler="local"`` it is the number of Dask workers.
+    scheduler
+        None (local processes), ``"local"`` (a Dask ``LocalCluster`` of processes), a scheduler
+        address such as ``"tcp://host:8786"``, or a ``distributed.Client``.
+    blas_threads
+        BLAS / MKL threads per task (default 1). None keeps the library's own choice.
+    """
+
+    def __init__(self, workers: int | None = None, scheduler: Any = None, blas_threads: int | None = 1):
+        if workers is not None and workers < 1:
+            raise ConfigError(f"workers: must be >= 1 (got {workers})")
+        if blas_threads is not None and blas_threads < 1:
+            raise ConfigError(f"blas_threads: must be >= 1 or None (got {blas_threads})")
+        if isinstance(scheduler, str) and scheduler != "local" and "://" not in scheduler:
+            raise ConfigError(
+                f"scheduler: expected 'local' or an address such as tcp://host:8786 (got {scheduler!r})"
+            )
+        self.workers = workers if workers is not None else default_workers()
+        self.scheduler = scheduler
+        self.blas_threads = blas_threads
+        self._executor: Executor | None = None
+        self._closers: list[Callable[[], None]] = []
+
+    @property
+    def serial(self) -> bool:
+        """True when tasks run in this process, one after another."""
+        return self.scheduler is None and self.workers == 1
+
+    @property
+    def description(self) -> str:
+        """Where the tasks run, for logs and reports."""
+        if self.serial:
+            return "serial (this process)"
+        if self.scheduler is None:
+            return f"{self.workers} local processes, {self.blas_threads or 'default'} BLAS thread(s) each"
+        return f"Dask scheduler {self.scheduler}"
+
+    def __enter__(self) -> TaskPool:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Shut the workers (and a cluster this pool started) down."""
+        if self._executor is not None:
+            self._executor.shutdown(wait=True)  # pending futures were cancelled by map()
+            self._executor = None
+        while self._closers:
+            self._closers.pop()()
+
+    def _get_executor(self) -> Executor:
+        if self._executor is None:
+            if self.scheduler is None:
+                import multiprocessing
+
+                # spawn: no fork of a parent whose MKL / OpenMP threads are already running.
+                self._executor = ProcessPoolExecutor(
+                    max_workers=self.workers,
+                    mp_context=multiprocessing.get_context("spawn"),
+                    initializer=_limit_threads,
+                    initargs=(self.blas_threads,),
+                )
+            else:
+                self._executor = self._dask_executor()
+        return self._executor
+
+    def _dask_executor(self) -> Executor:
+        from distributed import Client
+
+        client = self.scheduler
+        if isinstance(client, str):
+            if client == "local":
+                from distributed import LocalCluster
+
+                cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
+                                       dashboard_address=None)
+                self._closers.append(cluster.close)
+                client = Client(cluster)
+            else:
+                client = Client(client)
+            self._closers.insert(0, client.close)
+        return client.get_executor(pure=False)
+
+    def map(self, fn: Callable[[Any], Any], items: Iterable[Any]) -> Iterator[TaskOutcome]:
+        """Run ``fn(item)`` for every item; yield outcomes as tasks finish (any order).
+
+        ``fn`` must be a module-level function (it is pickled to the workers) unless the pool
+        is serial. If a local worker process dies (killed, out of memory), the tasks it took
+        down with the pool run again, each in a process of its own, so that only the task that
+        kills its worker fails. An interrupt (Ctrl-C) or an abandoned iteration stops the
+        workers at once.
+        """
+        items = list(items)
+        if self.serial:
+            for index, item in enumerate(items):
+                yield TaskOutcome(index, *_call(fn, item, self.blas_threads))
+            return
+        suspects: list[int] = []
+        try:
+            yield from self._run_pooled(fn, items, suspects)
+            if suspects:
+                log.warning("a worker process died; running its %d unfinished task(s) one process each",
+                            len(suspects))
+                yield from self._run_isolated(fn, items, suspects)
+        except BaseException:
+            self._abort()
+            raise
+
+    def _run_pooled(self, fn: Callable[[Any], Any], items: list[Any], suspects: list[int]) -> Iterator[TaskOutcome]:
+        """All items through the shared executor; indices lost to a broken pool go to ``suspects``."""
+        executor = self._get_executor()
+        futures: dict[Future, int] = {
+            executor.submit(_call, fn, item, self.blas_threads): index for index, item in enumerate(items)
+        }
+        for future in as_completed(futures):
+            index = futures[future]
+            try:
+                value, error, tb, seconds = future.result()
+            except BrokenProcessPool:
+                suspects.append(index)
+                continue
+            except Exception as exc:  # noqa: BLE001 - e.g. a Dask worker lost for good
+                yield TaskOutcome(index, None, f"{type(exc).__name__}: {exc}", traceback.format_exc())
+                continue
+            yield TaskOutcome(index, value, error, tb, seconds)
+        if suspects:
+            self._abort()  # the broken pool; a new one is made when needed
+
+    def _run_isolated(self, fn: Callable[[Any], Any], items: list[Any], indices: list[int]) -> Iterator[TaskOutcome]:
+        """Each item in a fresh single-process executor, ``workers`` at a time."""
+        import multiprocessing
+        from concurrent.futures import FIRST_COMPLETED, wait
+
+        context = multiprocessing.get_context("spawn")
+        queue = list(indices)
+        running: dict[Future, tuple[int, ProcessPoolExecutor]] = {}
+        try:
+            while queue or running:
+                while queue and len(running) < self.workers:
+                    index = queue.pop(0)
+                    solo = ProcessPoolExecutor(1, mp_context=context, initializer=_limit_threads,
+                                               initargs=(self.blas_threads,))
+                    running[solo.submit(_call, fn, items[index], self.blas_threads)] = (index, solo)
+                done, _ = wait(running, return_when=FIRST_COMPLETED)
+                for future in done:
+                    index, solo = running.pop(future)
+                    solo.shutdown(wait=False)
+                    try:
+                        value, error, tb, seconds = future.result()
+                    except BrokenProcessPool:
+                        yield TaskOutcome(index, None, WORKER_DIED, None)
+                        continue
+                    yield TaskOutcome(index, value, error, tb, seconds)
+        finally:
+            for _, solo in running.values():
+                _terminate(solo)
+
+    def _abort(self) -> None:
+        """Stop the workers now: queued tasks are cancelled, running ones are killed."""
+        if self._executor is not None:
+            _terminate(self._executor)
+            self._executor = None
+
+
+WORKER_DIED = (
+    "worker process died while running this task (killed, or out of memory?); in a script, "
+    "start studies under `if __name__ == \"__main__\":` (worker processes import the script)"
+)
+
+
+def _terminate(executor: Executor) -> None:
+    """Shut an executor down without waiting; kill the processes of a local pool."""
+    processes = list((getattr(executor, "_processes", None) or {}).values())
+    if isinstance(executor, ProcessPoolExecutor):
+        executor.shutdown(wait=False, cancel_futures=True)
+    else:  # Dask's ClientExecutor
+        executor.shutdown(wait=False)
+    for process in processes:
+        process.terminate()
+
+
+def parallel_map(
+    fn: Callable[[Any], Any],
+    items: Iterable[Any],
+    *,
+    workers: int | None = None,
+    scheduler: Any = None,
+    blas_threads: int | None = 1,
+) -> list[TaskOutcome]:
+    """All outcomes of ``fn`` over ``items``, in the order of ``items`` (see :class:`TaskPool`)."""
+    with TaskPool(workers, scheduler, blas_threads) as pool:
+        return sorted(pool.map(fn, items), key=lambda outcome: outcome.index)

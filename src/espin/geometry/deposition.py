@@ -1,0 +1,250 @@
+"""Virtual deposition of fiber layers (paper 3.1.1, Fig. 4; SPEC 1).
+
+A fiber starts at a point of the border of the square [0, L]^2 and walks inwards in segments
+of length l_s, each turned from the previous one by a uniform random angle in
+[-theta_max, +theta_max], until a segment leaves the square; that segment is trimmed at the
+border. Fibers are laid until the layer reaches its target volume fraction; the fiber that
+crosses the target is kept.
+
+Two seedings choose the start point and the first axis:
+
+* ``border`` (the paper): a start point uniform by arc length on the border, the axis drawn
+  from the orientation distribution with the sense that points into the square (redrawn when
+  parallel to the start edge).
+* ``lines`` (a stationary line process): the axis drawn from the distribution, then an offset
+  uniform across the width of the square measured perpendicular to it; the fiber starts where
+  that line enters the square. For a uniform distribution this is the isotropic uniform random
+  line measure, so the mat is homogeneous and isotropic up to the corners.
+
+The walk is vectorized over a batch of fibers and over chunks of steps; layers draw from
+independent child streams of the seed, so a layer does not change when others are added.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+from scipy import stats
+
+from espin.core.config import RVEConfig
+from espin.geometry.mat import FiberMat
+from espin.geometry.orientation import OrientationDistribution, orientation_distribution
+
+__all__ = ["deposit", "deposit_layer"]
+
+# Inward unit normals of the edges bottom (y = 0), right (x = L), top (y = L), left (x = 0).
+_INWARD = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
+
+
+def _border_starts(
+    rng: np.random.Generator, n: int, side: float, dist: OrientationDistribution
+) -> tuple[np.ndarray, np.ndarray]:
+    """Start points uniform on the border and inward axes (``border`` seeding)."""
+    s = rng.uniform(0.0, 4.0 * side, n)
+    edge = np.minimum((s // side).astype(np.int64), 3)
+    along = s - edge * side
+    start = np.empty((n, 2))
+    start[edge == 0] = np.c_[along[edge == 0], np.zeros((edge == 0).sum())]
+    start[edge == 1] = np.c_[np.full((edge == 1).sum(), side), along[edge == 1]]
+    start[edge == 2] = np.c_[side - along[edge == 2], np.full((edge == 2).sum(), side)]
+    start[edge == 3] = np.c_[np.zeros((edge == 3).sum()), side - along[edge == 3]]
+    theta = dist.sample(rng, n)
+    normal = _INWARD[edge]
+    while True:
+        dot = np.cos(theta) * normal[:, 0] + np.sin(theta) * normal[:, 1]
+        parallel = np.abs(dot) < 1e-12
+        if not parallel.any():
+            break
+        theta[parallel] = dist.sample(rng, int(parallel.sum()))
+    # Take the sense of the axis that points into the square.
+    theta = np.where(dot > 0.0, theta, theta + np.pi)
+    return start, theta
+
+
+def _line_starts(
+    rng: np.random.Generator, n: int, side: float, dist: OrientationDistribution
+) -> tuple[np.ndarray, np.ndarray]:
+    """Entry points of stationary random lines (``lines`` seeding)."""
+    theta = dist.sample(rng, n) + np.pi * rng.integers(0, 2, n)  # random sense
+    d = np.c_[np.cos(theta), np.sin(theta)]
+    normal = np.c_[-d[:, 1], d[:, 0]]
+    centre = np.array([side / 2.0, side / 2.0])
+    # Half-width of the square seen across the line direction: projection of the corners.
+    half = 0.5 * side * (np.abs(normal[:, 0]) + np.abs(normal[:, 1]))
+    offset = rng.uniform(-half, half)
+    point = centre + offset[:, None] * normal
+    # Entry parameter of the line into the square (slab method).
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0 = (0.0 - point) / d
+        t1 = (side - point) / d
+    t_enter = np.nanmax(np.where(d != 0.0, np.minimum(t0, t1), -np.inf), axis=1)
+    start = np.clip(point + t_enter[:, None] * d, 0.0, side)
+    return start, theta
+
+
+def _exit_distance(p: np.ndarray, u: np.ndarray, side: float) -> np.ndarray:
+    """Distance from points ``p`` (inside) along unit vectors ``u`` to the border."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(u > 0.0, (side - p) / u, np.where(u < 0.0, -p / u, np.inf))
+    return np.maximum(t.min(axis=1), 0.0)
+
+
+def _walk(
+    rng: np.random.Generator,
+    start: np.ndarray,
+    theta: np.ndarray,
+    side: float,
+    segment: float,
+    max_turn: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Random walks from ``start`` along first axes ``theta`` until they leave the square.
+
+    Returns
+    -------
+    vertices : (n_vertices, 2) float64 [um]
+        Vertices of all fibers, fiber after fiber.
+    counts : (n,) int64
+        Number of vertices of each fiber (segments + 1).
+    """
+    n = len(start)
+    chunk = int(np.ceil(1.5 * side / segment)) + 2
+    pieces_fiber = [np.arange(n)]
+    pieces_vertex = [start]
+    active = np.arange(n)
+    pos = start.copy()
+    angle = theta.copy()
+    first = True
+    while active.size:
+        turns = rng.uniform(-max_turn, max_turn, (active.size, chunk))
+        if first:
+            turns[:, 0] = 0.0  # the first segment follows the drawn axis
+            first = False
+        angles = angle[:, None] + np.cumsum(turns, axis=1)
+        steps = segment * np.stack([np.cos(angles), np.sin(angles)], axis=-1)
+        path = pos[:, None, :] + np.cumsum(steps, axis=1)
+        outside = ((path < 0.0) | (path > side)).any(axis=2)
+        exited = outside.any(axis=1)
+        k = np.where(exited, outside.argmax(axis=1), chunk)  # index of the leaving vertex
+        keep = np.arange(chunk)[None, :] < k[:, None]
+        pieces_fiber.append(np.repeat(active, k))
+        pieces_vertex.append(path[keep])
+        # Trim the leaving segment at the border.
+        e = np.flatnonzero(exited)
+        ke = k[e]
+        before = np.where(ke[:, None] > 0, path[e, np.maximum(ke - 1, 0)], pos[e])
+        u = np.c_[np.cos(angles[e, ke]), np.sin(angles[e, ke])]
+        t = np.minimum(_exit_distance(before, u, side), segment)
+        pieces_fiber.append(active[e])
+        pieces_vertex.append(np.clip(before + t[:, None] * u, 0.0, side))
+        # Fibers still inside carry on from their last vertex.
+        going = ~exited
+        pos = path[going, -1]
+        angle = angles[going, -1]
+        active = active[going]
+    fiber = np.concatenate(pieces_fiber)
+    order = np.argsort(fiber, kind="stable")
+    return np.concatenate(pieces_vertex)[order], np.bincount(fiber, minlength=n)
+
+
+def _diameters(rng: np.random.Generator, n: int, rve: RVEConfig) -> np.ndarray:
+    if rve.diameter_sd_um == 0.0:
+        return np.full(n, rve.diameter_um)
+    lower = (rve.diameter_min_um - rve.diameter_um) / rve.diameter_sd_um
+    law = stats.truncnorm(lower, np.inf, loc=rve.diameter_um, scale=rve.diameter_sd_um)
+    return law.rvs(size=n, random_state=rng)
+
+
+def deposit_layer(
+    rve: RVEConfig, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Deposit one layer until its volume fraction reaches ``rve.volume_fraction``.
+
+    Parameters
+    ----------
+    rve
+        Deposition parameters (resolved seeding).
+    rng
+        Random stream of this layer.
+
+    Returns
+    -------
+    vertices : (n_vertices, 2) float64 [um]
+        Vertices of the layer's fibers, fiber after fiber.
+    counts : (n_fibers,) int64
+        Vertices per fiber.
+    diameters : (n_fibers,) float64 [um]
+        Fiber diameters.
+    """
+    side, segment = rve.side_um, rve.segment_length_um
+    dist = orientation_distribution(rve.orientation)
+    seed_fibers = _border_starts if rve.seeding == "border" else _line_starts
+    target = rve.volume_fraction * side**2 * rve.diameter_um
+    # Mean chord of isotropic lines in a square is pi L / 4 (Cauchy-Crofton).
+    expected = target / (np.pi * rve.diameter_um**2 / 4.0 * np.pi * side / 4.0)
+    batch = int(1.1 * expected) + 4
+    parts_v, parts_c, parts_d = [], [], []
+    volume = 0.0
+    while True:
+        start, theta = seed_fibers(rng, batch, side, dist)
+        diameter = _diameters(rng, batch, rve)
+        vertices, counts = _walk(rng, start, theta, side, segment, np.radians(rve.max_deviation_deg))
+        seg = np.diff(vertices, axis=0)
+        seg_len = np.hypot(seg[:, 0], seg[:, 1])
+        ends = np.cumsum(counts)
+        # Contour of each fiber: sum of its segments (the step from one fiber to the next
+        # is not a segment).
+        cum = np.concatenate([[0.0], np.cumsum(seg_len)])
+        contour = cum[ends - 1] - cum[ends - counts]
+        cum_volume = volume + np.cumsum(np.pi * diameter**2 / 4.0 * contour)
+        reached = np.flatnonzero(cum_volume >= target)
+        n_keep = reached[0] + 1 if reached.size else batch
+        parts_v.append(vertices[: ends[n_keep - 1]])
+        parts_c.append(counts[:n_keep])
+        parts_d.append(diameter[:n_keep])
+        volume = cum_volume[n_keep - 1]
+        if reached.size:
+            break
+        batch = max(int(1.1 * expected * (target - volume) / target) + 4, 4)
+    return np.concatenate(parts_v), np.concatenate(parts_c), np.concatenate(parts_d)
+
+
+def deposit(
+    rve: RVEConfig,
+    progress: Callable[[int, int], None] | None = None,
+) -> FiberMat:
+    """Deposit all layers of a virtual mat (paper 3.1.1).
+
+    Parameters
+    ----------
+    rve
+        Deposition parameters; ``rve.seed`` seeds the random streams (one child stream per
+        layer), so the same parameters give the same mat.
+    progress
+        Called as ``progress(layers_done, n_layers)`` after each layer.
+
+    Returns
+    -------
+    FiberMat
+        The fibers as polylines.
+    """
+    children = np.random.SeedSequence(rve.seed).spawn(rve.layers)
+    vertices, counts, diameters, layers = [], [], [], []
+    for k, child in enumerate(children):
+        v, c, d = deposit_layer(rve, np.random.default_rng(child))
+        vertices.append(v)
+        counts.append(c)
+        diameters.append(d)
+        layers.append(np.full(len(c), k, dtype=np.int64))
+        if progress is not None:
+            progress(k + 1, rve.layers)
+    counts_all = np.concatenate(counts)
+    return FiberMat(
+        vertices=np.concatenate(vertices),
+        fiber_offsets=np.concatenate([[0], np.cumsum(counts_all)]).astype(np.int64),
+        fiber_layer=np.concatenate(layers),
+        fiber_diameter=np.concatenate(diameters),
+        size=rve.side_um,
+        thickness=rve.diameter_um,
+        n_layers=rve.layers,
+    )

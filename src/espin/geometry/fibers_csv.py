@@ -1,0 +1,110 @@
+"""The per-fiber table ``fibers.csv``: written by ``espin measure``, read back validated.
+
+Columns (units in the names): ``fiber`` (int), ``diameter_um`` (width of a blurred flat
+profile fitted to the fiber's median profile), ``orientation_deg`` (axis of the end-to-end
+line, [0, 180)), ``tortuosity`` (contour / end-to-end, >= 1), ``contour_length_um``,
+``end_to_end_um``. An empty cell is a value that was not measured (e.g. a fiber whose every
+width sample was next to a crossing).
+A table made by hand needs only one of ``diameter_um``, ``orientation_deg``, ``tortuosity``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from espin.core.atomic import atomic_write
+from espin.imaging.errors import SEMError
+
+__all__ = ["FIBER_COLUMNS", "read_fibers_csv", "write_fibers_csv"]
+
+FIBER_COLUMNS = ("fiber", "diameter_um", "orientation_deg", "tortuosity", "contour_length_um",
+                 "end_to_end_um")
+"""Columns of ``fibers.csv``, in order."""
+
+_MEASURED = ("diameter_um", "orientation_deg", "tortuosity")
+# column -> (test, allowed range as text)
+_RANGES = {
+    "diameter_um": (lambda x: x > 0, "> 0"),
+    "orientation_deg": (lambda x: (x >= 0) & (x < 180), "in [0, 180)"),
+    "tortuosity": (lambda x: x >= 1, ">= 1"),
+    "contour_length_um": (lambda x: x > 0, "> 0"),
+    "end_to_end_um": (lambda x: x > 0, "> 0"),
+}
+
+
+def write_fibers_csv(table: pd.DataFrame, path: str | Path) -> Path:
+    """Write the per-fiber table (exactly :data:`FIBER_COLUMNS`) atomically."""
+    frame = table.loc[:, list(FIBER_COLUMNS)]
+    return atomic_write(path, lambda tmp: frame.to_csv(tmp, index=False, float_format="%.6g"))
+
+
+def read_fibers_csv(path: str | Path) -> pd.DataFrame:
+    """Read and validate a per-fiber table.
+
+    Parameters
+    ----------
+    path : str or Path
+        A ``fibers.csv`` written by ``espin measure``, or made by hand with at least one of
+        the columns ``diameter_um``, ``orientation_deg``, ``tortuosity``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The known columns present (others are dropped), as float (``fiber`` as int); empty
+        cells are NaN. A missing ``fiber`` column is numbered 0, 1, ...
+
+    Raises
+    ------
+    SEMError
+        Unreadable file, none of the measured columns, a non-numeric cell, or a value outside
+        its range (the message names the column, the first bad row and the range).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise SEMError(f"fibers table {str(path)!r}: no such file")
+    try:
+        raw = pd.read_csv(path, skipinitialspace=True)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as err:
+        raise SEMError(f"fibers table {str(path)!r} is not a readable CSV file ({err})") from err
+    raw.columns = [str(c).strip() for c in raw.columns]
+    if not any(c in raw.columns for c in _MEASURED):
+        raise SEMError(f"fibers table {str(path)!r} needs at least one of the columns "
+                       f"{', '.join(_MEASURED)}; found {', '.join(raw.columns) or 'none'}")
+    out = pd.DataFrame(index=raw.index)
+    for column in FIBER_COLUMNS[1:]:
+        if column in raw.columns:
+            out[column] = _checked(raw[column], column, path)
+    if "fiber" in raw.columns:
+        out.insert(0, "fiber", _checked_ids(raw["fiber"], path))
+    else:
+        out.insert(0, "fiber", np.arange(len(raw), dtype=np.int64))
+    return out.reset_index(drop=True)
+
+
+def _checked(values: pd.Series, column: str, path: Path) -> pd.Series:
+    numbers = pd.to_numeric(values, errors="coerce").astype(float)
+    bad = numbers.isna() & values.notna() & (values.astype(str).str.strip() != "")
+    if bad.any():
+        row = int(np.flatnonzero(bad.to_numpy())[0])
+        raise SEMError(f"fibers table {str(path)!r}: column {column}, data row {row + 1}: "
+                       f"{values.iloc[row]!r} is not a number")
+    test, allowed = _RANGES[column]
+    present = numbers.notna().to_numpy()
+    x = numbers.to_numpy()
+    wrong = present & ~np.asarray(test(np.where(present, x, np.nan)), dtype=bool)
+    wrong |= present & ~np.isfinite(np.where(present, x, 0.0))
+    if wrong.any():
+        row = int(np.flatnonzero(wrong)[0])
+        raise SEMError(f"fibers table {str(path)!r}: column {column}, data row {row + 1}: "
+                       f"{x[row]:g} is not {allowed}")
+    return numbers
+
+
+def _checked_ids(values: pd.Series, path: Path) -> pd.Series:
+    numbers = pd.to_numeric(values, errors="coerce")
+    if numbers.isna().any() or not np.all(np.mod(numbers, 1) == 0):
+        raise SEMError(f"fibers table {str(path)!r}: column fiber must hold integers")
+    return numbers.astype(np.int64)

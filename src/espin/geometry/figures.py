@@ -1,0 +1,234 @@
+"""Figures of the deposited mat and of its statistics (paper Fig. 12).
+
+``plot_mat`` draws the mat seen from above with fibers coloured by layer (Fig. 12a);
+``plot_statistics`` draws histograms of orientation, tortuosity, diameter and element length
+against their targets (Fig. 12b-c). Figures are built with ``matplotlib.figure.Figure`` and the
+Agg canvas (no pyplot global state) and written atomically. Lengths in um, angles in degrees.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from matplotlib.collections import LineCollection
+from matplotlib.colors import BoundaryNorm
+from matplotlib.figure import Figure
+from matplotlib.patches import Rectangle
+
+from espin.core.figures import save_figure
+
+if TYPE_CHECKING:  # pragma: no cover
+    from espin.geometry.mat import FiberMat
+    from espin.geometry.statistics import NetworkStatistics, VisibleFibers
+
+__all__ = ["plot_mat", "plot_statistics"]
+
+
+def plot_mat(
+    mat: FiberMat,
+    path: str | Path,
+    *,
+    linewidth: float | None = None,
+    window: VisibleFibers | None = None,
+    title: str | None = None,
+    size_in: float = 7.0,
+    dpi: float = 200.0,
+    cmap: str = "viridis",
+) -> Path:
+    """Draw the mat seen from above, fibers coloured by layer (paper Fig. 12a).
+
+    Layers are drawn bottom (0) to top, so upper layers cover lower ones as in an SEM image.
+
+    Parameters
+    ----------
+    mat : FiberMat
+        The deposited fibers.
+    path : str or Path
+        Output file; the format follows the suffix (``.png`` by default).
+    linewidth : float, optional [pt]
+        Line width of every fiber. Default: each fiber's diameter at the plot's scale (at
+        least 0.15 pt), so the picture shows the true coverage.
+    window : VisibleFibers, optional
+        Draw the outline of this observation window.
+    title : str, optional
+        Axes title; default states the fiber and layer counts.
+    size_in : float [in]
+        Width of the square axes region.
+    dpi : float
+        Resolution of raster output.
+    cmap : str
+        Matplotlib colormap of the layers.
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
+    import matplotlib
+
+    n_layers = max(int(mat.n_layers), 1)
+    s = mat.segment_start
+    order = np.argsort(mat.fiber_layer[mat.segment_fiber], kind="stable")
+    s = s[order]
+    fiber = mat.segment_fiber[order]
+    segments = np.stack([mat.vertices[s], mat.vertices[s + 1]], axis=1)
+    layer = mat.fiber_layer[fiber]
+
+    fig = Figure(figsize=(size_in * 1.22, size_in), layout="constrained")
+    ax = fig.add_subplot()
+    if linewidth is None:
+        # Diameter [um] -> points: axes width ~ size_in inches spans mat.size um.
+        widths = np.maximum(mat.fiber_diameter[fiber] / mat.size * size_in * 72.0 * 0.85, 0.15)
+    else:
+        widths = linewidth
+    norm = BoundaryNorm(np.arange(n_layers + 1) - 0.5, n_layers)
+    colormap = matplotlib.colormaps[cmap].resampled(n_layers)
+    lc = LineCollection(segments, linewidths=widths, cmap=colormap, norm=norm, capstyle="round")
+    lc.set_array(layer)
+    ax.add_collection(lc)
+    if window is not None:
+        ax.add_patch(
+            Rectangle(window.origin, window.side, window.side, fill=False, edgecolor="red",
+                      linewidth=1.8, linestyle="--", zorder=5,
+                      label=f"observation window ({window.side:.3g} um)")
+        )
+        ax.legend(loc="upper right", fontsize="small")
+    ax.set_xlim(0.0, mat.size)
+    ax.set_ylim(0.0, mat.size)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [um]")
+    ax.set_ylabel("y [um]")
+    ax.set_title(title or f"{mat.n_fibers:,} fibers in {mat.n_layers} layers, "
+                          f"L = {mat.size:g} um")
+    ticks = np.arange(0, n_layers, -(-n_layers // 10))  # at most 10 evenly spaced layers
+    fig.colorbar(lc, ax=ax, label="layer", ticks=ticks, shrink=0.85)
+    return save_figure(fig, path, dpi)
+
+
+def _hist(ax, sample: np.ndarray, bins: np.ndarray, label: str, color: str = "C0") -> None:
+    sample = np.asarray(sample, dtype=float)
+    sample = sample[np.isfinite(sample)]
+    if len(sample):
+        ax.hist(sample, bins=bins, density=True, color=color, alpha=0.6, edgecolor="white",
+                linewidth=0.4, label=f"{label} (n = {len(sample):,})")
+    else:
+        ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center")
+
+
+def _ks(value: float) -> str:
+    return "KS -" if not np.isfinite(value) else f"KS = {value:.3f}"
+
+
+def plot_statistics(stats: NetworkStatistics, path: str | Path, *, dpi: float = 150.0) -> Path:
+    """Histograms of the mat's statistics against their targets (paper Fig. 12b-c).
+
+    Panels: fiber orientation (end-to-end chords) and the orientation of the portions visible
+    in the observation window, both against the configured distribution; tortuosity in the
+    window against the measured half-normal; diameter against the measured normal; element
+    tortuosity; element length (log scale). Panel titles carry the KS statistics. With the
+    paper's Table 2 parameters the tortuosity panel shows virtual fibers far straighter than
+    the measured ones: that is the model's result (SPEC 7), not a plotting problem.
+
+    Parameters
+    ----------
+    stats : NetworkStatistics
+        From :func:`espin.geometry.statistics.network_statistics`.
+    path : str or Path
+        Output file; the format follows the suffix (``.png`` by default).
+    dpi : float
+        Resolution of raster output.
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
+    fig = Figure(figsize=(14.0, 8.0), layout="constrained")
+    axes = fig.subplots(2, 3)
+    target = stats.orientation_target
+    t = stats.targets
+    w = stats.window
+
+    # Orientation [deg]: density per degree, target pdf [1/rad] * pi / 180.
+    edges = np.linspace(0.0, 180.0, 37)
+    grid = np.linspace(0.0, 180.0, 361)
+    pdf_deg = target.pdf(np.radians(grid)) * np.pi / 180.0
+    for ax, sample, name, ks in (
+        (axes[0, 0], stats.fiber_orientation, "fibers (end-to-end)", stats.ks_fiber_orientation),
+        (axes[1, 0], w.orientation, "visible portions", stats.ks_window_orientation),
+    ):
+        _hist(ax, np.degrees(sample), edges, name)
+        ax.plot(grid, pdf_deg, color="k", label=f"target: {target.label}")
+        ax.set_xlim(0.0, 180.0)
+        ax.set_xticks(np.arange(0, 181, 30))
+        ax.set_xlabel("orientation [deg]")
+        ax.set_ylabel("density [1/deg]")
+        ax.set_title(f"orientation, {name}: {_ks(ks)}")
+        ax.set_ylim(0.0, 1.4 * ax.get_ylim()[1])  # room for the legend above the bars
+        ax.legend(fontsize="small", loc="upper center")
+
+    # Tortuosity in the window against the measured half-normal.
+    ax = axes[0, 1]
+    tort = t.tortuosity_distribution()
+    hi = max(float(tort.ppf(0.995)), float(np.nanmax(w.tortuosity, initial=1.0)))
+    bins = np.linspace(t.tortuosity_loc, hi, 41)
+    _hist(ax, w.tortuosity, bins, f"visible portions, mean {np.mean(w.tortuosity):.4f}"
+          if len(w) else "visible portions")
+    x = np.linspace(t.tortuosity_loc, hi, 400)
+    ax.plot(x, tort.pdf(x), color="k",
+            label=f"measured halfnorm(loc {t.tortuosity_loc:g}, scale {t.tortuosity_scale:g}),"
+                  f" mean {tort.mean():.3f}")
+    ax.set_yscale("log")
+    ax.set_xlabel("tortuosity (contour / chord)")
+    ax.set_ylabel("density (log)")
+    ax.set_title(f"tortuosity in a {w.side:.3g} um window: {_ks(stats.ks_window_tortuosity)}")
+    ax.legend(fontsize="small")
+
+    # Diameter against the measured normal.
+    ax = axes[0, 2]
+    dia = t.diameter_distribution()
+    d = stats.diameter_um
+    lo = min(float(dia.ppf(0.0005)), float(np.min(d, initial=np.inf)))
+    hi = max(float(dia.ppf(0.9995)), float(np.max(d, initial=-np.inf)))
+    lo = max(lo, 0.0)
+    bins = np.linspace(lo, hi, 41)
+    _hist(ax, d, bins, "fibers")
+    x = np.linspace(lo, hi, 400)
+    ax.plot(x, dia.pdf(x), color="k",
+            label=f"measured normal({t.diameter_mean_um:g}, {t.diameter_sd_um:g}) um")
+    ax.set_xlabel("diameter [um]")
+    ax.set_ylabel("density [1/um]")
+    fixed = len(d) > 0 and np.ptp(d) == 0.0
+    ax.set_title(f"diameter: {_ks(stats.ks_diameter)}" + (" (fixed diameter)" if fixed else ""))
+    ax.legend(fontsize="small")
+
+    # Element tortuosity.
+    ax = axes[1, 1]
+    et = np.asarray(stats.element_tortuosity, dtype=float)
+    et = et[np.isfinite(et)]
+    hi = float(np.quantile(et, 0.999)) if len(et) else 1.0
+    bins = np.linspace(1.0, max(hi, 1.0 + 1e-6), 41)
+    _hist(ax, np.clip(et, 1.0, bins[-1]), bins, "elements", color="C2")
+    ax.set_yscale("log")
+    ax.set_xlabel("element tortuosity lambda_r = L0 / l0 (clipped at 99.9 %)")
+    ax.set_ylabel("density (log)")
+    ax.set_title(f"element tortuosity: mean {np.mean(et) if len(et) else np.nan:.5f}")
+    ax.legend(fontsize="small")
+
+    # Element length (log-spaced bins: l0 spans several decades).
+    ax = axes[1, 2]
+    el = np.asarray(stats.element_length_um, dtype=float)
+    el = el[np.isfinite(el) & (el > 0)]
+    if len(el):
+        bins = np.geomspace(el.min(), max(el.max(), el.min() * 1.0001), 41)
+        ax.hist(el, bins=bins, color="C3", alpha=0.6, edgecolor="white", linewidth=0.4,
+                label=f"elements (n = {len(el):,})")
+        ax.set_xscale("log")
+        ax.axvline(np.mean(el), color="k", linestyle="--", label=f"mean {np.mean(el):.3g} um")
+        ax.legend(fontsize="small")
+    ax.set_xlabel("element length l0 [um]")
+    ax.set_ylabel("count")
+    ax.set_title("element length")
+    return save_figure(fig, path, dpi)

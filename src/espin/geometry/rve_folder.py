@@ -1,0 +1,68 @@
+"""Write a generated RVE's folder: HDF5 file, resolved config, statistics, figures, VTK."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from espin.core.config import write_config
+from espin.core.atomic import atomic_write_bytes
+from espin.geometry.rve_file import save_rve
+from espin.geometry.vtk import write_mat_vtu, write_network_vtu
+from espin.geometry.rve import RVE
+from espin.geometry.statistics import NetworkStatistics, network_statistics
+
+__all__ = ["RVEFolder", "write_rve_folder"]
+
+
+@dataclass(frozen=True)
+class RVEFolder:
+    """Files written for one RVE, and its statistics."""
+
+    folder: Path
+    statistics: NetworkStatistics
+    files: dict[str, Path] = field(default_factory=dict)
+
+
+def write_rve_folder(
+    rve: RVE, folder: str | Path, *, figures: bool | None = None, vtk: bool | None = None
+) -> RVEFolder:
+    """Write ``rve.h5``, ``config.toml``, ``statistics.json``, ``statistics.txt``, and
+    optionally ``mat.png``, ``statistics.png``, ``fibers.vtu``, ``network.vtu``.
+
+    Parameters
+    ----------
+    rve
+        The generated RVE.
+    folder
+        Output folder (created if needed). Every file is written atomically.
+    figures, vtk
+        Write PNG figures / VTK files; default from ``rve.config.output``.
+
+    Returns
+    -------
+    RVEFolder
+        The folder, the statistics and the written paths by name.
+    """
+    folder = Path(folder)
+    figures = rve.config.output.figures if figures is None else figures
+    vtk = rve.config.output.vtk if vtk is None else vtk
+    stats = network_statistics(rve.mat, rve.network, rve.config)
+    files = {
+        "rve": save_rve(rve, folder / "rve.h5"),
+        "config": write_config(rve.config, folder / "config.toml"),
+        "statistics_json": atomic_write_bytes(
+            folder / "statistics.json", json.dumps(stats.summary(), indent=2).encode()
+        ),
+        "statistics_txt": atomic_write_bytes(folder / "statistics.txt", stats.format_table().encode()),
+    }
+    if figures:
+        from espin.geometry.figures import plot_mat, plot_statistics
+
+        files["mat_png"] = plot_mat(rve.mat, folder / "mat.png")
+        files["statistics_png"] = plot_statistics(stats, folder / "statistics.png")
+    if vtk:
+        files["fibers_vtu"] = write_mat_vtu(rve.mat, folder / "fibers.vtu")
+        files["network_vtu"] = write_network_vtu(rve.network, folder / "network.vtu")
+    return RVEFolder(folder=folder, statistics=stats, files=files)

@@ -1,0 +1,119 @@
+"""Config plumbing of the calibration: options check, base config, window and written config."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from espin.core.config import Config
+from espin.core.errors import ConfigError
+from espin.imaging.geometry_calibration.fits import truncated_normal_parameters
+from espin.geometry.targets import GeometryTargets
+
+
+def _resolve_base(base: Config | str | Path | None) -> Config:
+    from espin.geometry.rve import resolve_config
+
+    return resolve_config(base)
+
+
+def _base_rve_data(base: Config) -> dict[str, Any]:
+    """The base config's rve keys as given (derived values re-resolve when others change)."""
+    return base.rve.model_dump(mode="json", exclude_none=True, exclude_unset=True)
+
+
+def _check_options(fit: str, segment_ratio: float | None, max_deviation_deg: float | None,
+                   seeds: int, min_portions: int, window_um: float | None) -> None:
+    if fit not in ("deviation", "segment", "both"):
+        raise ConfigError(f"fit must be deviation, segment or both, got {fit!r}")
+    if fit in ("deviation", "both") and max_deviation_deg is not None:
+        raise ConfigError("max_deviation_deg is searched with fit = deviation or both: do not fix it")
+    if fit in ("segment", "both") and segment_ratio is not None:
+        raise ConfigError("segment_ratio is searched with fit = segment or both: do not fix it")
+    if segment_ratio is not None and not (math.isfinite(segment_ratio) and segment_ratio > 0):
+        raise ConfigError(f"segment_ratio must be > 0, got {segment_ratio!r}")
+    if max_deviation_deg is not None and not 0.0 <= max_deviation_deg < 90.0:
+        raise ConfigError(f"max_deviation_deg must be in [0, 90), got {max_deviation_deg!r}")
+    if not 1 <= seeds <= 1000:
+        raise ConfigError(f"seeds must be in [1, 1000], got {seeds!r}")
+    if not 50 <= min_portions <= 10**6:
+        raise ConfigError(f"min_portions must be in [50, 1000000], got {min_portions!r}")
+    if window_um is not None and not (math.isfinite(window_um) and window_um > 0):
+        raise ConfigError(f"window_um must be > 0, got {window_um!r}")
+
+
+def _window(targets: GeometryTargets, window_um: float | None, config: Config) -> tuple[float, str]:
+    if targets.window_um is not None and window_um is not None:
+        raise ConfigError(
+            "the observation window comes from field_of_view_um of the measurement; "
+            "do not give window_um as well"
+        )
+    if targets.window_um is not None:
+        w, h = targets.field_of_view_um
+        return targets.window_um, f"square of equal mean chord to the {w:g} x {h:g} um field of view"
+    if window_um is not None:
+        return float(window_um), "window_um"
+    return config.output.window_ratio * config.rve.diameter_um, \
+        f"default {config.output.window_ratio:g} D"
+
+
+def _diameter_keys(targets: GeometryTargets, base: Config) -> dict[str, float]:
+    """``diameter_um`` and ``diameter_sd_um`` whose truncated normal has the target moments.
+
+    Values computed here (a sample's moments, a truncation correction) are rounded to four
+    significant digits; typed-in values that need no correction are written as typed.
+    """
+    sample = targets.diameter_um
+    if sample is not None:
+        mean, sd = float(np.mean(sample)), float(np.std(sample, ddof=1))
+    else:
+        mean, sd = targets.diameter_mean_um, targets.diameter_sd_um or 0.0
+    explicit_min = base.rve.diameter_min_um if "diameter_min_um" in base.rve.model_fields_set else None
+    mu, sigma = truncated_normal_parameters(mean, sd, explicit_min)
+    if sample is None and (mu, sigma) == (mean, sd):
+        return {"diameter_um": float(mu), "diameter_sd_um": float(sigma)}
+    return {"diameter_um": float(f"{mu:.4g}"), "diameter_sd_um": float(f"{sigma:.4g}")}
+
+
+def _fitted(targets: GeometryTargets, fit: str) -> list[str]:
+    keys = []
+    if targets.has_diameter:
+        keys += ["rve.diameter_um", "rve.diameter_sd_um"]
+    if targets.has_tortuosity:
+        keys += {"deviation": ["rve.max_deviation_deg"], "segment": ["rve.segment_ratio"],
+                 "both": ["rve.segment_ratio", "rve.max_deviation_deg"]}[fit]
+    if targets.has_orientation:
+        keys.append("rve.orientation")
+    return keys
+
+
+DERIVED_RVE_KEYS = ("size_ratio", "segment_ratio", "diameter_min_um", "seeding")
+"""rve keys that espin derives when unset (SPEC 1 defaults, :class:`espin.core.config.RVEConfig`)."""
+
+
+def _written_data(config: Config) -> dict[str, Any]:
+    """The calibrated config as TOML data, derived rve values left unset unless given.
+
+    ``diameter_min_um`` (0.1 D), ``seeding`` (border if uniform, else lines) and the default
+    sizes follow the calibrated values when unset; pinning them would make later edits of the
+    file (another diameter, an orientation) keep stale values.
+    """
+    from espin.core.config import config_to_dict
+
+    data = config_to_dict(config)
+    given = config.rve.model_fields_set
+    for key in DERIVED_RVE_KEYS:
+        if key not in given:
+            data["rve"].pop(key, None)
+    return data
+
+
+def _with_section(base: Config, rve: dict[str, Any], output: dict[str, Any]) -> dict[str, Any]:
+    """The base config's given keys with the rve and output keys replaced."""
+    data = base.model_dump(mode="json", exclude_none=True, exclude_unset=True)
+    data["rve"] = rve
+    data["output"] = data.get("output", {}) | output
+    return data

@@ -1,0 +1,206 @@
+"""The calibration result: GeometryCalibration, its JSON report, text table and files."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import tomli_w
+
+from espin.core.config import Config
+from espin.core.errors import EspinError
+from espin.imaging.geometry_calibration.matching import DistributionMatch
+from espin.imaging.geometry_calibration.options import _written_data
+from espin.imaging.geometry_calibration.search import ValleyPoint
+from espin.geometry.targets import GeometryTargets
+
+__all__ = ["SCHEMA", "SCHEMA_VERSION", "MECHANICS_NOTE", "GeometryCalibration"]
+
+SCHEMA = "espin.imaging.geometry_calibration"
+SCHEMA_VERSION = 1
+MECHANICS_NOTE = (
+    "New deposition parameters change the network and so the mechanics: fit the fiber "
+    "parameters again (espin fit) before using stresses of the calibrated mat."
+)
+
+
+@dataclass(frozen=True, eq=False)
+class GeometryCalibration:
+    """Result of :func:`calibrate_geometry`.
+
+    Attributes
+    ----------
+    config : Config
+        The calibrated configuration (base config with the found deposition parameters and
+        ``output.window_ratio`` set to the observation window). ``espin generate`` and
+        ``espin simulate`` take it as it is.
+    base : Config
+        The base configuration.
+    targets : GeometryTargets
+        What was matched.
+    parameters : dict
+        The found values by config key, and ``fitted`` (the keys that were searched).
+    matches : tuple of DistributionMatch
+        Per targeted distribution, measured on mats of ``config`` (its layer side, unless the
+        window does not fit: then the search RVE), pooled over the seeds.
+    valley : tuple of ValleyPoint
+        Best deviation per segment length (``fit="both"`` only).
+    search : dict
+        Window, RVE sides, seeds, layers, evaluations and wall time [s].
+    warnings : tuple of str
+        What the user must know (targets out of reach, window larger than the layer...).
+    """
+
+    config: Config
+    base: Config
+    targets: GeometryTargets
+    parameters: dict[str, Any]
+    matches: tuple[DistributionMatch, ...]
+    valley: tuple[ValleyPoint, ...] = ()
+    search: dict[str, Any] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+
+    def match(self, quantity: str) -> DistributionMatch:
+        """The match of one quantity (``tortuosity``, ``orientation_deg``, ``diameter_um``)."""
+        for m in self.matches:
+            if m.quantity == quantity:
+                return m
+        raise KeyError(f"{quantity} was not a target")
+
+    @property
+    def report(self) -> dict[str, Any]:
+        """JSON-ready description of the calibration (units in the key names)."""
+        from espin import __version__
+
+        return {
+            "schema": SCHEMA,
+            "schema_version": SCHEMA_VERSION,
+            "espin_version": __version__,
+            "source": self.targets.source,
+            "parameters": _finite_or_none(self.parameters),
+            "matches": [_match_json(m) for m in self.matches],
+            "valley": [_finite_or_none(v.__dict__) for v in self.valley],
+            "search": self.search,
+            "warnings": list(self.warnings),
+            "note": MECHANICS_NOTE,
+        }
+
+    def format_table(self) -> str:
+        """Plain-text report for the command line."""
+        s = self.search
+        lines = [f"targets: {self.targets.source}; observation window {s['window_um']:.4g} um "
+                 f"({s['window_source']}), chords >= {s['min_chord_um']:.3g} um",
+                 f"virtual measurement: {s['sampling_description']}", "parameters"]
+        fitted = set(self.parameters["fitted"])
+        for key, value in self.parameters.items():
+            if key == "fitted":
+                continue
+            shown = json.dumps(value) if isinstance(value, dict) else f"{value:.6g}" \
+                if isinstance(value, float) else str(value)
+            lines.append(f"  {key:<24} {shown}{'   (fitted)' if key in fitted else ''}")
+        lines.append("match in the observation window (KS distance: 0 same, 1 disjoint; p: "
+                     "two-sample KS p-value, descriptive only - the parameters were fitted to "
+                     "this sample and the virtual pieces are not independent, so p is optimistic)")
+        for m in self.matches:
+            n_target = "-" if m.n_target is None else f"{m.n_target:,}"
+            p = "-" if m.p_value is None else f"{m.p_value:.2g}"
+            lines.append(f"  {m.quantity:<16} KS {m.ks:.4f}  descriptive p {p:<7} target {m.target} "
+                         f"(n {n_target}), virtual n {m.n_virtual:,}")
+            for name, target, virtual in m.summary:
+                lines.append(f"      {name:<14} target {target:<10.4g} virtual {virtual:.4g}")
+        whole = s.get("whole_portion_tortuosity")
+        if whole:
+            lines.append(
+                f"whole fibers across the window (the calibrated mat's window portions, edge to "
+                f"edge, as tracing fibers by hand measures them; inferred from the pieces through "
+                f"the walk): tortuosity median {whole['median']:.4g} (half-normal scale "
+                f"{whole['halfnorm_scale_from_median']:.3g} from the median), mean "
+                f"{whole['mean']:.4g} (n {whole['n']:,})")
+        if self.valley:
+            lines.append("tortuosity valley (segment length and deviation are only identifiable "
+                         "together, through the persistence length)")
+            lines.append(f"  {'segment_ratio':>13} {'max_deviation_deg':>17} "
+                         f"{'persistence / D':>15} {'KS':>7}")
+            for v in self.valley:
+                lines.append(f"  {v.segment_ratio:>13.3g} {v.max_deviation_deg:>17.2f} "
+                             f"{v.persistence_ratio:>15.1f} {v.ks:>7.4f}")
+        lines.append(f"search: {len(s['seeds'])} seeds x {s['layers']} layers, RVE side "
+                     f"{s['search_side_um']:.4g} um (search) / {s['check_side_um']:.4g} um "
+                     f"(match), {s['evaluations']} evaluations, {s['elapsed_s']:.1f} s")
+        lines += [f"  {n}" for n in s["notes"]]
+        lines += [f"warning: {w}" for w in self.warnings]
+        lines.append(f"note: {MECHANICS_NOTE}")
+        return "\n".join(lines)
+
+    def write(self, path: str | Path) -> dict[str, Path]:
+        """Write the calibrated config and the report.
+
+        Parameters
+        ----------
+        path
+            A ``.toml`` file: the config there and the report beside it as
+            ``<stem>.calibration.json``. Any other path is a folder (created if needed):
+            ``config.toml``, ``calibration.json`` and ``calibration.txt`` in it.
+
+        Returns
+        -------
+        dict
+            The files written, by kind (``config``, ``report``, and ``table`` for a folder).
+
+        Raises
+        ------
+        EspinError
+            If the path is an existing file that is not a ``.toml`` (it would be a folder), or
+            a file cannot be written.
+        """
+        from espin.core.atomic import atomic_write_bytes
+
+        path = Path(path)
+        if path.suffix == ".toml":
+            if path.is_dir():
+                raise EspinError(f"{path} is a folder: give a .toml file or a folder name without .toml")
+            files = {"config": path, "report": path.with_name(f"{path.stem}.calibration.json")}
+        else:
+            if path.exists() and not path.is_dir():
+                raise EspinError(
+                    f"{path} is an existing file: a path without .toml is a folder "
+                    "(config.toml, calibration.json, calibration.txt); give a .toml file or a folder"
+                )
+            files = {"config": path / "config.toml", "report": path / "calibration.json",
+                     "table": path / "calibration.txt"}
+        header = "".join(f"# {line}\n" for line in self._header_lines())
+        text = header + tomli_w.dumps(_written_data(self.config))
+        report = json.dumps(self.report, indent=2, allow_nan=False) + "\n"
+        try:
+            atomic_write_bytes(files["config"], text.encode("utf-8"))
+            atomic_write_bytes(files["report"], report.encode("utf-8"))
+            if "table" in files:
+                atomic_write_bytes(files["table"], (self.format_table() + "\n").encode("utf-8"))
+        except OSError as err:
+            raise EspinError(f"cannot write the calibration to {path}: {err}") from None
+        return files
+
+    def _header_lines(self) -> list[str]:
+        from espin import __version__
+
+        lines = [f"Written by espin {__version__} calibrate-geometry from {self.targets.source}.",
+                 "Deposition parameters fitted to the measured geometry (observation window "
+                 f"{self.search['window_um']:.4g} um):"]
+        lines += [f"  {m.quantity}: KS {m.ks:.4f}" for m in self.matches]
+        lines += ["New deposition parameters change the mechanics: fit the fiber parameters",
+                  "again (espin fit) before using stresses of this mat."]
+        return lines
+
+
+def _finite_or_none(d: dict[str, Any]) -> dict[str, Any]:
+    """``d`` with non-finite floats (an infinite persistence length) as None, for JSON."""
+    return {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in d.items()}
+
+
+def _match_json(m: DistributionMatch) -> dict[str, Any]:
+    out = _finite_or_none(m.__dict__)
+    out["summary"] = [{"statistic": n, "target": t, "virtual": v} for n, t, v in m.summary]
+    return out

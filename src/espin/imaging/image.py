@@ -1,0 +1,162 @@
+"""Reading SEM images as grey levels, and cropping the microscope's data bar.
+
+TIFF files are read with ``tifffile`` (8/16/32-bit, float, palette, RGB; the first page of a
+stack), other formats (PNG, JPEG, BMP ...) with Pillow; both come with scikit-image. Palette
+images are mapped through their colour table, colour images to luminance
+(0.2125 R + 0.7154 G + 0.0721 B, as ``skimage.color.rgb2gray``), and an alpha channel is
+dropped. Grey levels are returned as float64 scaled by the range of the storage type (an 8-bit
+image is divided by 255, a 16-bit one by 65535, a float image by its own maximum), so a
+16-bit image that uses only 12 bits stays dark: segmentation normalizes contrast itself.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from espin.core.errors import ConfigError
+from espin.imaging.errors import SEMError
+
+__all__ = ["read_image", "as_grey", "parse_rows", "row_slice"]
+
+_LUMINANCE = np.array([0.2125, 0.7154, 0.0721])
+_TIFF_SUFFIXES = (".tif", ".tiff")
+_PALETTE = 3  # TIFF photometric interpretation "palette"
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Grey levels of an image file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A TIFF (incl. palette and 16-bit), PNG or JPEG file.
+
+    Returns
+    -------
+    (rows, cols) float64
+        Grey levels, 0 black; 1 is the brightest value of the storage type.
+
+    Raises
+    ------
+    SEMError
+        The file does not exist or is not a readable image.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise SEMError(f"image {str(path)!r}: no such file")
+    try:
+        if path.suffix.lower() in _TIFF_SUFFIXES:
+            data = _read_tiff(path)
+        else:
+            data = _read_pillow(path)
+    except SEMError:
+        raise
+    except Exception as err:  # any decoder failure: the user's file, not our bug
+        raise SEMError(
+            f"image {str(path)!r} is not a readable TIFF, PNG or JPEG image ({err})"
+        ) from err
+    return as_grey(data, source=str(path))
+
+
+def as_grey(data: np.ndarray, source: str = "image") -> np.ndarray:
+    """Grey levels (float64, see the module notes) of a 2-D grey or 3-D colour array."""
+    a = np.asarray(data)
+    if a.ndim == 3 and a.shape[2] in (2, 4):  # grey + alpha, RGB + alpha
+        a = a[..., :-1]
+    if a.ndim == 3 and a.shape[2] == 1:
+        a = a[..., 0]
+    if a.ndim == 3 and a.shape[2] == 3:
+        grey = _scaled(a) @ _LUMINANCE
+    elif a.ndim == 2:
+        grey = _scaled(a)
+    else:
+        raise SEMError(f"{source}: expected a grey or colour image, got an array of shape "
+                       f"{a.shape}")
+    if min(grey.shape) < 16:
+        raise SEMError(f"{source}: image of {grey.shape[1]} x {grey.shape[0]} px is too small "
+                       "(at least 16 x 16 px)")
+    if not np.all(np.isfinite(grey)):
+        raise SEMError(f"{source}: image has non-finite grey levels")
+    return grey
+
+
+def _scaled(a: np.ndarray) -> np.ndarray:
+    if a.dtype == bool:
+        return a.astype(float)
+    if np.issubdtype(a.dtype, np.integer):
+        info = np.iinfo(a.dtype)
+        return (a.astype(float) - min(info.min, 0)) / (info.max - min(info.min, 0))
+    a = a.astype(float)
+    top = float(np.nanmax(np.abs(a))) if a.size else 0.0
+    return a / top if top > 0 else a
+
+
+def _read_tiff(path: Path) -> np.ndarray:
+    import tifffile
+
+    with tifffile.TiffFile(path) as tif:
+        page = tif.pages[0]
+        data = page.asarray()
+        if int(page.photometric) == _PALETTE and page.colormap is not None:
+            colormap = np.asarray(page.colormap).astype(np.uint16)  # (3, 2**bits), 16-bit
+            rgb = colormap[:, data].transpose(1, 2, 0)
+            # Many writers store an 8-bit palette as value << 8: read it back as 8 bits.
+            data = (rgb >> 8).astype(np.uint8) if np.all(colormap % 256 == 0) else rgb
+    return data
+
+
+def _read_pillow(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    with Image.open(path) as img:
+        img.seek(0)
+        if img.mode in ("P", "PA"):
+            img = img.convert("RGBA")
+        elif img.mode == "CMYK":
+            img = img.convert("RGB")
+        data = np.array(img)
+        if img.mode == "I" and data.size and data.max() <= np.iinfo(np.uint16).max:
+            data = data.astype(np.uint16)  # 16-bit PNG decoded to 32-bit integers
+    return data
+
+
+def parse_rows(value: str | tuple[int, int] | list[int], name: str) -> tuple[int, int]:
+    """A row range ``(start, stop)`` from ``"START:STOP"`` or a pair (Python slice rules).
+
+    Negative values count from the bottom, as in Python. Raises :class:`ConfigError` naming
+    ``name`` on anything else.
+    """
+    if isinstance(value, str):
+        start, sep, stop = value.partition(":")
+        try:
+            if not sep:
+                raise ValueError
+            pair = (int(start), int(stop))
+        except ValueError:
+            raise ConfigError(f"{name} must be START:STOP (two integers), got {value!r}") from None
+    else:
+        try:
+            start, stop = value
+            pair = (int(start), int(stop))
+        except (TypeError, ValueError):
+            raise ConfigError(
+                f"{name} must be a pair (start, stop) of rows, got {value!r}") from None
+    return pair
+
+
+def row_slice(rows: tuple[int, int], n_rows: int, name: str) -> slice:
+    """The slice of image rows ``rows`` resolves to, checked against ``n_rows``.
+
+    Raises :class:`ConfigError` naming ``name`` if the range is empty or outside the image.
+    """
+    start, stop = rows
+    start_abs = start + n_rows if start < 0 else start
+    stop_abs = stop + n_rows if stop < 0 else stop
+    if not (0 <= start_abs < stop_abs <= n_rows):
+        raise ConfigError(
+            f"{name} = {start}:{stop} must select rows within the image's 0:{n_rows} "
+            "(START < STOP; negative values count from the bottom)"
+        )
+    return slice(start_abs, stop_abs)

@@ -1,0 +1,390 @@
+"""Measuring an SEM image of a fiber mat: :func:`measure` and its result.
+
+Pipeline (one module per step): read the image and its scale (:mod:`espin.imaging.image`,
+:mod:`espin.imaging.scale`) -> fiber pixels (:mod:`espin.imaging.segment`) -> fibers traced through
+crossings (:mod:`espin.imaging.trace`) -> local widths (:mod:`espin.imaging.widths`) -> per-fiber
+diameter, orientation and tortuosity as the paper defines them (section 2.2: contour over
+end-to-end length, orientation of the end-to-end line) -> fitted distributions
+(:mod:`espin.imaging.distributions`) and the image's structure-tensor orientation
+(:mod:`espin.imaging.orientation`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from espin.core.errors import ConfigError
+from espin.imaging.distributions import FittedDistributions, fit_distributions
+from espin.imaging.errors import SEMError
+from espin.geometry.fibers_csv import FIBER_COLUMNS, write_fibers_csv
+from espin.imaging.image import as_grey, parse_rows, read_image, row_slice
+from espin.imaging.orientation import image_angle_deg, structure_tensor_orientation
+from espin.imaging.scale import ScaleBar, detect_scale_bar
+from espin.imaging.segment import MIN_WIDTH_PX, segment_fibers
+from espin.imaging.trace import trace_fibers
+from espin.imaging.widths import WidthSamples, fiber_diameters, local_widths
+
+__all__ = ["SEMMeasurement", "measure", "SCHEMA"]
+
+SCHEMA = "espin.imaging.measurement/1"
+"""Schema of ``measurement.toml``."""
+
+Rows = tuple[int, int] | str
+
+
+@dataclass(frozen=True, eq=False)
+class SEMMeasurement:
+    """What :func:`measure` found in one SEM image.
+
+    Attributes
+    ----------
+    fibers : pandas.DataFrame
+        One row per traced fiber: ``fiber`` (int), ``diameter_um`` (blurred flat profile
+        fitted to the fiber's median profile, :func:`espin.imaging.widths.fiber_diameters`),
+        ``orientation_deg`` (end-to-end axis, [0, 180)), ``tortuosity`` (contour /
+        end-to-end, >= 1), ``contour_length_um``, ``end_to_end_um``.
+    widths_um : (n,) float64 [um]
+        All local width samples.
+    um_per_px : float [um / px]
+        Pixel size.
+    field_of_view_um : tuple[float, float] [um]
+        Width and height of the analysed image (after cropping).
+    dominant_direction_deg : float [deg]
+        Structure-tensor dominant fiber axis, [0, 180).
+    coherency : float
+        Structure-tensor coherency, 0 (isotropic) to 1 (parallel).
+    fits : FittedDistributions
+        Normal diameter, uniform or von Mises orientation (AIC), half-normal tortuosity.
+    min_chord_um : float [um]
+        Traced fibers with a shorter end-to-end length were dropped.
+    typical_width_px : float [px]
+        Fiber width that scaled the filters.
+    image : (rows, cols) float64
+        The analysed grey image (cropped).
+    rows : tuple[int, int]
+        Rows of the original image that were analysed (start, stop).
+    paths_px : list of (n_i, 2) float64 [px]
+        Centre line (row, col) of each fiber of ``fibers``, in the same order.
+    width_samples : WidthSamples
+        Where and across which normal each local width was measured (px; ``fiber`` indexes
+        ``paths_px``).
+    junctions_px : (n, 2) float64 [px]
+        Junction centres (row, col) of the skeleton.
+    scale_bar : ScaleBar or None
+        The detected scale bar, when the scale came from one.
+    scale_bar_um : float or None [um]
+        Its length as given.
+    source : str
+        The image file (or ``"array"``).
+    """
+
+    fibers: pd.DataFrame
+    widths_um: np.ndarray
+    um_per_px: float
+    field_of_view_um: tuple[float, float]
+    dominant_direction_deg: float
+    coherency: float
+    fits: FittedDistributions
+    min_chord_um: float
+    typical_width_px: float
+    image: np.ndarray
+    rows: tuple[int, int]
+    paths_px: list[np.ndarray]
+    width_samples: WidthSamples
+    junctions_px: np.ndarray
+    scale_bar: ScaleBar | None
+    scale_bar_um: float | None
+    source: str
+
+    def summary(self) -> dict[str, Any]:
+        """The summary written to ``measurement.toml`` (units in the key names)."""
+        from espin import __version__
+
+        f = self.fibers
+        fits = self.fits
+        scale: dict[str, Any] = {"source": "scale_bar" if self.scale_bar else "um_per_px"}
+        if self.scale_bar is not None:
+            scale |= {"scale_bar_um": self.scale_bar_um, "scale_bar_px": self.scale_bar.length_px,
+                      "scale_bar_kind": self.scale_bar.kind,
+                      "scale_bar_ticks": self.scale_bar.n_ticks,
+                      "scale_bar_rows": list(self.scale_bar.row_range)}
+        return {
+            "schema": SCHEMA,
+            "espin_version": __version__,
+            "units": "lengths um, angles deg (counter-clockwise from +x, y up)",
+            "source": self.source,
+            "um_per_px": self.um_per_px,
+            "field_of_view_um": list(self.field_of_view_um),
+            "min_chord_um": self.min_chord_um,
+            "image": {"rows_analysed": list(self.rows),
+                      "size_px": [int(self.image.shape[1]), int(self.image.shape[0])],
+                      "typical_width_px": self.typical_width_px},
+            "scale": scale,
+            "counts": {"fibers": len(f), "width_samples": len(self.widths_um),
+                       "junctions": len(self.junctions_px)},
+            "diameter": {"distribution": "normal", "mean_um": fits.diameter_mean_um,
+                         "sd_um": fits.diameter_sd_um,
+                         "median_um": _nan_stat(np.nanmedian, f["diameter_um"]),
+                         "local_mean_um": _nan_stat(np.mean, self.widths_um),
+                         "local_sd_um": _nan_stat(np.std, self.widths_um)},
+            "orientation": {"dominant_direction_deg": self.dominant_direction_deg,
+                            "coherency": self.coherency,
+                            "selection": "AIC",
+                            "distribution": fits.orientation_model,
+                            "von_mises_mean_deg": fits.orientation_mean_deg,
+                            "von_mises_kappa": fits.orientation_kappa,
+                            "aic_uniform": fits.orientation_aic_uniform,
+                            "aic_von_mises": fits.orientation_aic_von_mises},
+            "tortuosity": {"distribution": "halfnorm", "loc": fits.tortuosity_loc,
+                           "scale": fits.tortuosity_scale,
+                           "mean": _nan_stat(np.mean, f["tortuosity"]),
+                           "sd": _nan_stat(np.std, f["tortuosity"])},
+        }
+
+    def table_rows(self) -> list[tuple[str, str]]:
+        """(quantity, value) pairs for a short printed table."""
+        f, fits = self.fibers, self.fits
+        orient = ("uniform" if fits.orientation_model == "uniform" else
+                  f"von Mises, mean {fits.orientation_mean_deg:.1f} deg, "
+                  f"kappa {fits.orientation_kappa:.3g}")
+        return [
+            ("scale", f"{self.um_per_px:.5g} um/px" + (
+                f" (bar {self.scale_bar.length_px:.1f} px = {self.scale_bar_um:g} um)"
+                if self.scale_bar else "")),
+            ("field of view",
+             f"{self.field_of_view_um[0]:.4g} x {self.field_of_view_um[1]:.4g} um"),
+            ("fibers traced", f"{len(f)} (end-to-end >= {self.min_chord_um:.3g} um, median "
+                              f"{_nan_stat(np.median, f['end_to_end_um']):.3g} um)"),
+            ("diameter", f"{fits.diameter_mean_um:.4g} +- {fits.diameter_sd_um:.3g} um (normal, "
+                         f"per fiber; {len(self.widths_um)} local widths)"),
+            ("orientation", f"dominant {self.dominant_direction_deg:.1f} deg, coherency "
+                            f"{self.coherency:.3f}; fibers: {orient} (AIC)"),
+            ("tortuosity", f"mean {_nan_stat(np.mean, f['tortuosity']):.4f}; half-normal loc 1, "
+                           f"scale {fits.tortuosity_scale:.4f} (of the traced pieces; whole "
+                           "fibers across the image: espin calibrate-geometry)"),
+        ]
+
+    def write(self, folder: str | Path, figures: bool = True) -> dict[str, Path]:
+        """Write ``fibers.csv``, ``measurement.toml`` and (optionally) the figures.
+
+        Parameters
+        ----------
+        folder : str or Path
+            Output folder (created).
+        figures : bool
+            Also write ``histograms.png`` and ``overlay.png``.
+
+        Returns
+        -------
+        dict[str, Path]
+            The files written, by kind.
+        """
+        import tomli_w
+
+        from espin.core.atomic import atomic_write_bytes
+
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        files = {"fibers": write_fibers_csv(self.fibers, folder / "fibers.csv"),
+                 "summary": atomic_write_bytes(folder / "measurement.toml",
+                                               tomli_w.dumps(_toml_ready(self.summary())).encode())}
+        if figures:
+            from espin.imaging.figures import save_histograms, save_overlay
+
+            files["histograms"] = save_histograms(self, folder / "histograms.png")
+            files["overlay"] = save_overlay(self, folder / "overlay.png")
+        return files
+
+
+def measure(
+    image: str | Path | np.ndarray,
+    *,
+    um_per_px: float | None = None,
+    scale_bar_um: float | None = None,
+    scale_bar_rows: Rows | None = None,
+    crop_rows: Rows | None = None,
+    crop_bottom_px: int | None = None,
+    width_px: float | None = None,
+    max_bend_deg: float = 35.0,
+    min_length_diameters: float = 3.0,
+) -> SEMMeasurement:
+    """Measure fiber diameters, orientations and tortuosities on an SEM image.
+
+    Parameters
+    ----------
+    image : str, Path or (rows, cols[, channels]) array
+        A TIFF (palette and 16-bit included), PNG or JPEG file, or an image array.
+    um_per_px : float [um / px], optional
+        Pixel size. Give this, or ``scale_bar_um`` with ``scale_bar_rows``.
+    scale_bar_um : float [um], optional
+        Length of the scale bar printed on the image (of the span of its tick marks).
+    scale_bar_rows : "START:STOP" or (start, stop), optional
+        Image rows that hold the whole scale bar (Python slice; negative counts from the
+        bottom). Unless ``crop_rows``/``crop_bottom_px`` say otherwise, the rows from START
+        down are cropped away (the data bar), or up to STOP if the bar is in the top half.
+    crop_rows : "START:STOP" or (start, stop), optional
+        Rows to analyse (e.g. ``0:880`` to leave out a data bar below row 880).
+    crop_bottom_px : int [px], optional
+        Leave out this many rows at the bottom (alternative to ``crop_rows``).
+    width_px : float [px], optional
+        Typical fiber width, >= 3; estimated from the image when not given.
+    max_bend_deg : float [deg]
+        Largest bend at which a fiber is traced through a junction, in (0, 90].
+    min_length_diameters : float
+        Traced fibers whose end-to-end length is below this many typical diameters are dropped
+        (an analyst does not measure stubs), in [1, 100].
+
+    Returns
+    -------
+    SEMMeasurement
+
+    Raises
+    ------
+    ConfigError
+        An option is missing, contradictory or out of range (checked before any work).
+    SEMError
+        The image is unreadable, the scale bar is not in the given rows, or there are no fibers.
+    """
+    _check_options(um_per_px, scale_bar_um, scale_bar_rows, crop_rows, crop_bottom_px, width_px,
+                   max_bend_deg, min_length_diameters)
+    bar_rows = parse_rows(scale_bar_rows, "scale_bar_rows") if scale_bar_rows is not None else None
+    keep_rows = parse_rows(crop_rows, "crop_rows") if crop_rows is not None else None
+    if isinstance(image, (str, Path)):
+        grey, source = read_image(image), str(image)
+    else:
+        grey, source = as_grey(np.asarray(image), source="image array"), "array"
+    n_rows = grey.shape[0]
+    bar_slice = crop_rows_slice = None
+    if bar_rows is not None:
+        bar_slice = row_slice(bar_rows, n_rows, "scale_bar_rows")
+    if keep_rows is not None:
+        crop_rows_slice = row_slice(keep_rows, n_rows, "crop_rows")
+    elif crop_bottom_px:
+        if crop_bottom_px >= n_rows - 16:
+            raise ConfigError(f"crop_bottom_px = {crop_bottom_px} must leave at least 16 of the "
+                              f"image's {n_rows} rows")
+        crop_rows_slice = slice(0, n_rows - crop_bottom_px)
+    elif bar_slice is not None:
+        in_bottom = bar_slice.start >= n_rows / 2
+        crop_rows_slice = slice(0, bar_slice.start) if in_bottom else slice(bar_slice.stop, n_rows)
+    if crop_rows_slice is None:
+        crop_rows_slice = slice(0, n_rows)
+    if crop_rows_slice.stop - crop_rows_slice.start < 16:
+        raise ConfigError("the rows left to analyse (crop_rows, or above/below scale_bar_rows) "
+                          "must be at least 16")
+
+    bar = detect_scale_bar(grey, bar_slice) if bar_slice is not None else None
+    scale = float(um_per_px) if bar is None else float(scale_bar_um) / bar.length_px
+    analysed = grey[crop_rows_slice]
+    return _measure_grey(analysed, scale, width_px, max_bend_deg, min_length_diameters, bar,
+                         scale_bar_um, source, (crop_rows_slice.start, crop_rows_slice.stop))
+
+
+def _measure_grey(grey: np.ndarray, um_per_px: float, width_px: float | None,
+                  max_bend_deg: float, min_length_diameters: float, bar: ScaleBar | None,
+                  scale_bar_um: float | None, source: str, rows: tuple[int, int]) -> SEMMeasurement:
+    seg = segment_fibers(grey, width_px)
+    traced = trace_fibers(seg.mask, seg.width_px, max_bend_deg)
+    crossings = np.concatenate([traced.junctions, traced.shared])
+    samples = local_widths(seg.flat, traced.paths, crossings, seg.width_px)
+    typical = float(np.median(samples.width_px)) if len(samples.width_px) else seg.width_px
+    min_chord_px = min_length_diameters * typical
+
+    paths = traced.paths
+    chord_vec = np.array([p[-1] - p[0] for p in paths]).reshape(-1, 2)
+    chord = np.hypot(*chord_vec.T)
+    contour = np.array([np.hypot(*np.diff(p, axis=0).T).sum() for p in paths])
+    kept = np.flatnonzero(chord >= min_chord_px)
+    if len(kept) == 0:
+        raise SEMError(
+            f"no fibers found: no traced fiber is at least {min_length_diameters:g} typical "
+            f"widths ({min_chord_px:.1f} px) long end to end; is this an image of fibers?"
+        )
+    diameter_px = fiber_diameters(seg.flat, samples, len(paths), seg.width_px)[kept]
+    renumber = np.full(len(paths), -1)
+    renumber[kept] = np.arange(len(kept))
+    on_kept = renumber[samples.fiber] >= 0
+    samples = samples.subset(on_kept, renumber[samples.fiber[on_kept]])
+    fibers = pd.DataFrame({
+        "fiber": np.arange(len(kept), dtype=np.int64),
+        "diameter_um": diameter_px * um_per_px,
+        "orientation_deg": image_angle_deg(chord_vec[kept, 0], chord_vec[kept, 1]) % 180.0,
+        "tortuosity": np.maximum(contour[kept] / chord[kept], 1.0),
+        "contour_length_um": np.maximum(contour[kept], chord[kept]) * um_per_px,
+        "end_to_end_um": chord[kept] * um_per_px,
+    }, columns=list(FIBER_COLUMNS))
+    direction, coherency = structure_tensor_orientation(seg.flat)
+    fits = fit_distributions(fibers["diameter_um"].to_numpy(), fibers["orientation_deg"].to_numpy(),
+                             fibers["tortuosity"].to_numpy())
+    return SEMMeasurement(
+        fibers=fibers, widths_um=samples.width_px * um_per_px, um_per_px=um_per_px,
+        field_of_view_um=(grey.shape[1] * um_per_px, grey.shape[0] * um_per_px),
+        dominant_direction_deg=direction, coherency=coherency, fits=fits,
+        min_chord_um=min_chord_px * um_per_px, typical_width_px=typical, image=grey, rows=rows,
+        paths_px=[paths[i] for i in kept], width_samples=samples, junctions_px=traced.junctions,
+        scale_bar=bar, scale_bar_um=None if bar is None else float(scale_bar_um), source=source,
+    )
+
+
+def _check_options(um_per_px: float | None, scale_bar_um: float | None, scale_bar_rows: Any,
+                   crop_rows_: Any, crop_bottom_px: int | None, width_px: float | None,
+                   max_bend_deg: float, min_length_diameters: float) -> None:
+    """Every option error, before any work (ConfigError naming the parameter)."""
+    if um_per_px is not None and not (_finite(um_per_px) and um_per_px > 0):
+        raise ConfigError(f"um_per_px must be a number > 0, got {um_per_px!r}")
+    if scale_bar_um is not None and not (_finite(scale_bar_um) and scale_bar_um > 0):
+        raise ConfigError(f"scale_bar_um must be a number > 0, got {scale_bar_um!r}")
+    if um_per_px is not None and (scale_bar_um is not None or scale_bar_rows is not None):
+        raise ConfigError("give um_per_px, or scale_bar_um with scale_bar_rows, not both")
+    if um_per_px is None:
+        if scale_bar_um is None and scale_bar_rows is None:
+            raise ConfigError("no scale: give um_per_px, or scale_bar_um (the bar's length in um) "
+                              "with scale_bar_rows (START:STOP, the image rows that hold it)")
+        if scale_bar_um is None:
+            raise ConfigError("scale_bar_rows needs scale_bar_um (the bar's length in um)")
+        if scale_bar_rows is None:
+            raise ConfigError("scale_bar_um needs scale_bar_rows (START:STOP, the image rows "
+                              "that hold the bar)")
+        parse_rows(scale_bar_rows, "scale_bar_rows")
+    if crop_rows_ is not None:
+        parse_rows(crop_rows_, "crop_rows")
+        if crop_bottom_px is not None:
+            raise ConfigError("give crop_rows or crop_bottom_px, not both")
+    if crop_bottom_px is not None and (int(crop_bottom_px) != crop_bottom_px or crop_bottom_px < 0):
+        raise ConfigError(f"crop_bottom_px must be an integer >= 0, got {crop_bottom_px!r}")
+    if width_px is not None and not (_finite(width_px) and width_px >= MIN_WIDTH_PX):
+        raise ConfigError(f"width_px must be a number >= {MIN_WIDTH_PX:g}, got {width_px!r}")
+    if not (_finite(max_bend_deg) and 0 < max_bend_deg <= 90):
+        raise ConfigError(f"max_bend_deg must be in (0, 90], got {max_bend_deg!r}")
+    if not (_finite(min_length_diameters) and 1 <= min_length_diameters <= 100):
+        raise ConfigError(f"min_length_diameters must be in [1, 100], got {min_length_diameters!r}")
+
+
+def _finite(x: Any) -> bool:
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool) \
+        and math.isfinite(float(x))
+
+
+def _nan_stat(func: Any, values: Any) -> float:
+    x = np.asarray(values, dtype=float)
+    x = x[np.isfinite(x)]
+    return float(func(x)) if len(x) else math.nan
+
+
+def _toml_ready(value: Any) -> Any:
+    """Plain Python values for tomli_w (NaN kept: TOML has nan)."""
+    if isinstance(value, dict):
+        return {k: _toml_ready(v) for k, v in value.items() if v is not None}
+    if isinstance(value, (list, tuple)):
+        return [_toml_ready(v) for v in value]
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.floating,)):
+        return float(value)
+    return value

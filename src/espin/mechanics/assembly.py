@@ -1,0 +1,183 @@
+"""Element kinematics and assembly of nodal forces and tangents into a fixed sparse pattern.
+
+Degrees of freedom: node n has DOF 2n (x) and 2n + 1 (y). Inner nodes come first in a
+Network, so the inner DOF are 0 .. 2 n_inner - 1 and the border DOF follow.
+
+For an element with unit vector a (from e1 to e2), axial force T and length l, the gradient of
+the stored energy with respect to the node positions is -T a at e1 and +T a at e2 (the force
+the element exerts on e1 is +T a), and the 2 x 2 stiffness block is
+
+    k = (dT/dl) a (x) a + (T / l) (I - a (x) a),
+
+entering the 4 x 4 element matrix as [[k, -k], [-k, k]] (paper 3.1.4; SPEC 4).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from espin.geometry.network import Network
+
+__all__ = ["Kinematics", "SparsePattern", "NetworkAssembler"]
+
+
+@dataclass(frozen=True, eq=False)
+class Kinematics:
+    """Current geometry of every element.
+
+    Attributes
+    ----------
+    vector : (n_elements, 2) float64 [um]
+        x_e2 - x_e1.
+    length : (n_elements,) float64 [um]
+        l = |x_e2 - x_e1|.
+    unit : (n_elements, 2) float64
+        a = vector / length (the reference direction where l vanishes).
+    """
+
+    vector: np.ndarray
+    length: np.ndarray
+    unit: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class SparsePattern:
+    """A CSR sparsity pattern and where each element-matrix entry is summed into it.
+
+    Attributes
+    ----------
+    matrix : scipy.sparse.csr_matrix
+        Pattern with zero data; copied with new data by :meth:`fill`.
+    slot : (n_entries,) int64
+        Position in ``matrix.data`` of each kept element-matrix entry.
+    entry : (n_entries,) int64
+        Which of the (n_elements * 16) element-matrix entries are kept.
+    """
+
+    matrix: sp.csr_matrix
+    slot: np.ndarray
+    entry: np.ndarray
+
+    def fill(self, values: np.ndarray) -> sp.csr_matrix:
+        """Sum flattened element matrices (n_elements * 16,) into a copy of the pattern."""
+        data = np.bincount(self.slot, values[self.entry], minlength=self.matrix.nnz)
+        out = self.matrix.copy()
+        out.data = data
+        return out
+
+
+def _pattern(rows: np.ndarray, cols: np.ndarray, keep: np.ndarray, shape: tuple[int, int]) -> SparsePattern:
+    entry = np.flatnonzero(keep)
+    r, c = rows[entry], cols[entry]
+    linear = r * shape[1] + c
+    unique, slot = np.unique(linear, return_inverse=True)
+    ur, uc = np.divmod(unique, shape[1])
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(ur, minlength=shape[0]))])
+    matrix = sp.csr_matrix((np.zeros(len(unique)), uc, indptr), shape=shape)
+    return SparsePattern(matrix=matrix, slot=slot, entry=entry)
+
+
+class NetworkAssembler:
+    """Assembly of one network's forces and tangents (patterns computed once).
+
+    Parameters
+    ----------
+    network
+        The network; node positions X are taken relative to its centre.
+    """
+
+    def __init__(self, network: Network) -> None:
+        self.network = network
+        self.n_inner_dof = 2 * network.n_inner
+        self.n_dof = 2 * network.n_nodes
+        nodes = network.element_nodes
+        dof = np.stack([2 * nodes[:, 0], 2 * nodes[:, 0] + 1, 2 * nodes[:, 1], 2 * nodes[:, 1] + 1], 1)
+        self._dof = dof
+        self._rows = np.repeat(dof, 4, axis=1).ravel()
+        self._cols = np.tile(dof, (1, 4)).ravel()
+        self._patterns: dict[str, SparsePattern] = {}
+        self.reference = network.node_position - network.centre
+        """(n_nodes, 2) float64 [um]: X relative to the RVE centre."""
+        vector = network.element_vector
+        self._reference_unit = vector / np.hypot(vector[:, 0], vector[:, 1])[:, None]
+
+    # -- geometry ---------------------------------------------------------------------------
+    def positions(self, inner: np.ndarray, F: np.ndarray) -> np.ndarray:
+        """(n_nodes, 2) current positions: inner nodes given, border nodes x = F X."""
+        border = self.reference[self.network.n_inner:] @ F.T
+        return np.concatenate([inner.reshape(-1, 2), border])
+
+    def kinematics(self, x: np.ndarray) -> Kinematics:
+        """Element vectors, lengths and unit vectors at node positions ``x`` (n_nodes, 2)."""
+        nodes = self.network.element_nodes
+        vector = x[nodes[:, 1]] - x[nodes[:, 0]]
+        length = np.hypot(vector[:, 0], vector[:, 1])
+        safe = length > 0.0
+        unit = np.where(safe[:, None], vector / np.where(safe, length, 1.0)[:, None], self._reference_unit)
+        return Kinematics(vector=vector, length=length, unit=unit)
+
+    # -- forces -----------------------------------------------------------------------------
+    def gradient(self, force: np.ndarray, kin: Kinematics) -> np.ndarray:
+        """(n_dof,) gradient of the stored energy: -T a at e1, +T a at e2, summed per DOF.
+
+        At equilibrium its inner part vanishes; its border part is the force that the
+        surroundings exert on the border nodes.
+        """
+        ta = force[:, None] * kin.unit
+        values = np.concatenate([-ta, ta], axis=1).ravel()
+        return np.bincount(self._dof.ravel(), values, minlength=self.n_dof)
+
+    # -- tangents ---------------------------------------------------------------------------
+    def _element_blocks(self, axial: np.ndarray, transverse: np.ndarray, kin: Kinematics) -> np.ndarray:
+        """Flattened 4 x 4 element matrices for k = axial a(x)a + transverse (I - a(x)a)."""
+        a = kin.unit
+        aa = a[:, :, None] * a[:, None, :]
+        k = axial[:, None, None] * aa + transverse[:, None, None] * (np.eye(2) - aa)
+        block = np.empty((len(a), 4, 4))
+        block[:, :2, :2] = k
+        block[:, 2:, 2:] = k
+        block[:, :2, 2:] = -k
+        block[:, 2:, :2] = -k
+        return block.ravel()
+
+    def pattern(self, part: str) -> SparsePattern:
+        """Pattern of the block ``"II"`` (inner-inner), ``"IB"`` or ``"BB"``, built once."""
+        if part not in self._patterns:
+            n = self.n_inner_dof
+            r, c = self._rows, self._cols
+            if part == "II":
+                keep, shape, shift = (r < n) & (c < n), (n, n), (0, 0)
+            elif part == "IB":
+                keep, shape, shift = (r < n) & (c >= n), (n, self.n_dof - n), (0, n)
+            elif part == "BB":
+                keep, shape, shift = (r >= n) & (c >= n), (self.n_dof - n,) * 2, (n, n)
+            else:
+                raise ValueError(f"unknown block {part!r}")
+            self._patterns[part] = _pattern(r - shift[0], c - shift[1], keep, shape)
+        return self._patterns[part]
+
+    def tangent(self, part: str, axial: np.ndarray, transverse: np.ndarray, kin: Kinematics) -> sp.csr_matrix:
+        """Assemble one block of the stiffness matrix (see :meth:`pattern`).
+
+        Parameters
+        ----------
+        part
+            ``"II"``, ``"IB"`` or ``"BB"``.
+        axial : (n_elements,) float64 [uN/um]
+            dT/dl of each element.
+        transverse : (n_elements,) float64 [uN/um]
+            T / l of each element (the geometric stiffness; callers may clip it).
+        kin
+            Current element geometry.
+        """
+        return self.pattern(part).fill(self._element_blocks(axial, transverse, kin))
+
+    def tangents(
+        self, parts: tuple[str, ...], axial: np.ndarray, transverse: np.ndarray, kin: Kinematics
+    ) -> list[sp.csr_matrix]:
+        """Several blocks of the stiffness matrix from one evaluation of the element matrices."""
+        blocks = self._element_blocks(axial, transverse, kin)
+        return [self.pattern(part).fill(blocks) for part in parts]

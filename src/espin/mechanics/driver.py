@@ -1,0 +1,316 @@
+"""Pull on a virtual mat: run a loading program and record the homogenized response.
+
+The program's steps are the recorded points of the curve. A step that does not converge is
+cut in halves (the strain rate stays the prescribed one: time and strain are cut together)
+and grown back after easy convergence; each sub-step starts from a predictor that
+extrapolates the non-affine part of the node motion (SPEC 4, 6).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from espin.core.config import Config
+from espin.mechanics.equilibrium import EquilibriumSolver, StepFailed, StepResult, StepState
+from espin.core.errors import SolverError
+from espin.mechanics.fiber_law import FiberLaw, yielded
+from espin.mechanics.homogenization import cauchy_stress, nominal_stress, paper_stress
+from espin.mechanics.loading import LoadProgram, load_program
+from espin.geometry.network import Network
+
+__all__ = ["StepRecord", "SimulationResult", "SimulationFailed", "run_program", "FREE_LATERAL_NOTE"]
+
+log = logging.getLogger(__name__)
+
+FREE_LATERAL_NOTE = (
+    "lateral = free: in this 2-D network fibers resist compression only with the slack "
+    "modulus E_b, so the mat contracts laterally far more than a real one, the response is "
+    "governed by E_b, and equilibrium can be non-unique (compressed chains buckle). Compare "
+    "the stress P, not the lateral stretch, between runs."
+)
+
+_GROW_BELOW = 0.1  # of the iteration limit: a sub-step that converged in fewer lets the next double
+
+
+@dataclass(frozen=True, eq=False)
+class StepRecord:
+    """Macroscopic data of one recorded step (also passed to ``on_step`` callbacks).
+
+    Attributes
+    ----------
+    index : int
+        Step number (0 is the undeformed start).
+    time : float [s]
+    strain : float
+        Load parameter of the program.
+    F : (2, 2) float64
+    P : (2, 2) float64 [MPa]
+        Nominal (first Piola-Kirchhoff) stress.
+    P_paper : (2, 2) float64 [MPa]
+        Stress of the paper's Eq. 17.
+    cauchy : (2, 2) float64 [MPa]
+        In-plane Cauchy stress at unchanged thickness.
+    recruited_fraction, yielded_fraction : float
+        Fiber volume (A L0) fraction of recruited / yielded elements.
+    iterations, factorizations, substeps : int
+        Newton iterations, matrix factorizations and sub-steps spent on the step.
+    residual : float [uN]
+        Final max |residual force| on inner nodes.
+    positions : (n_nodes, 2) float64 [um]
+        Node positions (relative to the RVE centre).
+    stress : (n_elements,) float64 [MPa]
+        Element engineering stress t.
+    plastic_stretch : (n_elements,) float64
+    recruited : (n_elements,) bool
+    """
+
+    index: int
+    time: float
+    strain: float
+    F: np.ndarray
+    P: np.ndarray
+    P_paper: np.ndarray
+    cauchy: np.ndarray
+    recruited_fraction: float
+    yielded_fraction: float
+    iterations: int
+    factorizations: int
+    substeps: int
+    residual: float
+    positions: np.ndarray
+    stress: np.ndarray
+    plastic_stretch: np.ndarray
+    recruited: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class SimulationResult:
+    """The recorded curve of a loading program (one row per step, step 0 undeformed).
+
+    Attributes
+    ----------
+    config : Config
+    program : LoadProgram
+    time, strain : (n,) float64
+    F, P, P_paper, cauchy : (n, 2, 2) float64 (stresses MPa)
+    recruited_fraction, yielded_fraction : (n,) float64
+    iterations, factorizations, substeps : (n,) int64
+    residual : (n,) float64 [uN]
+    final : StepRecord
+        The last step, with per-element state and node positions.
+    """
+
+    config: Config
+    program: LoadProgram
+    time: np.ndarray
+    strain: np.ndarray
+    F: np.ndarray
+    P: np.ndarray
+    P_paper: np.ndarray
+    cauchy: np.ndarray
+    recruited_fraction: np.ndarray
+    yielded_fraction: np.ndarray
+    iterations: np.ndarray
+    factorizations: np.ndarray
+    substeps: np.ndarray
+    residual: np.ndarray
+    final: StepRecord
+
+    def loading_frame(self, tensor: np.ndarray) -> np.ndarray:
+        """(n, 2, 2) tensors expressed in the loading frame: R^T T R."""
+        R = self.program.rotation
+        return np.einsum("ji,njk,kl->nil", R, tensor, R)
+
+    def stress(self, measure: str | None = None) -> np.ndarray:
+        """(n,) stress of the curve [MPa] in the loading frame: P'11 (P'12 for simple shear).
+
+        ``measure`` is ``"nominal"`` or ``"paper"`` (default: ``output.stress_measure``).
+        """
+        measure = measure or self.config.output.stress_measure
+        tensor = self.loading_frame(self.P if measure == "nominal" else self.P_paper)
+        return tensor[:, 0, 1] if self.program.test == "simple_shear" else tensor[:, 0, 0]
+
+
+def _record(index, solver: EquilibriumSolver, result: StepResult, strain, counts, threshold) -> StepRecord:
+    network = solver.network
+    volume = network.element_area * network.element_contour_length
+    law = result.law
+    is_yielded = yielded(law.plastic_stretch, threshold)
+    F = result.state.F
+    return StepRecord(
+        index=index,
+        time=result.state.time,
+        strain=strain,
+        F=F,
+        P=nominal_stress(network, result.force, result.kinematics),
+        P_paper=paper_stress(network, law.stress, result.kinematics),
+        cauchy=cauchy_stress(network, result.force, result.kinematics, F),
+        recruited_fraction=float(volume[law.recruited].sum() / volume.sum()),
+        yielded_fraction=float(volume[is_yielded].sum() / volume.sum()),
+        iterations=counts[0],
+        factorizations=counts[1],
+        substeps=counts[2],
+        residual=result.residual,
+        positions=solver.asm.positions(result.state.inner, F),
+        stress=law.stress,
+        plastic_stretch=law.plastic_stretch,
+        recruited=law.recruited,
+    )
+
+
+def _predict(state: StepState, previous: StepState | None, t_next: float, F_next, directions, asm, n_inner):
+    """Guess of inner positions and free values at ``t_next``: the non-affine fluctuation
+    w = x - F X and the free values extrapolated linearly in time from the last two states.
+    The affine part uses the whole predicted F (prescribed part plus free components), so
+    inner and border nodes move together under mixed control."""
+    X = asm.reference[:n_inner]
+    w = state.inner - X @ state.F.T
+    free = state.free
+    if previous is not None and state.time > previous.time:
+        ratio = (t_next - state.time) / (state.time - previous.time)
+        w = w + ratio * (w - (previous.inner - X @ previous.F.T))
+        free = free + ratio * (free - previous.free)
+    F = F_next + np.tensordot(free, directions, axes=1) if len(free) else F_next
+    return X @ F.T + w, free
+
+
+def run_program(
+    network: Network,
+    config: Config,
+    linear_solver,
+    program: LoadProgram | None = None,
+    on_step: Callable[[StepRecord], None] | None = None,
+) -> SimulationResult:
+    """Run the configured loading program on a network.
+
+    Parameters
+    ----------
+    network
+        The network (reference state).
+    config
+        Fiber law, loading, solver and output settings.
+    linear_solver
+        A linear solver object (see :mod:`espin.mechanics.linear_solvers`).
+    program
+        Loading program; default built from ``config.loading``.
+    on_step
+        Called with each :class:`StepRecord` as soon as the step has converged.
+
+    Returns
+    -------
+    SimulationResult
+
+    Raises
+    ------
+    SimulationFailed
+        When a step cannot converge even after ``solver.max_cuts`` halvings; the message
+        names the step, time, strain and the residual history of the last attempt, and
+        ``partial`` holds the curve up to the last converged step.
+    """
+    program = program or load_program(config.loading)
+    if program.test == "uniaxial" and len(program.free_directions):
+        log.warning(FREE_LATERAL_NOTE)
+    law = FiberLaw.from_config(config.fiber)
+    solver = EquilibriumSolver(network, law, config.solver, linear_solver)
+    n_inner = network.n_inner
+    directions = program.free_directions
+    limit = solver.iteration_limit(len(directions))
+    threshold = config.output.yield_threshold
+    records: list[StepRecord] = []
+
+    def fail(k: int, t: float, failure: StepFailed, what: str) -> SimulationFailed:
+        history = ", ".join(f"{r:.3g}" for r in failure.history)
+        return SimulationFailed(
+            f"step {k} of {program.n_steps} (time {t:.6g} s, strain {program.strain_at(t):.6g}) "
+            f"{what}: {failure.reason}; residual history [uN]: {history}",
+            _result(config, program, records) if records else None,
+        )
+
+    F0 = program.prescribed_F(0.0)
+    state = StepState(
+        time=0.0,
+        inner=solver.asm.reference[:n_inner] @ F0.T,
+        free=np.zeros(len(directions)),
+        F=F0,
+        plastic_stretch=np.ones(network.n_elements),
+    )
+    try:
+        first = solver.solve(state, 0.0, F0, directions, state.inner, state.free)
+    except StepFailed as failure:
+        raise fail(0, 0.0, failure, "(the initial state) did not converge") from None
+    state = first.state
+    records.append(_record(0, solver, first, program.strain[0], (first.iterations, first.factorizations, 1), threshold))
+    if on_step is not None:
+        on_step(records[0])
+    previous: StepState | None = None
+    fraction = 1.0  # sub-step size as a fraction of the program step, carried between steps
+    for k in range(1, program.n_steps + 1):
+        t_end = program.time[k]
+        span = t_end - program.time[k - 1]
+        counts = [0, 0, 0]
+        cuts = 0
+        if k > 1 and program.segment[k - 1] != program.segment[k - 2]:
+            previous = None  # a new segment (e.g. unloading): do not extrapolate across it
+        while state.time < t_end:
+            t_next = min(state.time + fraction * span, t_end)
+            if t_end - t_next < 1e-9 * span:
+                t_next = t_end
+            F_next = program.prescribed_F(t_next)
+            guess_inner, guess_free = _predict(
+                state, previous, t_next, F_next, directions, solver.asm, n_inner
+            )
+            try:
+                result = solver.solve(state, t_next, F_next, directions, guess_inner, guess_free)
+            except StepFailed as failure:
+                counts[0] += max(len(failure.history) - 1, 0)
+                cuts += 1
+                fraction /= 2.0
+                if cuts > config.solver.max_cuts:
+                    raise fail(k, t_next, failure, f"did not converge after {config.solver.max_cuts} cuts") from None
+                continue
+            counts[0] += result.iterations
+            counts[1] += result.factorizations
+            counts[2] += 1
+            previous, state = state, result.state
+            if result.iterations < limit * _GROW_BELOW:
+                fraction = min(1.0, 2.0 * fraction)
+        record = _record(k, solver, result, program.strain[k], counts, threshold)
+        records.append(record)
+        if on_step is not None:
+            on_step(record)
+    return _result(config, program, records)
+
+
+class SimulationFailed(SolverError):
+    """A step could not converge; ``partial`` holds the curve up to the last converged step."""
+
+    def __init__(self, message: str, partial: SimulationResult | None) -> None:
+        super().__init__(message)
+        self.partial = partial
+
+
+def _result(config: Config, program: LoadProgram, records: list[StepRecord]) -> SimulationResult:
+    def stack(name: str) -> np.ndarray:
+        return np.array([getattr(r, name) for r in records])
+
+    return SimulationResult(
+        config=config,
+        program=program,
+        time=stack("time"),
+        strain=stack("strain"),
+        F=stack("F"),
+        P=stack("P"),
+        P_paper=stack("P_paper"),
+        cauchy=stack("cauchy"),
+        recruited_fraction=stack("recruited_fraction"),
+        yielded_fraction=stack("yielded_fraction"),
+        iterations=stack("iterations").astype(np.int64),
+        factorizations=stack("factorizations").astype(np.int64),
+        substeps=stack("substeps").astype(np.int64),
+        residual=stack("residual"),
+        final=records[-1],
+    )

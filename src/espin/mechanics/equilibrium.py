@@ -1,0 +1,427 @@
+"""Equilibrium of the network over one load step (paper 3.1.4; SPEC 4).
+
+Unknowns: the inner node positions x_I and, under mixed control, the free components f_k of
+F = F_prescribed + sum_k f_k G_k. Border nodes follow x = F X (X relative to the RVE centre).
+The step minimizes the incremental potential
+
+    Phi(x_I, f) = sum_e A_e l0_e * integral from lambda_n to lambda of t_alg(lambda') dlambda'
+
+(each element's algorithmic stress depends on its own stretch only, so Phi exists for the
+plastic step too); its gradient is the residual [g_I, V0 P : G_k] and its Hessian the
+consistent tangent. Newton's method with:
+
+* the exact tangent when the factorization's inertia shows it positive definite, else the
+  tangent without the negative geometric stiffness of compressed elements (positive
+  semi-definite by construction); after an indefinite exact tangent the next few iterations
+  use the clipped one directly;
+* a line search on Phi along the Newton direction through its exact derivative (the residual
+  projected on the direction, one residual evaluation per trial); where the residual grew,
+  the increment of Phi from the current iterate to the trial is checked, by Simpson's rule
+  on that derivative along the line (never as a difference of two large totals);
+* convergence when max |g_I| <= rtol max_e |T_e| + atol E_t mean(A_e) and, under mixed
+  control, |P : G_k| <= rtol max |P| + atol E_t phi (phi: fiber volume over V0).
+
+A step that does not converge raises :class:`StepFailed` with the residual history; the
+driver cuts the step.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from threadpoolctl import ThreadpoolController, threadpool_info
+
+from espin.mechanics.assembly import Kinematics, NetworkAssembler
+from espin.core.config import SolverConfig
+from espin.core.errors import SolverError
+from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
+from espin.geometry.network import Network
+
+__all__ = ["StepState", "StepResult", "StepFailed", "EquilibriumSolver"]
+
+_MAX_ITERATIONS = 200  # default per step: plla seed 6 needs 75 at its first step (kink cycling)
+_MAX_ITERATIONS_MIXED = 500  # under mixed control: buckling chains need hundreds
+_SLOPE_RATIO = 0.5
+_MAX_SEARCH = 10
+_MIN_STEP = 1e-6
+_CLIPPED_AFTER_INDEFINITE = 3
+_ELEMENTS_PER_THREAD = 10_000  # fewer per thread: the threads cost more than they save
+
+
+@dataclass(frozen=True, eq=False)
+class StepState:
+    """Converged state at the end of a step (the start of the next).
+
+    Attributes
+    ----------
+    time : float [s]
+    inner : (n_inner, 2) float64 [um]
+        Inner node positions.
+    free : (n_free,) float64
+        Values f_k of the free components of F.
+    F : (2, 2) float64
+        Deformation gradient.
+    plastic_stretch : (n_elements,) float64
+        lambda_p.
+    """
+
+    time: float
+    inner: np.ndarray
+    free: np.ndarray
+    F: np.ndarray
+    plastic_stretch: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class StepResult:
+    """A converged step: new state, element results and solver statistics."""
+
+    state: StepState
+    law: LawState
+    force: np.ndarray
+    kinematics: Kinematics
+    iterations: int
+    factorizations: int
+    residual: float
+    residual_history: list[float] = field(default_factory=list)
+
+
+class StepFailed(Exception):
+    """Newton did not converge in a step; ``history`` holds the residual per iteration."""
+
+    def __init__(self, reason: str, history: list[float]):
+        super().__init__(reason)
+        self.reason = reason
+        self.history = history
+
+
+@dataclass(eq=False)
+class _Point:
+    """Everything evaluated at one iterate."""
+
+    z: np.ndarray
+    F: np.ndarray
+    kin: Kinematics
+    stretch: np.ndarray
+    law: LawState
+    force: np.ndarray
+    stiffness: np.ndarray
+    gradient: np.ndarray  # full gradient over all DOF
+    residual: np.ndarray  # [g_I, V0 P : G_k]
+
+
+@dataclass(frozen=True, eq=False)
+class _Step:
+    """What one load step's iterations share."""
+
+    start: StepState
+    dt: float
+    F_prescribed: np.ndarray
+    directions: np.ndarray
+    modes: np.ndarray  # (n_free, 2 n_border): d x_B / d f_k = G_k X_B
+    weight: np.ndarray  # residual row scales for norms (all rows in uN)
+
+
+class _ThreadedLaw:
+    """The fiber law update of all elements, in contiguous chunks on a few threads.
+
+    The return mapping is element by element and numpy releases the GIL inside its loops,
+    so chunks on two threads take about 0.6 of the time of one call on a 2-core machine.
+    The thread count is what the BLAS / OpenMP pools may use now (1 inside ensemble workers,
+    which limit them), at most one thread per 10,000 elements. The result does not depend
+    on it.
+    """
+
+    def __init__(self, law: FiberLaw, tortuosity: np.ndarray) -> None:
+        self.law = law
+        self.tortuosity = tortuosity
+        n = len(tortuosity)
+        available = max((int(pool["num_threads"]) for pool in threadpool_info()), default=1)
+        threads = max(1, min(available, n // _ELEMENTS_PER_THREAD))
+        bounds = np.linspace(0, n, threads + 1).astype(int)
+        self.chunks = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+        self.pool = ThreadPoolExecutor(threads) if threads > 1 else None
+
+    def __call__(self, stretch: np.ndarray, plastic_old: np.ndarray, dt: float,
+                 guess: np.ndarray | None) -> LawState:
+        """:func:`~espin.mechanics.fiber_law.update` of every element."""
+        def chunk(c: slice) -> LawState:
+            return update(self.law, stretch[c], plastic_old[c], self.tortuosity[c], dt,
+                          None if guess is None else guess[c])
+
+        if self.pool is None:
+            return chunk(self.chunks[0])
+        parts = list(self.pool.map(chunk, self.chunks))
+        return LawState(*(np.concatenate([getattr(part, name) for part in parts])
+                          for name in ("stress", "plastic_stretch", "tangent", "recruited")))
+
+
+class EquilibriumSolver:
+    """Solves load steps of one network with one fiber law.
+
+    Parameters
+    ----------
+    network
+        The network.
+    law
+        The fiber law.
+    config
+        Tolerances and limits.
+    linear_solver
+        Object with ``factorize(K) -> factorization``; the factorization has ``solve(b)``
+        and ``n_negative`` (int, or None when the backend cannot tell).
+    """
+
+    def __init__(self, network: Network, law: FiberLaw, config: SolverConfig, linear_solver) -> None:
+        self.network = network
+        self.law = law
+        self.config = config
+        self.linear = linear_solver
+        self.asm = NetworkAssembler(network)
+        self.l0 = network.element_length
+        self.area = network.element_area
+        self.tortuosity = network.element_tortuosity
+        self._law_update = _ThreadedLaw(law, self.tortuosity)
+        self.n_inner = network.n_inner
+        self.border_reference = self.asm.reference[network.n_inner:]
+        self.force_tolerance_abs = config.atol * law.taut_modulus * float(np.mean(self.area))
+        fiber_fraction = float(np.sum(self.area * network.element_contour_length)) / network.reference_volume
+        self.stress_tolerance_abs = config.atol * law.taut_modulus * fiber_fraction
+        self._clipped_left = 0
+
+    # -- evaluation ---------------------------------------------------------------------------
+    def _context(self, start: StepState, time: float, F_prescribed, directions) -> _Step:
+        X = self.border_reference
+        modes = np.stack([(X @ G.T).ravel() for G in directions]) if len(directions) else np.zeros((0, 2 * len(X)))
+        # Residual rows are forces [uN] for inner DOF and V0 P : G_k [uN um] for free
+        # components; dividing the latter by L / 2 puts both in uN for norms.
+        weight = np.r_[np.ones(2 * self.n_inner), np.full(len(directions), 2.0 / self.network.size)]
+        return _Step(start, time - start.time, F_prescribed, directions, modes, weight)
+
+    def _evaluate(self, z: np.ndarray, step: _Step, near: _Point | None = None) -> _Point:
+        """Everything at the iterate ``z``; an inadmissible state raises :class:`StepFailed`.
+
+        ``near``: an evaluated iterate of the same step whose plastic stretches start the
+        return mapping (a warm start: same result, fewer iterations of the fiber law).
+        """
+        n = 2 * self.n_inner
+        free = z[n:]
+        F = step.F_prescribed + np.tensordot(free, step.directions, axes=1) if len(free) else step.F_prescribed
+        if not (np.all(np.isfinite(z)) and np.linalg.det(F) > 0.0):
+            raise StepFailed("the iterate left the admissible states (non-finite, or det F <= 0)", [])
+        x = self.asm.positions(z[:n], F)
+        kin = self.asm.kinematics(x)
+        stretch = kin.length / self.l0
+        law = self._law_update(stretch, step.start.plastic_stretch, step.dt,
+                               None if near is None else near.law.plastic_stretch)
+        force, stiffness = axial_force_and_stiffness(law, self.area, self.l0)
+        gradient = self.asm.gradient(force, kin)
+        residual = np.concatenate([gradient[:n], step.modes @ gradient[n:]])
+        return _Point(z, F, kin, stretch, law, force, stiffness, gradient, residual)
+
+    def _converged(self, p: _Point, n_free: int) -> tuple[bool, float]:
+        n = 2 * self.n_inner
+        g = p.residual[:n]
+        force_norm = float(np.max(np.abs(g))) if n else 0.0
+        ok = force_norm <= self.config.rtol * float(np.max(np.abs(p.force), initial=0.0)) + self.force_tolerance_abs
+        if n_free:
+            V0 = self.network.reference_volume
+            stress = np.abs(p.residual[n:]) / V0
+            P_scale = float(np.max(np.abs(p.gradient[n:].reshape(-1, 2).T @ self.border_reference))) / V0
+            ok &= bool(np.all(stress <= self.config.rtol * P_scale + self.stress_tolerance_abs))
+        return ok, force_norm
+
+    # -- tangent ------------------------------------------------------------------------------
+    def _stiffness(self, force, stiffness, kin: Kinematics, clipped: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Axial dT/dl and transverse T/l stiffness of every element [uN/um].
+
+        No geometric term for an element below the length floor. ``clipped`` drops what can
+        make the tangent indefinite: T/l of compressed elements and a negative dT/dl (a
+        compressed, flowing element with c_p > 0 softens), so the result is positive
+        semi-definite.
+        """
+        floor = STRETCH_FLOOR * self.l0
+        transverse = np.where(kin.length > floor, force / np.maximum(kin.length, floor), 0.0)
+        if clipped:
+            return np.maximum(stiffness, 0.0), np.maximum(transverse, 0.0)
+        return stiffness, transverse
+
+    def _hessian(self, p: _Point, step: _Step, clipped: bool) -> sp.csr_matrix:
+        axial, transverse = self._stiffness(p.force, p.stiffness, p.kin, clipped)
+        modes = step.modes
+        if not len(modes):
+            return self.asm.tangent("II", axial, transverse, p.kin)
+        K_II, K_IB, K_BB = self.asm.tangents(("II", "IB", "BB"), axial, transverse, p.kin)
+        coupling = sp.csr_matrix(K_IB @ modes.T)
+        corner = modes @ (K_BB @ modes.T)
+        return sp.bmat([[K_II, coupling], [coupling.T, sp.csr_matrix(corner)]], format="csr")
+
+    def _direction(self, p: _Point, step: _Step) -> tuple[np.ndarray, int]:
+        """Newton direction and the number of factorizations it took."""
+        factorizations = 0
+        if self._clipped_left == 0:
+            fact = self.linear.factorize(self._hessian(p, step, clipped=False))
+            factorizations += 1
+            # Perturbed pivots mean a (nearly) singular tangent: not usable as exact.
+            indefinite = bool(fact.n_negative) or fact.n_perturbed > 0
+            if not indefinite:
+                direction = fact.solve(-p.residual)
+                if np.dot(direction, p.residual) < 0.0:
+                    return direction, factorizations
+            self._clipped_left = _CLIPPED_AFTER_INDEFINITE
+        self._clipped_left -= 1
+        fact = self.linear.factorize(self._hessian(p, step, clipped=True))
+        return fact.solve(-p.residual), factorizations + 1
+
+    # -- one step -----------------------------------------------------------------------------
+    def iteration_limit(self, n_free: int) -> int:
+        """Newton iterations allowed per step: the config's, else 200 (500 with free F)."""
+        return self.config.max_iterations or (_MAX_ITERATIONS_MIXED if n_free else _MAX_ITERATIONS)
+
+    def solve(
+        self,
+        start: StepState,
+        time: float,
+        F_prescribed: np.ndarray,
+        directions: np.ndarray,
+        guess_inner: np.ndarray,
+        guess_free: np.ndarray,
+    ) -> StepResult:
+        """Equilibrium at ``time`` from the converged ``start`` state.
+
+        Raises
+        ------
+        StepFailed
+            When Newton does not converge within the iteration limit, the line search
+            cannot lower the potential, or the state becomes non-finite.
+        """
+        # With a backend that does not use OpenBLAS, OpenBLAS (numpy's vector products here
+        # gain nothing from threads) runs on one thread: its threads spin after each call
+        # and took a core from the next factorization (PARDISO at plla size: 0.098 s per
+        # factorization in the run, 0.067 s without; SuperLU needs its threads).
+        openblas = (nullcontext() if getattr(self.linear, "uses_openblas", True)
+                    else ThreadpoolController().select(internal_api="openblas").limit(limits=1))
+        with openblas:
+            return self._solve(start, time, F_prescribed, directions, guess_inner, guess_free)
+
+    def _solve(self, start: StepState, time: float, F_prescribed: np.ndarray,
+               directions: np.ndarray, guess_inner: np.ndarray, guess_free: np.ndarray
+               ) -> StepResult:
+        n_free = len(directions)
+        limit = self.iteration_limit(n_free)
+        step = self._context(start, time, F_prescribed, directions)
+        history: list[float] = []
+        factorizations = 0
+        self._clipped_left = 0
+        try:
+            p = self._evaluate(np.concatenate([guess_inner.ravel(), guess_free]), step)
+            for iteration in range(limit + 1):
+                ok, norm = self._converged(p, n_free)
+                history.append(norm)
+                if ok:
+                    n = 2 * self.n_inner
+                    state = StepState(time, p.z[:n].reshape(-1, 2), p.z[n:].copy(), p.F, p.law.plastic_stretch)
+                    return StepResult(state, p.law, p.force, p.kin, iteration, factorizations, norm, history)
+                if iteration == limit:
+                    break
+                direction, used = self._direction(p, step)
+                factorizations += used
+                p = self._line_search(p, direction, step)
+        except StepFailed as failure:
+            raise StepFailed(failure.reason, history) from None
+        except (SolverError, ValueError, ArithmeticError) as err:
+            # A singular factorization or a failed return mapping: the step is cut like any
+            # other failure.
+            raise StepFailed(f"{type(err).__name__}: {err}", history) from None
+        raise StepFailed(f"no convergence in {limit} iterations", history)
+
+    def _line_search(self, p: _Point, direction: np.ndarray, step: _Step) -> _Point:
+        """Step length along the Newton direction on the incremental potential Phi.
+
+        Phi's derivative along the line, s(alpha) = r(z + alpha dz) . dz, costs one residual
+        evaluation; the step is accepted when the full step still descends (s(1) <= 0) or
+        when |s(alpha)| <= 0.5 |s(0)| (Phi near its minimum along the line); otherwise the
+        zero of s is bracketed and found by safeguarded regula falsi. Where the residual
+        grew, the decrease of Phi itself is checked: its increment from the current iterate
+        to the trial, by a 1-D quadrature of s along the line.
+        """
+        s0 = float(np.dot(p.residual, direction))
+        lo, s_lo = 0.0, s0
+        hi, s_hi = None, None
+        best = None  # the trial at ``lo``: Phi still falls there
+        alpha = 1.0
+        for _ in range(_MAX_SEARCH):
+            try:
+                trial = self._evaluate(p.z + alpha * direction, step, p)
+            except StepFailed:  # overshot into inadmissible states: shorten
+                hi, s_hi = alpha, None
+                alpha = lo + 0.1 * (alpha - lo)
+                continue
+            s = float(np.dot(trial.residual, direction))
+            if (s <= 0.0 and alpha == 1.0) or abs(s) <= _SLOPE_RATIO * abs(s0):
+                if self._decreases(p, trial, direction, alpha, s0, s, step):
+                    return trial
+                hi, s_hi = alpha, None
+            elif s > 0.0:
+                hi, s_hi = alpha, s
+            else:
+                lo, s_lo, best = alpha, s, trial
+            if hi is None:
+                alpha = min(2.0 * alpha, 1.0)
+            elif s_hi is None:
+                alpha = lo + 0.5 * (hi - lo)
+            else:
+                guess = lo - s_lo * (hi - lo) / (s_hi - s_lo)
+                width = hi - lo
+                alpha = float(np.clip(guess, lo + 0.1 * width, hi - 0.1 * width))
+            if hi is not None and hi - lo < _MIN_STEP:
+                break
+        if best is not None and self._decreases(p, best, direction, lo, s0, s_lo, step):
+            return best  # no better point found, but Phi falls up to it
+        raise StepFailed("line search could not lower the incremental potential", [])
+
+    def _decreases(self, p: _Point, trial: _Point, direction: np.ndarray, alpha: float, s0: float,
+                   s_trial: float, step: _Step) -> bool:
+        """Whether Phi(trial) < Phi(p); checked only when the residual grew.
+
+        The increment of Phi along the line is the integral of its derivative s, continuous
+        because the stress is: Simpson's rule with s at 0, alpha / 2 and alpha (one more
+        residual evaluation).
+        """
+        if np.linalg.norm(step.weight * trial.residual) <= np.linalg.norm(step.weight * p.residual):
+            return True
+        middle = self._evaluate(p.z + 0.5 * alpha * direction, step, p)
+        s_middle = float(np.dot(middle.residual, direction))
+        return alpha / 6.0 * (s0 + 4.0 * s_middle + s_trial) < 0.0
+
+    def macroscopic_tangent(self, result: StepResult) -> np.ndarray:
+        """Algorithmic macroscopic tangent A_iJkL = dP_iJ / dF_kL [MPa] at a converged step.
+
+        By condensation of the exact tangent on the border DOF (SPEC 5):
+        S = K_BB - K_BI K_II^-1 K_IB and A_iJkL = (1 / V0) sum_b,b' X_bJ S[(b,i),(b',k)] X_b'L,
+        with four solves on one factorization of K_II. The derivative is taken at fixed
+        plastic state of the step start and fixed time step (consistent with the step).
+
+        Returns
+        -------
+        (2, 2, 2, 2) float64
+            Indexed [i, J, k, L].
+        """
+        kin = result.kinematics
+        _, stiffness = axial_force_and_stiffness(result.law, self.area, self.l0)
+        axial, transverse = self._stiffness(result.force, stiffness, kin, clipped=False)
+        K_II, K_IB, K_BB = self.asm.tangents(("II", "IB", "BB"), axial, transverse, kin)
+        # Border motion for a unit F_kL: x_b = e_k X_bL, flattened like the border DOF.
+        X = self.border_reference
+        modes = np.zeros((4, 2 * len(X)))
+        for k in range(2):
+            for L in range(2):
+                modes[2 * k + L, k::2] = X[:, L]
+        coupling = K_IB @ modes.T
+        fluctuation = self.linear.factorize(K_II).solve(coupling) if self.n_inner else coupling[:0]
+        condensed = modes @ (K_BB @ modes.T) - coupling.T @ fluctuation
+        return condensed.reshape(2, 2, 2, 2) / self.network.reference_volume

@@ -1,0 +1,36 @@
+"""Homogenized stresses of a network in equilibrium (paper 3.1.5; SPEC 5).
+
+Reference volume V0 = L^2 N_l D. Index convention P_iJ: i spatial, J reference.
+
+* Nominal (first Piola-Kirchhoff) stress, exact for a network in equilibrium whose border
+  nodes follow x = F X (virial theorem): P = (1 / V0) sum_e T_e a_e (x) dX_e.
+* The paper's Eq. 17: (1 / V0) sum_e t_e A_e L0_e a_e (x) a_e (fiber volume A L0). It differs
+  from P F^T by the factor L0 / l per element.
+* In-plane Cauchy stress at unchanged thickness: (1 / (det F V0)) sum_e T_e l_e a_e (x) a_e.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from espin.mechanics.assembly import Kinematics
+from espin.geometry.network import Network
+
+__all__ = ["nominal_stress", "paper_stress", "cauchy_stress"]
+
+
+def nominal_stress(network: Network, force: np.ndarray, kin: Kinematics) -> np.ndarray:
+    """(2, 2) nominal stress P [MPa] from element forces T [uN] (SPEC 5)."""
+    return np.einsum("e,ei,eJ->iJ", force, kin.unit, network.element_vector) / network.reference_volume
+
+
+def paper_stress(network: Network, stress: np.ndarray, kin: Kinematics) -> np.ndarray:
+    """(2, 2) stress of the paper's Eq. 17 [MPa] from element stresses t [MPa]."""
+    weight = stress * network.element_area * network.element_contour_length
+    return np.einsum("e,ei,ej->ij", weight, kin.unit, kin.unit) / network.reference_volume
+
+
+def cauchy_stress(network: Network, force: np.ndarray, kin: Kinematics, F: np.ndarray) -> np.ndarray:
+    """(2, 2) in-plane Cauchy stress [MPa] at unchanged thickness."""
+    weight = force * kin.length
+    return np.einsum("e,ei,ej->ij", weight, kin.unit, kin.unit) / (np.linalg.det(F) * network.reference_volume)

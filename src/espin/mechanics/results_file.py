@@ -1,0 +1,240 @@
+"""Results of a loading program: the deformation step by step (VTK), the curve (CSV, HDF5).
+
+:class:`SimulationWriter` streams one ``vtk/step_NNNN.vtu`` per recorded step and keeps the
+ParaView collection ``deformation.pvd`` up to date, so a run that stops early still leaves a
+readable series. :func:`write_results` writes the finished curve. Every file is written
+atomically: a crash leaves the previous version or nothing, never half a file.
+
+``curve.csv``: a header line, then one row per step (step 0 undeformed). Tensor components
+are in the RVE axes (``P12_MPa`` is P_12, i spatial, J reference); ``stress_MPa`` is the
+curve's stress in the loading frame and in ``output.stress_measure`` (P'11, or P'12 for
+simple shear). Floats have 17 significant digits, so reading them back is exact.
+
+``results.h5`` layout (schema ``espin.results``, version 1)::
+
+    /          attrs: schema, schema_version, config_toml, seed, versions, units
+    /steps     time_s, strain, F, P_MPa, P_paper_MPa, cauchy_MPa, recruited_fraction,
+               yielded_fraction, iterations, factorizations, substeps, residual_uN, stress_MPa
+               (n_steps + 1, ...) each with a ``units`` attr; attrs: test, stress_measure
+    /final     stress_MPa (n_elements,), plastic_stretch (n_elements,), recruited
+               (n_elements,) bool, positions_um (n_nodes, 2) relative to the RVE centre
+               attrs: step, time_s, strain
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from espin.core.config import Config
+from espin.core.errors import RVEFileError
+from espin.mechanics.fiber_law import yielded
+from espin.core.atomic import atomic_write, atomic_write_bytes
+from espin.core.header import open_checked, read_config, write_header
+from espin.geometry.vtk import write_network_vtu
+from espin.geometry.network import Network
+from espin.mechanics.driver import SimulationResult, StepRecord
+
+__all__ = ["SimulationWriter", "write_results", "load_results", "ResultsFile", "SCHEMA", "SCHEMA_VERSION"]
+
+SCHEMA = "espin.results"
+SCHEMA_VERSION = 1
+
+# SimulationResult attribute -> (dataset in /steps, units)
+_STEPS = {
+    "time": ("time_s", "s"),
+    "strain": ("strain", "1"),
+    "F": ("F", "1"),
+    "P": ("P_MPa", "MPa"),
+    "P_paper": ("P_paper_MPa", "MPa"),
+    "cauchy": ("cauchy_MPa", "MPa"),
+    "recruited_fraction": ("recruited_fraction", "1"),
+    "yielded_fraction": ("yielded_fraction", "1"),
+    "iterations": ("iterations", "1"),
+    "factorizations": ("factorizations", "1"),
+    "substeps": ("substeps", "1"),
+    "residual": ("residual_uN", "uN"),
+}
+# StepRecord attribute -> (dataset in /final, units)
+_FINAL = {
+    "stress": ("stress_MPa", "MPa"),
+    "plastic_stretch": ("plastic_stretch", "1"),
+    "recruited": ("recruited", "1"),
+    "positions": ("positions_um", "um"),
+}
+_COMPONENTS = ("11", "12", "21", "22")
+
+
+class SimulationWriter:
+    """Stream the deformed network of every step to VTK, for use as ``run_program(on_step=)``.
+
+    Each call writes ``vtk/step_NNNN.vtu`` (node positions [um] relative to the RVE centre;
+    cell data ``stress_MPa``, ``plastic_stretch``, ``recruited`` and ``yielded`` as int8, plus
+    the network's own) and then rewrites ``deformation.pvd``, which indexes every step so far
+    with its time [s] as the ParaView timestep. With ``vtk=False`` a call writes nothing, so
+    callers can pass the writer unconditionally.
+
+    Parameters
+    ----------
+    folder
+        Output folder (created if needed).
+    network
+        The network being loaded (reference state).
+    config
+        The run's configuration (``output.yield_threshold`` decides ``yielded``).
+    vtk
+        Write the files.
+    """
+
+    def __init__(self, folder: str | Path, network: Network, config: Config, vtk: bool = True) -> None:
+        self.folder = Path(folder)
+        self.network = network
+        self.vtk = vtk
+        self._threshold = config.output.yield_threshold
+        self._steps: list[tuple[float, str]] = []  # (time [s], path relative to folder)
+
+    @property
+    def pvd_path(self) -> Path:
+        """The ParaView collection file."""
+        return self.folder / "deformation.pvd"
+
+    def __call__(self, record: StepRecord) -> None:
+        """Write the step's ``.vtu``, then the updated ``.pvd``."""
+        if not self.vtk:
+            return
+        name = f"vtk/step_{record.index:04d}.vtu"
+        write_network_vtu(
+            self.network,
+            self.folder / name,
+            positions=record.positions,
+            cell_data={
+                "stress_MPa": record.stress,
+                "plastic_stretch": record.plastic_stretch,
+                "recruited": record.recruited.astype(np.int8),
+                "yielded": yielded(record.plastic_stretch, self._threshold).astype(np.int8),
+            },
+        )
+        self._steps.append((float(record.time), name))
+        datasets = "".join(
+            f'    <DataSet timestep="{time!r}" group="" part="0" file="{file}"/>\n'
+            for time, file in self._steps
+        )
+        text = (
+            '<?xml version="1.0"?>\n'
+            '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
+            f"  <Collection>\n{datasets}  </Collection>\n</VTKFile>\n"
+        )
+        atomic_write_bytes(self.pvd_path, text.encode("utf-8"))
+
+
+def _curve_columns(result: SimulationResult) -> tuple[list[str], list[np.ndarray], list[str]]:
+    """Names, (n,) arrays and printf formats of the CSV columns."""
+    n = len(result.time)
+    names = ["step", "time_s", "strain"]
+    columns = [np.arange(n), result.time, result.strain]
+    for prefix, tensor, unit in (
+        ("F", result.F, ""), ("P", result.P, "_MPa"), ("paper", result.P_paper, "_MPa"),
+        ("cauchy", result.cauchy, "_MPa"),
+    ):
+        names += [f"{prefix}{c}{unit}" for c in _COMPONENTS]
+        columns += list(tensor.reshape(n, 4).T)
+    names += ["stress_MPa", "recruited_fraction", "yielded_fraction", "iterations",
+              "factorizations", "substeps", "residual_uN"]
+    columns += [result.stress(), result.recruited_fraction, result.yielded_fraction,
+                result.iterations, result.factorizations, result.substeps, result.residual]
+    formats = ["%d" if np.issubdtype(np.asarray(c).dtype, np.integer) else "%.17g" for c in columns]
+    return names, columns, formats
+
+
+def write_results(result: SimulationResult, folder: str | Path) -> dict[str, Path]:
+    """Write ``curve.csv`` and ``results.h5`` (layouts in the module docs), atomically.
+
+    Parameters
+    ----------
+    result
+        The recorded loading program.
+    folder
+        Output folder (created if needed).
+
+    Returns
+    -------
+    dict
+        ``{"curve_csv": path, "results_h5": path}``.
+    """
+    folder = Path(folder)
+    names, columns, formats = _curve_columns(result)
+    buffer = io.StringIO()
+    np.savetxt(buffer, np.column_stack(columns), fmt=formats, delimiter=",",
+               header=",".join(names), comments="")
+    curve = atomic_write_bytes(folder / "curve.csv", buffer.getvalue().encode("utf-8"))
+
+    def write(tmp: Path) -> None:
+        with h5py.File(tmp, "w") as f:
+            write_header(f, SCHEMA, SCHEMA_VERSION, result.config)
+            g = f.create_group("steps")
+            for attr, (name, units) in _STEPS.items():
+                g.create_dataset(name, data=getattr(result, attr)).attrs["units"] = units
+            stress = g.create_dataset("stress_MPa", data=result.stress())
+            stress.attrs["units"] = "MPa"
+            stress.attrs["description"] = (
+                "curve stress in the loading frame: P'12 for simple shear, else P'11, "
+                "of the stress_measure"
+            )
+            g.attrs.update(test=result.program.test, stress_measure=result.config.output.stress_measure)
+            g = f.create_group("final")
+            for attr, (name, units) in _FINAL.items():
+                g.create_dataset(name, data=getattr(result.final, attr)).attrs["units"] = units
+            g.attrs.update(step=result.final.index, time_s=result.final.time, strain=result.final.strain)
+
+    return {"curve_csv": curve, "results_h5": atomic_write(folder / "results.h5", write)}
+
+
+@dataclass(frozen=True, eq=False)
+class ResultsFile:
+    """The content of a ``results.h5`` file.
+
+    Attributes
+    ----------
+    config : Config
+        The resolved configuration of the run.
+    seed : int
+        The RVE's random seed.
+    provenance : dict[str, str]
+        Versions, units and creation time.
+    steps : dict[str, numpy.ndarray]
+        The datasets of ``/steps`` by name (``time_s``, ``P_MPa``, ...; module docs).
+    final : dict[str, numpy.ndarray]
+        The datasets of ``/final`` by name (``stress_MPa``, ``positions_um``, ...).
+    """
+
+    config: Config
+    seed: int
+    provenance: dict[str, str]
+    steps: dict[str, np.ndarray]
+    final: dict[str, np.ndarray]
+
+
+def load_results(path: str | Path) -> ResultsFile:
+    """Read a file written by :func:`write_results`.
+
+    Raises
+    ------
+    RVEFileError
+        If the file is missing, unreadable, not an espin results file, of a newer schema, or
+        incomplete.
+    """
+    path = Path(path)
+    with open_checked(path, SCHEMA, SCHEMA_VERSION, "results") as f:
+        try:
+            config = read_config(f, path)
+            steps = {name: f["steps"][name][()] for name in [*(n for n, _ in _STEPS.values()), "stress_MPa"]}
+            final = {name: f["final"][name][()] for name, _ in _FINAL.values()}
+            seed = int(f.attrs["seed"])
+        except KeyError as err:
+            raise RVEFileError(f"{path} is incomplete: missing {err}") from None
+        info = {k: str(v) for k, v in f.attrs.items() if k not in ("schema", "schema_version", "config_toml", "seed")}
+    return ResultsFile(config=config, seed=seed, provenance=info, steps=steps, final=final)

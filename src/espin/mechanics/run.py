@@ -1,0 +1,124 @@
+"""The tensile test end to end: an RVE (generated or loaded), a loading program, a results folder."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from threadpoolctl import threadpool_limits
+
+from espin.core.config import Config, apply_overrides, write_config
+from espin.core.errors import ConfigError
+from espin.geometry.rve_file import load_rve
+from espin.mechanics.linear_solvers import make_linear_solver
+from espin.geometry.rve import RVE, generate, resolve_config
+from espin.mechanics.driver import SimulationFailed, SimulationResult, StepRecord, run_program
+
+__all__ = ["simulate", "resolve_rve"]
+
+log = logging.getLogger(__name__)
+
+
+def resolve_rve(source: RVE | Config | str | Path | None, overrides: dict[str, Any]) -> tuple[RVE, bool]:
+    """The RVE to pull on, and whether it was generated here.
+
+    ``source`` is an :class:`RVE`, a saved ``.h5`` RVE file, a :class:`Config`, a preset name
+    or a TOML file (None: ``plla``). ``overrides`` are ``section.key`` values; on a saved or
+    given RVE only the ``fiber``, ``loading``, ``solver`` and ``output`` sections may change.
+    """
+    if isinstance(source, (str, Path)) and str(source).endswith((".h5", ".hdf5")):
+        source = load_rve(source)
+    if isinstance(source, RVE):
+        geometry = sorted(k for k in overrides if k.startswith("rve."))
+        if geometry:
+            raise ConfigError(
+                f"{', '.join(geometry)}: the geometry of a given RVE cannot change; generate a "
+                "new RVE instead (only fiber, loading, solver and output keys apply)"
+            )
+        config = apply_overrides(source.config, overrides) if overrides else source.config
+        return RVE(config, source.mat, source.crosslinks, source.network), False
+    config = resolve_config(source, **{k.replace(".", "__"): v for k, v in overrides.items()})
+    return generate(config), True
+
+
+def simulate(
+    source: RVE | Config | str | Path | None = None,
+    out: str | Path | None = None,
+    *,
+    on_step: Callable[[StepRecord], None] | None = None,
+    threads: int | None = None,
+    **overrides: Any,
+) -> SimulationResult:
+    """Pull on a virtual mat and record its stress-strain response (SPEC 3-6).
+
+    Parameters
+    ----------
+    source
+        An :class:`RVE`, a saved RVE file (``.h5``), a :class:`Config`, a preset name or a
+        TOML file; default the ``plla`` preset (generated).
+    out
+        Results folder. When given: ``config.toml``, ``curve.csv``, ``results.h5``, the VTK
+        series ``deformation.pvd`` (+ ``vtk/``), ``curve.png``, ``deformed.png`` and, for a
+        generated RVE, ``rve.h5`` with its statistics and figures.
+    on_step
+        Called with each converged :class:`StepRecord` (e.g. for a progress display).
+    threads
+        Threads for BLAS / MKL (PARDISO) during the run; default the library's own choice.
+    **overrides
+        Config keys as ``section__key=value``, e.g. ``loading__max_strain=0.1``.
+
+    Returns
+    -------
+    SimulationResult
+
+    Raises
+    ------
+    ConfigError
+        For an invalid configuration (before any work starts).
+    SimulationFailed
+        When a step cannot converge (which step, and the residual history); the results
+        folder then holds the curve and results of the steps that converged.
+    """
+    flat = {key.replace("__", "."): value for key, value in overrides.items()}
+    rve, generated = resolve_rve(source, flat)
+    config = rve.config
+    folder = Path(out) if out is not None else None
+    callbacks = [c for c in (on_step,) if c is not None]
+    if folder is not None:
+        from espin.mechanics.results_file import SimulationWriter
+
+        if generated:
+            from espin.geometry.rve_folder import write_rve_folder
+
+            write_rve_folder(rve, folder)
+        else:
+            write_config(config, folder / "config.toml")
+        callbacks.append(SimulationWriter(folder, rve.network, config, vtk=config.output.vtk))
+
+    def step_done(record: StepRecord) -> None:
+        for callback in callbacks:
+            callback(record)
+
+    linear = make_linear_solver(config.solver.linear)
+    try:
+        with threadpool_limits(limits=threads):
+            result = run_program(rve.network, config, linear, on_step=step_done)
+    except SimulationFailed as failure:
+        if folder is not None and failure.partial is not None:
+            from espin.mechanics.results_file import write_results
+
+            write_results(failure.partial, folder)  # the steps that converged are kept
+            log.error("wrote the %d converged steps to %s", len(failure.partial.time), folder)
+        raise
+    if folder is not None:
+        from espin.mechanics.results_file import write_results
+
+        write_results(result, folder)
+        if config.output.figures:
+            from espin.mechanics.figures import plot_curve, plot_deformed
+
+            plot_curve(result, folder / "curve.png")
+            plot_deformed(rve.network, result.final, folder / "deformed.png")
+    return result

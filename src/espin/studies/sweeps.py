@@ -1,0 +1,221 @@
+"""Studies built on ensembles: RVE size (paper Appendix A) and parameter sweeps (paper 4.3).
+
+Both plan every task first (all configs validated before any work), run them through
+:func:`espin.studies.ensemble.run_ensemble` (parallel, streamed to disk, resumable) and write a tidy
+table, a per-point summary (mean, sd, RSD of each property) and figures.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import pandas as pd
+
+from espin.core.config import Config, write_config
+from espin.studies.ensemble import Ensemble, TensileTask, plan_tasks, run_ensemble
+from espin.core.errors import ConfigError
+from espin.core.atomic import atomic_write, atomic_write_bytes
+from espin.core.parallel import TaskOutcome
+from espin.geometry.rve import resolve_config
+
+__all__ = ["StudyResult", "rve_size_study", "sweep", "realization_seeds"]
+
+OnOutcome = Callable[[TaskOutcome, TensileTask], None]
+
+
+@dataclass
+class StudyResult:
+    """An ensemble, its per-point summary and the files written.
+
+    Attributes
+    ----------
+    ensemble : Ensemble
+        Every finished task (records with curves) and every failure.
+    summary : pandas.DataFrame
+        Per parameter point: n, and mean / sd / RSD of each property.
+    files : dict of str to Path
+        What was written, by role.
+    """
+
+    ensemble: Ensemble
+    summary: pd.DataFrame
+    files: dict[str, Path] = field(default_factory=dict)
+
+    @property
+    def table(self) -> pd.DataFrame:
+        """One row per finished task (see :meth:`Ensemble.table`)."""
+        return self.ensemble.table()
+
+
+def realization_seeds(base: Config, realizations: int, seed_start: int | None = None) -> list[int]:
+    """``realizations`` consecutive RVE seeds from ``seed_start`` (default the base config's seed)."""
+    if realizations < 1:
+        raise ConfigError(f"realizations: must be >= 1 (got {realizations})")
+    start = base.rve.seed if seed_start is None else seed_start
+    if start < 0:
+        raise ConfigError(f"seed_start: must be >= 0 (got {start})")
+    return list(range(start, start + realizations))
+
+
+def rve_size_study(
+    base: Config | str | Path | None = None,
+    *,
+    size_ratios: Sequence[float] = (50, 100, 150, 200),
+    layer_counts: Sequence[int] = (5, 10, 15, 20),
+    layers_for_sizes: int = 5,
+    size_for_layers: float = 200,
+    realizations: int = 10,
+    seed_start: int | None = None,
+    folder: str | Path | None = None,
+    workers: int | None = None,
+    scheduler: Any = None,
+    blas_threads: int | None = 1,
+    on_outcome: OnOutcome | None = None,
+    **overrides: Any,
+) -> StudyResult:
+    """Mean, sd and RSD of modulus, yield stress and post-yield modulus versus RVE size.
+
+    Two series, as in the paper's Appendix A: L_tilde = ``size_ratios`` at ``layers_for_sizes``
+    layers, and N_l = ``layer_counts`` at L_tilde = ``size_for_layers``; ``realizations`` RVEs
+    (seeds) each, the same seeds at every size.
+
+    Parameters
+    ----------
+    base
+        Config, preset or TOML file (default ``plla``); ``**overrides`` as ``section__key``.
+    folder
+        Results folder: ``results.csv``, ``summary.csv``, ``study.toml`` (the base config) and
+        ``plan.json`` (sizes and seeds; both written before any work), ``tasks/``, and the figures ``rve_size_<property>.png`` (Figs. A.15-A.17) and
+        ``rve_size_curves.png`` (Fig. A.18, at the largest RVE).
+    workers, scheduler, blas_threads
+        Where the tasks run (:class:`espin.core.parallel.TaskPool`).
+
+    Returns
+    -------
+    StudyResult
+    """
+    fixed = sorted(k.replace("__", ".") for k in overrides if k in ("rve__size_ratio", "rve__size_um", "rve__layers"))
+    if fixed:
+        raise ConfigError(f"{', '.join(fixed)}: set by the study's sizes (size_ratios, layer_counts, "
+                          "layers_for_sizes, size_for_layers), not as an override")
+    base = resolve_config(base, **overrides)
+    if not size_ratios and not layer_counts:
+        raise ConfigError("size_ratios, layer_counts: give at least one RVE size")
+    points = [{"rve.size_ratio": float(s), "rve.layers": int(layers_for_sizes)} for s in size_ratios]
+    points += [{"rve.size_ratio": float(size_for_layers), "rve.layers": int(n)} for n in layer_counts]
+    points = list({tuple(p.items()): p for p in points}.values())  # the shared point once
+    seeds = realization_seeds(base, realizations, seed_start)
+    tasks = plan_tasks(base, points, seeds)
+    plan = {"study": "rve-size", "size_ratios": list(size_ratios), "layer_counts": list(layer_counts),
+            "layers_for_sizes": layers_for_sizes, "size_for_layers": size_for_layers, "seeds": seeds}
+    result = _run(tasks, base, plan, folder, workers, scheduler, blas_threads, on_outcome)
+    ensemble = result.ensemble
+    if folder is not None and ensemble.records:
+        from espin.studies.figures import plot_curve_band, plot_rve_size
+
+        folder = Path(folder)
+        for name, path in plot_rve_size(result.summary, folder, layers_for_sizes=int(layers_for_sizes),
+                                        size_for_layers=float(size_for_layers)).items():
+            result.files[name] = path
+        largest = max(ensemble.records, key=lambda r: (r["parameters"]["rve.size_ratio"], r["parameters"]["rve.layers"]))
+        strain, stress = ensemble.curves(**{k.replace(".", "__"): v for k, v in largest["parameters"].items()})
+        label = f"L/D = {largest['parameters']['rve.size_ratio']:g}, N_l = {largest['parameters']['rve.layers']}"
+        result.files["curves"] = plot_curve_band(strain, stress, folder / "rve_size_curves.png", label=label)
+    return result
+
+
+def sweep(
+    base: Config | str | Path | None = None,
+    grid: Mapping[str, Sequence[Any]] | None = None,
+    *,
+    realizations: int = 1,
+    seed_start: int | None = None,
+    folder: str | Path | None = None,
+    table_format: Literal["csv", "parquet"] = "csv",
+    workers: int | None = None,
+    scheduler: Any = None,
+    blas_threads: int | None = 1,
+    on_outcome: OnOutcome | None = None,
+    **overrides: Any,
+) -> StudyResult:
+    """Properties over a full grid of parameters (every combination), ``realizations`` RVEs each.
+
+    Parameters
+    ----------
+    base
+        Config, preset or TOML file (default ``plla``); ``**overrides`` as ``section__key``.
+    grid
+        Dotted config keys to their values, e.g. ``{"rve.volume_fraction": [0.15, 0.19],
+        "rve.max_deviation_deg": [5, 15], "rve.orientation.von_mises.kappa": [0, 2, 8]}``.
+        None or empty: an ensemble of ``realizations`` RVEs of the base config.
+    folder
+        Results folder: the tidy table ``results.csv`` (one row per realization, rewritten as
+        tasks finish) and, with ``table_format="parquet"``, ``sweep.parquet``; ``summary.csv``,
+        ``study.toml`` (the base config) and ``plan.json`` (grid and seeds, written before any
+        work), ``tasks/`` and ``sweep_<property>.png`` (property versus each parameter).
+    table_format
+        ``"csv"`` or ``"parquet"`` (needs pyarrow: ``pip install "espin[parquet]"``).
+
+    Returns
+    -------
+    StudyResult
+    """
+    base = resolve_config(base, **overrides)
+    if table_format not in ("csv", "parquet"):
+        raise ConfigError(f"table_format: 'csv' or 'parquet' (got {table_format!r})")
+    if table_format == "parquet":
+        try:
+            import pyarrow  # noqa: F401
+        except ImportError:
+            raise ConfigError('table_format: parquet needs pyarrow (pip install "espin[parquet]")') from None
+    grid = {key: _grid_values(key, values) for key, values in (grid or {}).items()}
+    keys = list(grid)
+    points = [dict(zip(keys, combo)) for combo in itertools.product(*grid.values())] if keys else [{}]
+    seeds = realization_seeds(base, realizations, seed_start)
+    tasks = plan_tasks(base, points, seeds)
+    result = _run(tasks, base, {"study": "sweep", "grid": grid, "seeds": seeds}, folder, workers, scheduler,
+                  blas_threads, on_outcome)
+    if folder is not None and result.ensemble.records:
+        from espin.studies.figures import plot_sweep
+
+        folder = Path(folder)
+        if table_format == "parquet":
+            table = result.table
+            result.files["table"] = atomic_write(folder / "sweep.parquet", lambda tmp: table.to_parquet(tmp, index=False))
+        if keys:
+            result.files.update(plot_sweep(result.summary, keys, folder))
+    return result
+
+
+def _grid_values(key: str, values: Any) -> list[Any]:
+    """The values of one grid key as a list of plain Python scalars (numpy arrays welcome)."""
+    if isinstance(values, (str, bytes, Mapping)) or not isinstance(values, Iterable):
+        raise ConfigError(f"grid {key}: give a non-empty list of values (got {values!r})")
+    values = [v.item() if hasattr(v, "item") else v for v in values]
+    if not values:
+        raise ConfigError(f"grid {key}: give a non-empty list of values (got none)")
+    if len(set(map(repr, values))) != len(values):
+        raise ConfigError(f"grid {key}: repeated values in {values}")
+    return values
+
+
+def _run(tasks: list[TensileTask], base: Config, plan: dict[str, Any], folder: str | Path | None,
+         workers: int | None, scheduler: Any, blas_threads: int | None, on_outcome: OnOutcome | None) -> StudyResult:
+    """Write the plan (before any work), run the ensemble, write the summary."""
+    files: dict[str, Path] = {}
+    if folder is not None:
+        folder = Path(folder)
+        files["config"] = write_config(base, folder / "study.toml")
+        files["plan"] = atomic_write_bytes(folder / "plan.json", json.dumps(plan, indent=1).encode())
+    ensemble = run_ensemble(tasks, folder, workers=workers, scheduler=scheduler,
+                            blas_threads=blas_threads, on_outcome=on_outcome)
+    summary = ensemble.summary()
+    if folder is not None:
+        files["results"] = folder / "results.csv"
+        files["summary"] = atomic_write(folder / "summary.csv", lambda tmp: summary.to_csv(tmp, index=False))
+    return StudyResult(ensemble, summary, files)
