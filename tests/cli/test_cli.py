@@ -16,7 +16,7 @@ from espin.cli import app
 from espin.geometry.rve_file import load_rve
 
 runner = CliRunner()
-EXAMPLES = Path(__file__).parents[1] / "examples"
+EXAMPLES = Path(__file__).parents[2] / "examples"
 
 
 def test_generate_writes_the_folder(tmp_path):

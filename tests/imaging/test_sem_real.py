@@ -14,7 +14,7 @@ import pytest
 
 from espin.imaging import measure, read_image
 
-SEM = Path(__file__).parents[2] / "shared" / "data" / "sem"
+SEM = Path(__file__).parents[3] / "shared" / "data" / "sem"
 PLGA = SEM / "PLGA-1500_1.tif"
 NANO = SEM / "nanofiber_fiji_diameterj.tif"
 
