@@ -115,7 +115,7 @@ def test_load_results_errors(network, tmp_path):
         load_results(tmp_path / "missing.h5")
     other = tmp_path / "other.h5"
     with h5py.File(other, "w") as f:
-        f.attrs["schema"] = "espin.geometry.rve"
+        f.attrs["schema"] = "espin.rve"
     with pytest.raises(RVEFileError, match="not an espin results file"):
         load_results(other)
     result, _ = fake_result(network)

@@ -28,7 +28,7 @@ from espin.geometry.rve import RVE
 
 __all__ = ["save_rve", "load_rve", "SCHEMA", "SCHEMA_VERSION"]
 
-SCHEMA = "espin.geometry.rve"
+SCHEMA = "espin.rve"
 SCHEMA_VERSION = 1
 
 _MAT = ("vertices", "fiber_offsets", "fiber_layer", "fiber_diameter")

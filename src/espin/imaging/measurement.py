@@ -32,7 +32,7 @@ from espin.imaging.widths import WidthSamples, fiber_diameters, local_widths
 
 __all__ = ["SEMMeasurement", "measure", "SCHEMA"]
 
-SCHEMA = "espin.imaging.measurement/1"
+SCHEMA = "espin.sem.measurement/1"
 """Schema of ``measurement.toml``."""
 
 Rows = tuple[int, int] | str

@@ -19,7 +19,7 @@ from espin.geometry.targets import GeometryTargets
 
 __all__ = ["SCHEMA", "SCHEMA_VERSION", "MECHANICS_NOTE", "GeometryCalibration"]
 
-SCHEMA = "espin.imaging.geometry_calibration"
+SCHEMA = "espin.geometry_calibration"
 SCHEMA_VERSION = 1
 MECHANICS_NOTE = (
     "New deposition parameters change the network and so the mechanics: fit the fiber "
