@@ -28,8 +28,8 @@ def run_mode(mode: str, realizations: int, size_ratio: float, layers: int) -> di
 
     import numpy as np
 
-    from espin.studies.ensemble import plan_tasks, run_ensemble
     from espin.geometry.rve import resolve_config
+    from espin.studies.ensemble import plan_tasks, run_ensemble
 
     base = resolve_config("plla", rve__size_ratio=size_ratio, rve__layers=layers)
     tasks = plan_tasks(base, [{}], list(range(1, realizations + 1)))

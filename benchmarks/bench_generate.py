@@ -24,9 +24,9 @@ from pathlib import Path
 def run_case(size_ratio: float, layers: int) -> dict:
     from espin.geometry.crosslinks import find_crosslinks
     from espin.geometry.deposition import deposit
-    from espin.geometry.rve_file import save_rve
     from espin.geometry.network import build_network
     from espin.geometry.rve import RVE, resolve_config
+    from espin.geometry.rve_file import save_rve
 
     cfg = resolve_config("plla", rve__size_ratio=size_ratio, rve__layers=layers)
     t0 = time.perf_counter()

@@ -11,7 +11,9 @@ from pathlib import Path
 import numpy as np
 
 import espin.geometry.rve
-from espin.imaging import measure, read_image, render_sem
+from espin.imaging.image import read_image
+from espin.imaging.measurement import measure
+from espin.imaging.synthetic import render_sem
 
 D = 0.45
 SEM = Path(__file__).parents[2] / "shared" / "data" / "sem"

@@ -4,7 +4,7 @@ For mats of ``plla`` with a growing largest turn (``rve.max_deviation_deg``), re
 docs/sem.md (top 3 of 4 layers, 60 D window, 8 px per D), this prints per image:
 
 * the true mean and median tortuosity of the visible fiber portions (the ground truth of
-  :func:`espin.imaging.render_sem`), and the spread of the true mean from image to image;
+  :func:`espin.imaging.synthetic.render_sem`), and the spread of the true mean from image to image;
 * the error of the mean over the traced pieces (``espin measure``);
 * the error of the whole-fiber mean and median that ``calibrate_geometry`` infers;
 * how much of each true portion its longest traced piece covers, by depth of its layer
@@ -26,7 +26,8 @@ from scipy.spatial import cKDTree
 import espin.geometry.rve
 from espin.imaging.geometry_calibration import calibrate_geometry
 from espin.imaging.geometry_calibration.virtual import window_runs
-from espin.imaging import measure, render_sem
+from espin.imaging.measurement import measure
+from espin.imaging.synthetic import render_sem
 
 D = 0.45  # plla mean diameter [um]
 WINDOW, PX_PER_D = 60, 8

@@ -39,8 +39,8 @@ def run_case(size_ratio: float, layers: int, strain: float, steps: int, linear: 
              lateral: str, elastic: bool) -> dict:
     import espin.mechanics.equilibrium as equilibrium
     import espin.mechanics.linear_solvers as linear_solvers
-    from espin.mechanics.assembly import NetworkAssembler
     from espin.geometry.rve import generate
+    from espin.mechanics.assembly import NetworkAssembler
     from espin.mechanics.driver import run_program
 
     totals: dict[str, float] = defaultdict(float)

@@ -23,9 +23,9 @@ import argparse
 from pathlib import Path
 
 import espin
-from espin.studies.dof import dof_fit_table, dof_study, plot_dof_study
-from espin.core.atomic import atomic_write
 from espin.analysis.properties import simulation_properties
+from espin.core.atomic import atomic_write
+from espin.studies.dof import dof_fit_table, dof_study, plot_dof_study
 from espin.studies.sweeps import rve_size_study
 
 FULL = {"size": 200, "layers": 15, "sizes": (50, 100, 150, 200), "layer_counts": (5, 10, 15, 20),

@@ -15,7 +15,7 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-__version__ = "0.1.0"
+from espin.core.version import __version__
 
 _EXPORTS = {
     "Config": "espin.core.config",
@@ -38,7 +38,7 @@ _EXPORTS = {
     "sweep": "espin.studies.sweeps",
     "rve_size_study": "espin.studies.sweeps",
     "dof_study": "espin.studies.dof",
-    "measure": "espin.imaging",
+    "measure": "espin.imaging.measurement",
     "calibrate_geometry": "espin.imaging.geometry_calibration",
 }
 

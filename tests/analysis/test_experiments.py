@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from espin.core.errors import EspinError
 from espin.analysis.experiments import AveragedCurve, Curve, CurveFileError, average_curves, read_curve
+from espin.core.errors import EspinError
 
 
 def write(tmp_path, text, name="curve.csv"):

@@ -8,7 +8,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from espin.core.errors import EspinError
 from espin.analysis.properties import (
     CurveError,
     CurveProperties,
@@ -17,6 +16,7 @@ from espin.analysis.properties import (
     simulation_properties,
     summarize_properties,
 )
+from espin.core.errors import EspinError
 
 # A PLLA-like curve (paper Fig. 13): E = 200 MPa, yield at 3 % and 6 MPa, then H = 5 MPa to 30 %.
 E, YIELD_STRAIN, H = 200.0, 0.03, 5.0

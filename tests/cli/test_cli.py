@@ -134,7 +134,7 @@ def test_image_to_mechanics_end_to_end(tmp_path):
     from PIL import Image
 
     import espin.geometry.rve
-    from espin.imaging import render_sem
+    from espin.imaging.synthetic import render_sem
 
     mat = espin.geometry.rve.generate("plla", rve__size_ratio=60, rve__layers=3, rve__seed=4,
                              rve__max_deviation_deg=20.0).mat

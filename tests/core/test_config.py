@@ -7,11 +7,11 @@ import pytest
 
 from espin.core.config import (
     Config,
-    apply_overrides,
     HoldSegment,
     LoadSegment,
     PoissonLateral,
     VonMises,
+    apply_overrides,
     config_to_toml,
     load_config,
     write_config,

@@ -19,10 +19,10 @@ def thread_counts(_: object) -> dict[str, int]:
     from threadpoolctl import threadpool_info
 
     from espin.core.errors import EspinError
-    from espin.mechanics.linear_solvers import _load_mkl
+    from espin.core.mkl import load_mkl
 
     try:
-        _load_mkl()  # what a tensile task loads (PARDISO), loaded here inside the task
+        load_mkl()  # what a tensile task loads (PARDISO), loaded here inside the task
     except EspinError:
         pass
     return {pool["internal_api"]: pool["num_threads"] for pool in threadpool_info()}

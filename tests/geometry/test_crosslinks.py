@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import make_mat
+
 from espin.core.config import load_config
 from espin.geometry.crosslinks import find_crosslinks, segment_pairs_in_cells
 from espin.geometry.deposition import deposit

@@ -7,8 +7,8 @@ import meshio
 import numpy as np
 import pytest
 
-from espin.core.errors import RVEFileError
 from espin.core.atomic import atomic_write
+from espin.core.errors import RVEFileError
 from espin.geometry.rve_file import SCHEMA_VERSION, load_rve, save_rve
 from espin.geometry.vtk import write_mat_vtu, write_network_vtu
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import make_mat
+
 from espin.geometry.crosslinks import find_crosslinks
 from espin.geometry.network import build_network
 

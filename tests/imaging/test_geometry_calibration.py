@@ -20,8 +20,11 @@ from typer.testing import CliRunner
 
 from espin.cli.calibrate_geometry import register
 from espin.core.config import load_config
-from espin.geometry.deposition import deposit
 from espin.core.errors import ConfigError, EspinError
+from espin.geometry.deposition import deposit
+from espin.geometry.orientation import VonMisesOrientation
+from espin.geometry.statistics import centred_window, window_tortuosity
+from espin.geometry.targets import GeometryTargets, MeasurementError, equivalent_square_side
 from espin.imaging.geometry_calibration import (
     MECHANICS_NOTE,
     VirtualMeasurement,
@@ -30,10 +33,7 @@ from espin.imaging.geometry_calibration import (
     persistence_ratio,
     truncated_normal_parameters,
 )
-from espin.geometry.targets import GeometryTargets, MeasurementError, equivalent_square_side
-from espin.geometry.orientation import VonMisesOrientation
 from espin.imaging.geometry_calibration.virtual import _point_at, window_runs
-from espin.geometry.statistics import centred_window, window_tortuosity
 
 FAST = {"seeds": 4, "min_portions": 400}
 TRUE_SEGMENT_RATIO, TRUE_DEVIATION_DEG = 5.0, 25.0
@@ -198,7 +198,7 @@ IMAGE_DEVIATION_DEG = 45.0
 def sem_image():
     """An SEM-like image (60 D window, 3 layers) of a mat with 45 deg turns, with its truth."""
     import espin.geometry.rve
-    from espin.imaging import render_sem
+    from espin.imaging.synthetic import render_sem
 
     mat = espin.geometry.rve.generate("plla", rve__size_ratio=100, rve__layers=4, rve__seed=1,
                              rve__max_deviation_deg=IMAGE_DEVIATION_DEG).mat
@@ -208,7 +208,7 @@ def sem_image():
 @pytest.fixture(scope="module")
 def sem_measurement(sem_image):
     """espin measure of that image."""
-    from espin.imaging import measure
+    from espin.imaging.measurement import measure
 
     return measure(sem_image.image, um_per_px=sem_image.um_per_px)
 
@@ -364,7 +364,7 @@ def _csv(tmp_path, text: str):
     return path
 
 
-# The table is read by espin.imaging.read_fibers_csv: its messages name the column, the data
+# The table is read by espin.geometry.fibers_csv.read_fibers_csv: its messages name the column, the data
 # row and the allowed range.
 @pytest.mark.parametrize("text, message", [
     ("a,b\n1,2\n", "needs at least one of the columns diameter_um, orientation_deg, tortuosity"),

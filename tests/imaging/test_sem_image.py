@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from espin.core.errors import ConfigError
-from espin.imaging.errors import SEMError
+from espin.core.errors import ConfigError, SEMError
 from espin.imaging.image import parse_rows, read_image, row_slice
 from espin.imaging.scale import detect_scale_bar
 

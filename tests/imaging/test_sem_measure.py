@@ -11,9 +11,11 @@ import typer
 from typer.testing import CliRunner
 
 import espin.geometry.rve
-from espin.core.errors import ConfigError
-from espin.imaging import FIBER_COLUMNS, SEMError, measure, read_fibers_csv, render_sem
+from espin.core.errors import ConfigError, SEMError
+from espin.geometry.fibers_csv import FIBER_COLUMNS, read_fibers_csv
 from espin.imaging.distributions import fit_distributions
+from espin.imaging.measurement import measure
+from espin.imaging.synthetic import render_sem
 
 D = 0.45
 

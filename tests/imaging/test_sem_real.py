@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from espin.imaging import measure, read_image
+from espin.imaging.image import read_image
+from espin.imaging.measurement import measure
 
 SEM = Path(__file__).parents[3] / "shared" / "data" / "sem"
 PLGA = SEM / "PLGA-1500_1.tif"

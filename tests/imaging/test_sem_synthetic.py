@@ -15,7 +15,8 @@ import pytest
 
 import espin.geometry.rve
 from espin.core.errors import ConfigError
-from espin.imaging import measure, render_sem
+from espin.imaging.measurement import measure
+from espin.imaging.synthetic import render_sem
 
 D = 0.45  # um, plla diameter
 SEEDS = (1, 2, 3)

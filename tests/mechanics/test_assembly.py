@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import grid_network
-from espin.mechanics.assembly import NetworkAssembler
+
 from espin.core.config import FiberConfig
+from espin.mechanics.assembly import NetworkAssembler
 from espin.mechanics.fiber_law import FiberLaw, axial_force_and_stiffness, update
 from espin.mechanics.homogenization import cauchy_stress, nominal_stress, paper_stress
 

@@ -6,15 +6,15 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
 from conftest import grid_network
+
 from espin.core.config import apply_overrides, load_config
-from espin.mechanics.equilibrium import EquilibriumSolver, StepState
 from espin.core.errors import SolverError
+from espin.mechanics.driver import run_program
+from espin.mechanics.equilibrium import EquilibriumSolver, StepState
 from espin.mechanics.fiber_law import FiberLaw, elastic_stress
 from espin.mechanics.homogenization import nominal_stress
 from espin.mechanics.linear_solvers import make_linear_solver
-from espin.mechanics.driver import run_program
 from espin.mechanics.single_fiber import pull_fiber
 
 

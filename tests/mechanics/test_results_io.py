@@ -13,16 +13,16 @@ import h5py
 import meshio
 import numpy as np
 import pytest
-
 from conftest import make_mat
+
 from espin.core.config import load_config
-from espin.geometry.crosslinks import find_crosslinks
 from espin.core.errors import RVEFileError
-from espin.mechanics.figures import plot_curve, plot_deformed
-from espin.mechanics.results_file import SCHEMA_VERSION, SimulationWriter, load_results, write_results
-from espin.mechanics.loading import load_program
+from espin.geometry.crosslinks import find_crosslinks
 from espin.geometry.network import build_network
 from espin.mechanics.driver import SimulationResult, StepRecord
+from espin.mechanics.figures import plot_curve, plot_deformed
+from espin.mechanics.loading import load_program
+from espin.mechanics.results_file import SCHEMA_VERSION, SimulationWriter, load_results, write_results
 
 PNG = b"\x89PNG\r\n\x1a\n"
 _STACKED = ("time", "strain", "F", "P", "P_paper", "cauchy", "recruited_fraction",

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import make_mat
-from espin.geometry.crosslinks import find_crosslinks
-from espin.studies.dof import count_dof, dof_fit, dof_study, plot_dof_study
+
 from espin.core.errors import ConfigError
+from espin.geometry.crosslinks import find_crosslinks
 from espin.geometry.network import build_network
+from espin.studies.dof import count_dof, dof_fit, dof_study, plot_dof_study
 
 
 def hand_built():

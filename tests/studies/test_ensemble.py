@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from espin.studies.ensemble import plan_tasks, run_ensemble, run_tensile
 from espin.core.errors import ConfigError
 from espin.geometry.rve import resolve_config
+from espin.studies.ensemble import plan_tasks, run_ensemble, run_tensile
 
 TINY = {"rve.size_ratio": 30.0, "rve.layers": 2, "loading.max_strain": 0.08, "loading.steps": 8}
 

@@ -46,8 +46,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
-from espin.core.errors import EspinError
 from espin.core.atomic import atomic_write_bytes
+from espin.core.errors import EspinError
 
 __all__ = ["CurveFileError", "Curve", "AveragedCurve", "read_curve", "average_curves"]
 

@@ -1,6 +1,6 @@
 """The ``espin calibrate-geometry`` command: deposition parameters from measured mat statistics.
 
-The lead wires it into the main application with ``register(app)``. Heavy imports happen
+``register(app)`` adds the command to espin's typer app. Heavy imports happen
 inside the command, so ``espin --help`` stays fast.
 """
 
@@ -11,12 +11,9 @@ from typing import Annotated, Optional
 
 import typer
 
+from espin.cli.common import fail
+
 __all__ = ["register"]
-
-
-def _fail(message: str) -> None:
-    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
-    raise typer.Exit(code=2)
 
 
 def calibrate_geometry_command(
@@ -85,8 +82,8 @@ def calibrate_geometry_command(
     from rich.console import Console
 
     from espin.core.errors import EspinError
-    from espin.imaging.geometry_calibration import MECHANICS_NOTE, calibrate_geometry
     from espin.geometry.targets import GeometryTargets, MeasurementError
+    from espin.imaging.geometry_calibration import MECHANICS_NOTE, calibrate_geometry
 
     console = Console(stderr=True, quiet=quiet)
     try:
@@ -113,7 +110,7 @@ def calibrate_geometry_command(
             )
         files = result.write(out)
     except EspinError as err:
-        _fail(str(err))
+        fail(str(err))
     console.print(result.format_table(), highlight=False, soft_wrap=True)
     console.print("wrote " + ", ".join(str(f) for f in files.values()), highlight=False)
     # The note (last line of the table) and the next steps are printed even with --quiet.

@@ -14,12 +14,14 @@ import typer
 if TYPE_CHECKING:  # pragma: no cover
     from espin.analysis.calibration import FitResult
 
-from espin.cli.properties import (
+from espin.cli.common import (
     DelimiterOpt,
     PercentStrainOpt,
     SkipRowsOpt,
     StrainColumnOpt,
     StressColumnOpt,
+    fail,
+    parse_set,
     read_options,
 )
 
@@ -270,7 +272,6 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
 
         from espin.analysis.calibration import fit
-        from espin.cli import _fail, _parse_set
         from espin.core.errors import EspinError
         from espin.geometry.rve import resolve_config
 
@@ -279,7 +280,7 @@ def register(app: typer.Typer) -> None:
         logging.getLogger("espin.analysis.calibration").addHandler(live)
         csv_options = read_options(strain_column, stress_column, percent_strain, delimiter, skip_rows)
         try:
-            overrides = _parse_set(set_)
+            overrides = parse_set(set_)
             config = resolve_config(base, **{k.replace(".", "__"): v for k, v in overrides.items()})
             curve, strain_rate = _curves(curves, rate, _parse_rates(curves_at_rate))
             seed_list = None if seeds is None else _parse_seeds(seeds)
@@ -300,7 +301,7 @@ def register(app: typer.Typer) -> None:
                 )
             written = result.write(out)
         except EspinError as err:
-            _fail(str(err))
+            fail(str(err))
         finally:
             logging.getLogger("espin.analysis.calibration").removeHandler(live)
         console.print(_table(result))

@@ -1,6 +1,6 @@
 """``espin measure``: fiber diameter, orientation and tortuosity from an SEM image.
 
-The lead wires it into the main app with ``register(app)``. Heavy imports happen inside the
+``register(app)`` adds the command to espin's typer app. Heavy imports happen inside the
 command, so ``espin --help`` stays fast.
 """
 
@@ -11,12 +11,9 @@ from typing import Annotated, Optional
 
 import typer
 
+from espin.cli.common import fail
+
 __all__ = ["register"]
-
-
-def _fail(message: str) -> None:
-    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
-    raise typer.Exit(code=2)
 
 
 def measure(
@@ -81,7 +78,7 @@ def measure(
             )
             files = result.write(folder, figures=figures)
     except EspinError as err:
-        _fail(str(err))
+        fail(str(err))
     table = Table(title=f"{image.name}", show_header=False)
     for name, value in result.table_rows():
         table.add_row(name, value)

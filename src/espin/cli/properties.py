@@ -12,51 +12,22 @@ from typing import TYPE_CHECKING, Annotated, Optional
 
 import typer
 
+from espin.cli.common import (
+    DelimiterOpt,
+    PercentStrainOpt,
+    SkipRowsOpt,
+    StrainColumnOpt,
+    StressColumnOpt,
+    fail,
+    read_options,
+)
+
 if TYPE_CHECKING:  # pragma: no cover
     from espin.analysis.experiments import AveragedCurve, Curve
     from espin.analysis.properties import CurveProperties
 
-__all__ = ["register", "StrainColumnOpt", "StressColumnOpt", "PercentStrainOpt", "DelimiterOpt", "SkipRowsOpt",
-           "read_options"]
+__all__ = ["register"]
 
-_DELIMITER_NAMES = {"tab": "\t", "\\t": "\t", "space": " ", "whitespace": " "}
-
-# Options of every command that reads curve CSV files (properties, fit).
-StrainColumnOpt = Annotated[
-    Optional[str],
-    typer.Option(help="Strain column: 0-based index or header name (any case). "
-                      "Default: the header's 'strain' column; 0 without a header or with two columns."),
-]
-StressColumnOpt = Annotated[
-    Optional[str],
-    typer.Option(help="Stress column [MPa]: 0-based index or header name (any case). "
-                      "Default: the header's 'stress_MPa', 'stress [MPa]', 'stress (MPa)', 'stress' or "
-                      "'mean_MPa' column; 1 without a header or with two columns."),
-]
-PercentStrainOpt = Annotated[bool, typer.Option(help="The strain column is in percent.")]
-DelimiterOpt = Annotated[
-    Optional[str], typer.Option(help="Field separator (',', ';', tab, space). Default: detected.")
-]
-SkipRowsOpt = Annotated[int, typer.Option(help="Lines to skip at the top of each file.")]
-
-
-def read_options(strain_column: str | None, stress_column: str | None, percent_strain: bool,
-                 delimiter: str | None, skip_rows: int) -> dict:
-    """The CSV options of the command line as keyword arguments of :func:`espin.analysis.experiments.read_curve`."""
-    return {
-        "strain_column": _column(strain_column),
-        "stress_column": _column(stress_column),
-        "percent_strain": percent_strain,
-        "delimiter": _DELIMITER_NAMES.get(delimiter.lower(), delimiter) if delimiter else None,
-        "skip_rows": skip_rows,
-    }
-
-
-def _column(text: str | None) -> int | str | None:
-    """A column option: a 0-based index when it is a number, else a header name."""
-    if text is None:
-        return None
-    return int(text) if text.strip().isdigit() else text
 
 
 def _strain_range(text: str | None, percent: bool) -> tuple[float | None, float | None] | None:
@@ -246,9 +217,8 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
         from rich.table import Table
 
-        from espin.cli import _fail
-        from espin.core.errors import EspinError
         from espin.analysis.experiments import read_curve
+        from espin.core.errors import EspinError
 
         options = read_options(strain_column, stress_column, percent_strain, delimiter, skip_rows)
         try:
@@ -256,7 +226,7 @@ def register(app: typer.Typer) -> None:
             analysis = _analyse([read_curve(path, **options) for path in curves], fit_range)
             written = [] if out is None else _write_outputs(analysis, out)
         except EspinError as err:
-            _fail(str(err))
+            fail(str(err))
         table = Table(*_HEADER, title="bilinear fit: E = initial slope, yield = intersection of the lines")
         for row in analysis.rows:
             table.add_row(*row)

@@ -7,6 +7,8 @@ from typing import Annotated, Any, Optional
 
 import typer
 
+from espin.cli.common import fail, parse_set
+
 __all__ = ["register", "parse_grid"]
 
 study_app = typer.Typer(
@@ -75,9 +77,7 @@ def parse_grid(items: list[str] | None) -> dict[str, list[Any]]:
 
 
 def _overrides(set_: list[str] | None) -> dict[str, Any]:
-    from espin.cli import _parse_set
-
-    return {k.replace(".", "__"): v for k, v in _parse_set(set_).items()}
+    return {k.replace(".", "__"): v for k, v in parse_set(set_).items()}
 
 
 def _run_with_progress(run, n_tasks: int, quiet: bool):
@@ -102,14 +102,13 @@ def _run_with_progress(run, n_tasks: int, quiet: bool):
 def _run_study(prepare, out: Path, columns: list[str], quiet: bool) -> None:
     """``prepare()`` -> (run, number of tasks), inside the CLI's error handling; run under a
     progress bar, then report."""
-    from espin.cli import _fail
     from espin.core.errors import EspinError
 
     try:
         run, n_tasks = prepare()
         result = _run_with_progress(run, n_tasks, quiet)
     except EspinError as err:
-        _fail(str(err))
+        fail(str(err))
     _report(result, out, columns, quiet)
 
 
@@ -241,11 +240,10 @@ def dof(
     """
     from rich.console import Console
 
-    from espin.cli import _fail
-    from espin.studies.dof import dof_fit_table, dof_study, plot_dof_study
-    from espin.core.errors import EspinError
     from espin.core.atomic import atomic_write
+    from espin.core.errors import EspinError
     from espin.geometry.rve import resolve_config
+    from espin.studies.dof import dof_fit_table, dof_study, plot_dof_study
     from espin.studies.sweeps import realization_seeds
 
     try:
@@ -259,7 +257,7 @@ def dof(
                  plot_dof_study(table, out / "dof.png"),
                  atomic_write(out / "dof_fit.csv", lambda tmp: fits.to_csv(tmp, index=False))]
     except EspinError as err:
-        _fail(str(err))
+        fail(str(err))
     if not quiet:
         typer.echo(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
         typer.echo(fits.to_string(index=False, float_format=lambda v: f"{v:.4g}"))

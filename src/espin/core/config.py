@@ -12,7 +12,6 @@ Units inside espin: length um, stress MPa, force uN (= MPa um^2), time s, angles
 from __future__ import annotations
 
 import copy
-
 import tomllib
 from importlib import resources
 from pathlib import Path

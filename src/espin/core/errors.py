@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["EspinError", "ConfigError", "RVEFileError", "SolverError"]
+__all__ = ["EspinError", "ConfigError", "RVEFileError", "SolverError", "SEMError"]
 
 
 class EspinError(Exception):
@@ -19,3 +19,11 @@ class RVEFileError(EspinError, OSError):
 
 class SolverError(EspinError, RuntimeError):
     """An equilibrium solve failed; the message says where and why."""
+
+
+class SEMError(EspinError, ValueError):
+    """An image or table is unreadable, has no scale, no scale bar or no fibers to measure.
+
+    Out-of-range options raise :class:`ConfigError` instead; both name the parameter (or file)
+    at fault.
+    """

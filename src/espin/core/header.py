@@ -16,9 +16,9 @@ import h5py
 import numpy as np
 import scipy
 
-import espin
 from espin.core.config import Config, config_from_dict, config_to_toml
 from espin.core.errors import RVEFileError
+from espin.core.version import __version__
 
 __all__ = ["UNITS", "provenance", "write_header", "open_checked", "read_config"]
 
@@ -28,7 +28,7 @@ UNITS = "length um, stress MPa, force uN (MPa um^2), time s, angles rad"
 def provenance() -> dict[str, str]:
     """Versions, units and creation time, as string attributes for a file's root."""
     return {
-        "espin_version": espin.__version__,
+        "espin_version": __version__,
         "numpy_version": np.__version__,
         "scipy_version": scipy.__version__,
         "h5py_version": h5py.__version__,

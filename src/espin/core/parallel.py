@@ -86,10 +86,10 @@ def _load_threaded_libraries() -> None:
     import numpy  # noqa: F401 - loads its BLAS
 
     from espin.core.errors import EspinError
-    from espin.mechanics.linear_solvers import _load_mkl
+    from espin.core.mkl import load_mkl
 
     try:
-        _load_mkl()
+        load_mkl()
     except EspinError:  # no MKL on this machine: SuperLU needs no threads
         pass
 

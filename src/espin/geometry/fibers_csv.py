@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from espin.core.atomic import atomic_write
-from espin.imaging.errors import SEMError
+from espin.core.errors import SEMError
 
 __all__ = ["FIBER_COLUMNS", "read_fibers_csv", "write_fibers_csv"]
 

@@ -18,10 +18,10 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from espin.geometry.crosslinks import Crosslinks
-from espin.core.errors import RVEFileError
 from espin.core.atomic import atomic_write
+from espin.core.errors import RVEFileError
 from espin.core.header import open_checked, read_config, write_header
+from espin.geometry.crosslinks import Crosslinks
 from espin.geometry.mat import FiberMat
 from espin.geometry.network import Network
 from espin.geometry.rve import RVE

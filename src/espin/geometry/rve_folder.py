@@ -6,12 +6,12 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from espin.core.config import write_config
 from espin.core.atomic import atomic_write_bytes
-from espin.geometry.rve_file import save_rve
-from espin.geometry.vtk import write_mat_vtu, write_network_vtu
+from espin.core.config import write_config
 from espin.geometry.rve import RVE
+from espin.geometry.rve_file import save_rve
 from espin.geometry.statistics import NetworkStatistics, network_statistics
+from espin.geometry.vtk import write_mat_vtu, write_network_vtu
 
 __all__ = ["RVEFolder", "write_rve_folder"]
 

@@ -2,7 +2,7 @@
 
 The targets come from SEM images, one row per traced fiber, as written by ``espin measure``:
 
-* ``fibers.csv`` (read by :func:`espin.imaging.read_fibers_csv`) with any of the columns
+* ``fibers.csv`` (read by :func:`espin.geometry.fibers_csv.read_fibers_csv`) with any of the columns
   ``diameter_um``, ``orientation_deg`` (axis in [0, 180) deg), ``tortuosity`` (contour /
   end-to-end length, >= 1), and optionally ``contour_length_um`` and ``end_to_end_um``
   (tortuosity is their ratio when the ``tortuosity`` column is absent). Other columns are
@@ -13,7 +13,7 @@ The targets come from SEM images, one row per traced fiber, as written by ``espi
 * a folder holding ``fibers.csv`` and ``measurement.toml`` with at least ``um_per_px`` and
   ``field_of_view_um = [width, height]`` (and optionally ``min_chord_um``, the shortest
   end-to-end length the tracer kept).
-* an :class:`espin.imaging.SEMMeasurement` (:meth:`GeometryTargets.from_measurement`).
+* an :class:`espin.imaging.measurement.SEMMeasurement` (:meth:`GeometryTargets.from_measurement`).
 
 Or they are typed in: a normal diameter distribution (mean, sd), a half-normal tortuosity
 ``halfnorm(loc=1, scale)`` as the paper fitted (SPEC 7), and a uniform or axial von Mises
@@ -230,7 +230,7 @@ class GeometryTargets:
     def from_csv(cls, path: str | Path, **extra: Any) -> GeometryTargets:
         """Targets from a ``fibers.csv`` (one row per measured fiber; see the module doc).
 
-        The table is read and validated by :func:`espin.imaging.read_fibers_csv`. Rows whose
+        The table is read and validated by :func:`espin.geometry.fibers_csv.read_fibers_csv`. Rows whose
         ``end_to_end_um`` is below ``min_chord_um`` (if both are known) are left out of every
         sample, as the virtual measurement drops such stubs. A column without any value is
         skipped (with a note).
@@ -242,8 +242,8 @@ class GeometryTargets:
         **extra
             Further fields (``field_of_view_um``, ``min_chord_um``, typed-in values).
         """
-        from espin.imaging import read_fibers_csv
-        from espin.imaging.errors import SEMError
+        from espin.core.errors import SEMError
+        from espin.geometry.fibers_csv import read_fibers_csv
 
         path = Path(path)
         if not path.is_file():
@@ -261,8 +261,8 @@ class GeometryTargets:
         Parameters
         ----------
         table : pandas.DataFrame
-            Columns as :data:`espin.imaging.FIBER_COLUMNS` (missing ones allowed; NaN = not
-            measured), e.g. :attr:`espin.imaging.SEMMeasurement.fibers`.
+            Columns as :data:`espin.geometry.fibers_csv.FIBER_COLUMNS` (missing ones allowed; NaN = not
+            measured), e.g. :attr:`espin.imaging.measurement.SEMMeasurement.fibers`.
         **extra
             Further fields (``field_of_view_um``, ``min_chord_um``, ``source``, typed-in
             values).
@@ -314,7 +314,7 @@ class GeometryTargets:
 
     @classmethod
     def from_measurement(cls, measurement: Any, **extra: Any) -> GeometryTargets:
-        """Targets from an :class:`espin.imaging.SEMMeasurement` (``espin.imaging.measure(...)``):
+        """Targets from an :class:`espin.imaging.measurement.SEMMeasurement` (``espin.imaging.measurement.measure(...)``):
         its fibers table, field of view and shortest chord."""
         found = {"field_of_view_um": tuple(measurement.field_of_view_um),
                  "min_chord_um": float(measurement.min_chord_um),

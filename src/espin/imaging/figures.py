@@ -8,24 +8,51 @@ the analysed image: a user sees at a glance what was traced and measured.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
+import pandas as pd
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from scipy import stats
 
 from espin.core.figures import save_figure
+from espin.imaging.distributions import FittedDistributions
+from espin.imaging.widths import WidthSamples
 
-if TYPE_CHECKING:  # pragma: no cover
-    from espin.imaging.measurement import SEMMeasurement
+__all__ = ["MeasuredImage", "save_histograms", "save_overlay"]
 
-__all__ = ["save_histograms", "save_overlay"]
+
+class MeasuredImage(Protocol):
+    """What the figures draw of a measurement (:class:`espin.imaging.measurement.SEMMeasurement`)."""
+
+    @property
+    def source(self) -> str: ...
+    @property
+    def um_per_px(self) -> float: ...
+    @property
+    def fibers(self) -> pd.DataFrame: ...
+    @property
+    def fits(self) -> FittedDistributions: ...
+    @property
+    def widths_um(self) -> np.ndarray: ...
+    @property
+    def dominant_direction_deg(self) -> float: ...
+    @property
+    def coherency(self) -> float: ...
+    @property
+    def image(self) -> np.ndarray: ...
+    @property
+    def paths_px(self) -> list[np.ndarray]: ...
+    @property
+    def width_samples(self) -> WidthSamples: ...
+    @property
+    def junctions_px(self) -> np.ndarray: ...
 
 _TICK_EVERY = 4  # width samples per drawn width tick
 
 
-def save_histograms(m: SEMMeasurement, path: str | Path) -> Path:
+def save_histograms(m: MeasuredImage, path: str | Path) -> Path:
     """Diameter, orientation and tortuosity histograms with their fitted densities."""
     f, fits = m.fibers, m.fits
     fig = Figure(figsize=(12, 3.6), layout="constrained")
@@ -67,7 +94,7 @@ def save_histograms(m: SEMMeasurement, path: str | Path) -> Path:
     return save_figure(fig, path, dpi=120)
 
 
-def save_overlay(m: SEMMeasurement, path: str | Path) -> Path:
+def save_overlay(m: MeasuredImage, path: str | Path) -> Path:
     """The analysed image with traced centre lines and measured widths drawn on it."""
     rows, cols = m.image.shape
     scale = min(1.0, 1600.0 / max(rows, cols))  # figure pixels per image pixel, at most 1600

@@ -15,8 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from espin.core.errors import ConfigError
-from espin.imaging.errors import SEMError
+from espin.core.errors import ConfigError, SEMError
 
 __all__ = ["read_image", "as_grey", "parse_rows", "row_slice"]
 

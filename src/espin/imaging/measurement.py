@@ -19,10 +19,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from espin.core.errors import ConfigError
-from espin.imaging.distributions import FittedDistributions, fit_distributions
-from espin.imaging.errors import SEMError
+from espin.core.errors import ConfigError, SEMError
 from espin.geometry.fibers_csv import FIBER_COLUMNS, write_fibers_csv
+from espin.imaging.distributions import FittedDistributions, fit_distributions
 from espin.imaging.image import as_grey, parse_rows, read_image, row_slice
 from espin.imaging.orientation import image_angle_deg, structure_tensor_orientation
 from espin.imaging.scale import ScaleBar, detect_scale_bar
@@ -104,7 +103,7 @@ class SEMMeasurement:
 
     def summary(self) -> dict[str, Any]:
         """The summary written to ``measurement.toml`` (units in the key names)."""
-        from espin import __version__
+        from espin.core.version import __version__
 
         f = self.fibers
         fits = self.fits

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from espin.imaging.errors import SEMError
+from espin.core.errors import SEMError
 
 __all__ = ["MIN_BAR_PX", "ScaleBar", "detect_scale_bar"]
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from espin.imaging.errors import SEMError
+from espin.core.errors import SEMError
 
 __all__ = ["Segmentation", "segment_fibers", "MIN_WIDTH_PX"]
 

@@ -4,7 +4,7 @@
 tubes of their true diameter on a dark background, the way a secondary-electron image shows an
 electrospun mat, and returns what an ideal analyst would measure on it: the true diameters and
 the fiber portions visible in the image (:func:`espin.geometry.statistics.window_tortuosity` on the same
-window). It is the test bed of :func:`espin.imaging.measure`.
+window). It is the test bed of :func:`espin.imaging.measurement.measure`.
 
 Image model (all documented parameters of :func:`render_sem`)
 --------------------------------------------------------------
@@ -123,7 +123,7 @@ def render_sem(
         Grey level between the fibers, in [0, 1).
     min_chord_um : float [um], optional
         Shortest chord of a visible portion in the ground truth; default three mean diameters
-        (what :func:`espin.imaging.measure` keeps by default).
+        (what :func:`espin.imaging.measurement.measure` keeps by default).
     seed : int
         Seed of the noise.
 

@@ -15,12 +15,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from espin.core.config import Config
-from espin.mechanics.equilibrium import EquilibriumSolver, StepFailed, StepResult, StepState
 from espin.core.errors import SolverError
+from espin.geometry.network import Network
+from espin.mechanics.equilibrium import EquilibriumSolver, StepFailed, StepResult, StepState
 from espin.mechanics.fiber_law import FiberLaw, yielded
 from espin.mechanics.homogenization import cauchy_stress, nominal_stress, paper_stress
 from espin.mechanics.loading import LoadProgram, load_program
-from espin.geometry.network import Network
 
 __all__ = ["StepRecord", "SimulationResult", "SimulationFailed", "run_program", "FREE_LATERAL_NOTE"]
 

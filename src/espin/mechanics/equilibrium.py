@@ -35,11 +35,11 @@ import numpy as np
 import scipy.sparse as sp
 from threadpoolctl import ThreadpoolController, threadpool_info
 
-from espin.mechanics.assembly import Kinematics, NetworkAssembler
 from espin.core.config import SolverConfig
 from espin.core.errors import SolverError
-from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
 from espin.geometry.network import Network
+from espin.mechanics.assembly import Kinematics, NetworkAssembler
+from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
 
 __all__ = ["StepState", "StepResult", "StepFailed", "EquilibriumSolver"]
 

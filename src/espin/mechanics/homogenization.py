@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from espin.mechanics.assembly import Kinematics
 from espin.geometry.network import Network
+from espin.mechanics.assembly import Kinematics
 
 __all__ = ["nominal_stress", "paper_stress", "cauchy_stress"]
 

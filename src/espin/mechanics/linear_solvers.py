@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import ctypes
 import logging
-import os
 import weakref
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
@@ -45,9 +44,9 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from espin.core.errors import ConfigError, SolverError
+from espin.core.mkl import load_mkl
 
 if TYPE_CHECKING:
-    from collections.abc import Callable
 
     from numpy.typing import ArrayLike
 
@@ -577,51 +576,6 @@ class PardisoSolver(LinearSolver):
         self._handle.free()
 
 
-@dataclass(frozen=True)
-class _MKL:
-    """MKL's ``pardiso`` function and thread controls (see :func:`_load_mkl`)."""
-
-    pardiso: Callable[..., None]
-    set_num_threads_local: Callable[[int], int]
-    get_max_threads: Callable[[], int]
-
-
-@cache
-def _load_mkl() -> _MKL:
-    """Load MKL once per process through pypardiso's search for ``mkl_rt``.
-
-    Raises
-    ------
-    ConfigError
-        If pypardiso is not installed or finds no MKL.
-
-    Notes
-    -----
-    Sets ``KMP_BLOCKTIME=0`` unless the environment has it: MKL's OpenMP threads then sleep
-    as soon as a factorization ends instead of spinning for 200 ms on the cores that the
-    fiber law and assembly need between factorizations (plla tensile test: 54.7 s -> 48.8 s
-    on 2 cores). It acts only if this loads the OpenMP runtime, as it does in espin.
-    """
-    os.environ.setdefault("KMP_BLOCKTIME", "0")
-    try:
-        from pypardiso.pardiso_wrapper import PyPardisoSolver
-
-        library = PyPardisoSolver().libmkl
-    except (ImportError, OSError) as exc:
-        raise ConfigError(
-            "the 'pardiso' linear solver needs the pypardiso package and Intel MKL "
-            f"(x86-64 only): {exc}; use 'superlu' or 'auto'"
-        ) from exc
-    pardiso = library["pardiso"]  # a function object of our own: its argtypes are ours
-    int_p = ctypes.POINTER(ctypes.c_int32)  # MKL_INT of the default LP64 interface
-    void_p = ctypes.c_void_p
-    # pt maxfct mnum mtype phase n a ia ja perm nrhs iparm msglvl b x error
-    pardiso.argtypes = [void_p, int_p, int_p, int_p, int_p, int_p, void_p, int_p, int_p,
-                        int_p, int_p, int_p, int_p, void_p, void_p, int_p]
-    pardiso.restype = None
-    return _MKL(pardiso, library.MKL_Set_Num_Threads_Local, library.MKL_Get_Max_Threads)
-
-
 class _PardisoHandle:
     """One PARDISO solver state (``pt``) for a real symmetric indefinite matrix.
 
@@ -634,7 +588,7 @@ class _PardisoHandle:
     """
 
     def __init__(self) -> None:
-        self._mkl = _load_mkl()
+        self._mkl = load_mkl()
         self._pt = np.zeros(64, dtype=np.int64)  # PARDISO's internal pointers
         self.iparm = np.zeros(64, dtype=np.int32)  # 0 selects MKL's default unless set below
         self.iparm[0] = 1  # use these iparm values

@@ -30,14 +30,14 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from espin.core.atomic import atomic_write, atomic_write_bytes
 from espin.core.config import Config
 from espin.core.errors import RVEFileError
-from espin.mechanics.fiber_law import yielded
-from espin.core.atomic import atomic_write, atomic_write_bytes
 from espin.core.header import open_checked, read_config, write_header
-from espin.geometry.vtk import write_network_vtu
 from espin.geometry.network import Network
+from espin.geometry.vtk import write_network_vtu
 from espin.mechanics.driver import SimulationResult, StepRecord
+from espin.mechanics.fiber_law import yielded
 
 __all__ = ["SimulationWriter", "write_results", "load_results", "ResultsFile", "SCHEMA", "SCHEMA_VERSION"]
 

@@ -11,10 +11,10 @@ from threadpoolctl import threadpool_limits
 
 from espin.core.config import Config, apply_overrides, write_config
 from espin.core.errors import ConfigError
-from espin.geometry.rve_file import load_rve
-from espin.mechanics.linear_solvers import make_linear_solver
 from espin.geometry.rve import RVE, generate, resolve_config
+from espin.geometry.rve_file import load_rve
 from espin.mechanics.driver import SimulationFailed, SimulationResult, StepRecord, run_program
+from espin.mechanics.linear_solvers import make_linear_solver
 
 __all__ = ["simulate", "resolve_rve"]
 

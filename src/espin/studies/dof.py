@@ -45,8 +45,8 @@ import pandas as pd
 from numpy.polynomial import Polynomial
 
 from espin.core.config import Config
-from espin.geometry.crosslinks import Crosslinks
 from espin.core.errors import ConfigError
+from espin.geometry.crosslinks import Crosslinks
 from espin.geometry.mat import FiberMat
 from espin.geometry.network import Network
 

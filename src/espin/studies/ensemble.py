@@ -24,9 +24,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from espin.core.atomic import atomic_write, atomic_write_bytes
 from espin.core.config import Config, config_to_toml
 from espin.core.errors import ConfigError
-from espin.core.atomic import atomic_write, atomic_write_bytes
 from espin.core.parallel import TaskOutcome, TaskPool
 
 __all__ = ["TensileTask", "plan_tasks", "run_tensile", "run_ensemble", "Ensemble", "PROPERTIES"]

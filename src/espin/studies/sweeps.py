@@ -16,12 +16,12 @@ from typing import Any, Literal
 
 import pandas as pd
 
-from espin.core.config import Config, write_config
-from espin.studies.ensemble import Ensemble, TensileTask, plan_tasks, run_ensemble
-from espin.core.errors import ConfigError
 from espin.core.atomic import atomic_write, atomic_write_bytes
+from espin.core.config import Config, write_config
+from espin.core.errors import ConfigError
 from espin.core.parallel import TaskOutcome
 from espin.geometry.rve import resolve_config
+from espin.studies.ensemble import Ensemble, TensileTask, plan_tasks, run_ensemble
 
 __all__ = ["StudyResult", "rve_size_study", "sweep", "realization_seeds"]
 

@@ -34,7 +34,8 @@ Units: stress MPa, strain dimensionless, strain rate 1/s.
 The package: :mod:`~espin.analysis.calibration.parameters` (what can be fitted, names, bounds),
 :mod:`~espin.analysis.calibration.curves` (measured and synthetic curves),
 :mod:`~espin.analysis.calibration.problem` (the inputs, checked before any simulation),
-:mod:`~espin.analysis.calibration.model` (simulation tasks and model evaluations),
+:mod:`~espin.analysis.calibration.simulation` (load steps and simulation tasks),
+:mod:`~espin.analysis.calibration.model` (model evaluations),
 :mod:`~espin.analysis.calibration.search` (least squares per eta, the search over eta),
 :mod:`~espin.analysis.calibration.uncertainty` and :mod:`~espin.analysis.calibration.result`
 (:class:`FitResult`); :func:`fit` is here.
@@ -48,15 +49,7 @@ from pathlib import Path
 from typing import Any
 
 from espin.analysis.calibration.curves import AverageGrid, CurveLike, FittedCurve, synthetic_curve
-from espin.analysis.calibration.model import (
-    COARSE_STEP_STRAIN,
-    KNEE_FACTOR,
-    PENALTY_FACTOR,
-    STEP_STRAIN,
-    _describe,
-    _Model,
-    _simulate_task,
-)
+from espin.analysis.calibration.model import PENALTY_FACTOR, _describe, _Model
 from espin.analysis.calibration.parameters import (
     ETA_KEY,
     FIT_PARAMETERS,
@@ -67,6 +60,7 @@ from espin.analysis.calibration.parameters import (
 from espin.analysis.calibration.problem import _problem
 from espin.analysis.calibration.result import FitResult, _result
 from espin.analysis.calibration.search import FD_STEP, FTOL, MAX_NFEV, XTOL, _search
+from espin.analysis.calibration.simulation import COARSE_STEP_STRAIN, KNEE_FACTOR, STEP_STRAIN, _simulate_task
 from espin.analysis.calibration.uncertainty import ETA_SECANT, _uncertainty
 from espin.core.config import Config
 from espin.core.errors import SolverError

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from espin.analysis.calibration.model import STEP_STRAIN, _load_steps, _simulate_task, _Task
+from espin.analysis.calibration.simulation import STEP_STRAIN, _load_steps, _simulate_task, _Task
 from espin.core.config import Config, apply_overrides, config_to_toml
 from espin.core.errors import ConfigError, SolverError
 

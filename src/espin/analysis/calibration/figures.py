@@ -6,25 +6,44 @@ strain and stretch in %.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
+import numpy as np
 from matplotlib.figure import Figure
 
+from espin.analysis.calibration.curves import FittedCurve
+from espin.core.config import Config
 from espin.core.figures import save_figure
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
 
-    from espin.analysis.calibration import FitResult
+__all__ = ["Fit", "plot_fit"]
 
-__all__ = ["plot_fit"]
+
+class Fit(Protocol):
+    """What the figure draws of a fit (:class:`espin.analysis.calibration.result.FitResult`)."""
+
+    @property
+    def curves(self) -> Sequence[FittedCurve]: ...
+    @property
+    def seeds(self) -> Sequence[int]: ...
+    @property
+    def config(self) -> Config: ...
+    @property
+    def r_squared(self) -> float: ...
+    @property
+    def values(self) -> Mapping[str, float]: ...
+    @property
+    def eta_profile(self) -> np.ndarray | None: ...
 
 FIBER_STEPS = 400
 """Steps of the single-fiber pull (backward Euler; fine enough to be step-independent)."""
 
 
-def _curves(ax: Axes, result: FitResult) -> None:
+def _curves(ax: Axes, result: Fit) -> None:
     """Measured curves (with their sd band) and the model (with its realization band)."""
     for k, curve in enumerate(result.curves):
         x = 100.0 * curve.strain
@@ -46,7 +65,7 @@ def _curves(ax: Axes, result: FitResult) -> None:
     ax.legend(fontsize="small")
 
 
-def _fiber(ax: Axes, result: FitResult) -> None:
+def _fiber(ax: Axes, result: Fit) -> None:
     """The fitted fiber law pulled alone at each curve's strain rate (a straight fiber)."""
     from espin.mechanics.fiber_law import FiberLaw
     from espin.mechanics.single_fiber import constant_rate_history, pull_fiber
@@ -65,11 +84,9 @@ def _fiber(ax: Axes, result: FitResult) -> None:
     ax.legend(fontsize="small")
 
 
-def _profile(ax: Axes, result: FitResult) -> None:
+def _profile(ax: Axes, result: Fit) -> None:
     """Least SSE at each eta visited (the profile the eta search walked); an eta where the fit
     failed (SSE inf) is a dotted vertical line."""
-    import numpy as np
-
     eta, sse = result.eta_profile.T
     finite = np.isfinite(sse)
     ax.plot(eta[finite], sse[finite], "o-", color="k", markersize=3)
@@ -84,7 +101,7 @@ def _profile(ax: Axes, result: FitResult) -> None:
     ax.legend(fontsize="small")
 
 
-def plot_fit(result: FitResult, path: str | Path, *, dpi: float = 150.0) -> Path:
+def plot_fit(result: Fit, path: str | Path, *, dpi: float = 150.0) -> Path:
     """Draw a calibration like the paper's Fig. 13.
 
     Panels: the measured curve(s) with their sd band and the fitted model (mean over the RVE

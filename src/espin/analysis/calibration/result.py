@@ -12,10 +12,11 @@ from typing import Any
 import numpy as np
 
 from espin.analysis.calibration.curves import FittedCurve
-from espin.analysis.calibration.model import _Evaluation, _loading_config, _Model
+from espin.analysis.calibration.model import _Evaluation, _Model
 from espin.analysis.calibration.parameters import ETA_KEY, FIT_PARAMETERS, parameter_key
 from espin.analysis.calibration.problem import _Problem
 from espin.analysis.calibration.search import _profile_sse, _Search
+from espin.analysis.calibration.simulation import _loading_config
 from espin.analysis.calibration.uncertainty import _Uncertainty, eta_resolution
 from espin.core.config import Config
 
@@ -140,13 +141,13 @@ class FitResult:
 
     def report(self) -> dict[str, Any]:
         """Everything about the fit as JSON-ready data (what ``fit.json`` holds)."""
-        import espin
+        from espin.core.version import __version__
 
         def number(x: float | None) -> float | None:
             return None if x is None or not math.isfinite(x) else float(x)
 
         return {
-            "espin_version": espin.__version__,
+            "espin_version": __version__,
             "units": "stress MPa, strain 1, strain rate 1/s",
             "parameters": [
                 {
@@ -206,9 +207,9 @@ class FitResult:
 
         import pandas as pd
 
-        from espin.core.config import write_config
         from espin.analysis.calibration.figures import plot_fit
         from espin.core.atomic import atomic_write, atomic_write_bytes
+        from espin.core.config import write_config
 
         folder = Path(folder)
         table = pd.concat([_curve_table(c, self.seeds) for c in self.curves], ignore_index=True)

@@ -67,6 +67,7 @@ import numpy as np
 
 from espin.core.config import Config, config_from_dict
 from espin.core.errors import ConfigError
+from espin.geometry.targets import GeometryTargets, MeasurementError
 from espin.imaging.geometry_calibration.fits import (
     KAPPA_MAX,
     fit_axial_von_mises,
@@ -112,7 +113,6 @@ from espin.imaging.geometry_calibration.virtual import (
     _layers_per_seed,
     _validated_rve,
 )
-from espin.geometry.targets import GeometryTargets, MeasurementError
 
 __all__ = [
     "MECHANICS_NOTE",
@@ -174,7 +174,7 @@ def calibrate_geometry(
     ----------
     targets_or_path
         :class:`GeometryTargets`, a ``fibers.csv``, a folder written by ``espin measure`` or
-        an :class:`espin.imaging.SEMMeasurement`.
+        an :class:`espin.imaging.measurement.SEMMeasurement`.
     base
         Config, preset name or TOML whose other keys are kept (default ``plla``).
     fit

@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from espin.imaging.geometry_calibration.fits import _mean_resultant, fit_axial_von_mises
 from espin.geometry.targets import GeometryTargets
+from espin.imaging.geometry_calibration.fits import _mean_resultant, fit_axial_von_mises
 
 __all__ = ["ISOTROPY_P_VALUE", "DistributionMatch", "FIXED_TOLERANCE"]
 

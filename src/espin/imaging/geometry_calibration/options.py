@@ -10,8 +10,8 @@ import numpy as np
 
 from espin.core.config import Config
 from espin.core.errors import ConfigError
-from espin.imaging.geometry_calibration.fits import truncated_normal_parameters
 from espin.geometry.targets import GeometryTargets
+from espin.imaging.geometry_calibration.fits import truncated_normal_parameters
 
 
 def _resolve_base(base: Config | str | Path | None) -> Config:

@@ -12,10 +12,10 @@ import tomli_w
 
 from espin.core.config import Config
 from espin.core.errors import EspinError
+from espin.geometry.targets import GeometryTargets
 from espin.imaging.geometry_calibration.matching import DistributionMatch
 from espin.imaging.geometry_calibration.options import _written_data
 from espin.imaging.geometry_calibration.search import ValleyPoint
-from espin.geometry.targets import GeometryTargets
 
 __all__ = ["SCHEMA", "SCHEMA_VERSION", "MECHANICS_NOTE", "GeometryCalibration"]
 
@@ -73,7 +73,7 @@ class GeometryCalibration:
     @property
     def report(self) -> dict[str, Any]:
         """JSON-ready description of the calibration (units in the key names)."""
-        from espin import __version__
+        from espin.core.version import __version__
 
         return {
             "schema": SCHEMA,
@@ -184,7 +184,7 @@ class GeometryCalibration:
         return files
 
     def _header_lines(self) -> list[str]:
-        from espin import __version__
+        from espin.core.version import __version__
 
         lines = [f"Written by espin {__version__} calibrate-geometry from {self.targets.source}.",
                  "Deposition parameters fitted to the measured geometry (observation window "

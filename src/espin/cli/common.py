@@ -1,0 +1,92 @@
+"""What the command groups share: the config source and ``--set`` options, how a command fails,
+and the options of every command that reads curve CSV files (``properties``, ``fit``).
+
+No command imports another command or the app: each imports from here.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, NoReturn, Optional
+
+import typer
+
+__all__ = ["SourceArg", "SetOpt", "parse_set", "fail", "StrainColumnOpt", "StressColumnOpt",
+           "PercentStrainOpt", "DelimiterOpt", "SkipRowsOpt", "read_options"]
+
+SourceArg = Annotated[
+    Optional[str],
+    typer.Argument(help="Preset name (plla) or TOML config file. Default: plla."),
+]
+SetOpt = Annotated[
+    Optional[list[str]],
+    typer.Option(
+        "--set",
+        help="Override any config key: --set section.key=VALUE (VALUE in TOML syntax, "
+        "e.g. --set 'rve.orientation={von_mises={mean_deg=0, kappa=2}}'). Repeatable.",
+    ),
+]
+
+
+def parse_set(items: list[str] | None) -> dict[str, Any]:
+    """``--set section.key=VALUE`` items as config overrides (VALUE in TOML syntax, else a bare word)."""
+    import tomllib
+
+    from espin.core.errors import ConfigError
+
+    out: dict[str, Any] = {}
+    for item in items or []:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise ConfigError(f"--set {item!r}: expected section.key=VALUE")
+        try:
+            value = tomllib.loads(f"v = {text}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = text  # a bare word such as lines or uniform
+        out[key.strip()] = value
+    return out
+
+
+def fail(message: str) -> NoReturn:
+    """Print ``error: message`` in red on stderr and exit with code 2."""
+    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code=2)
+
+
+_DELIMITER_NAMES = {"tab": "\t", "\\t": "\t", "space": " ", "whitespace": " "}
+
+# Options of every command that reads curve CSV files (properties, fit).
+StrainColumnOpt = Annotated[
+    Optional[str],
+    typer.Option(help="Strain column: 0-based index or header name (any case). "
+                      "Default: the header's 'strain' column; 0 without a header or with two columns."),
+]
+StressColumnOpt = Annotated[
+    Optional[str],
+    typer.Option(help="Stress column [MPa]: 0-based index or header name (any case). "
+                      "Default: the header's 'stress_MPa', 'stress [MPa]', 'stress (MPa)', 'stress' or "
+                      "'mean_MPa' column; 1 without a header or with two columns."),
+]
+PercentStrainOpt = Annotated[bool, typer.Option(help="The strain column is in percent.")]
+DelimiterOpt = Annotated[
+    Optional[str], typer.Option(help="Field separator (',', ';', tab, space). Default: detected.")
+]
+SkipRowsOpt = Annotated[int, typer.Option(help="Lines to skip at the top of each file.")]
+
+
+def read_options(strain_column: str | None, stress_column: str | None, percent_strain: bool,
+                 delimiter: str | None, skip_rows: int) -> dict:
+    """The CSV options of the command line as keyword arguments of :func:`espin.analysis.experiments.read_curve`."""
+    return {
+        "strain_column": _column(strain_column),
+        "stress_column": _column(stress_column),
+        "percent_strain": percent_strain,
+        "delimiter": _DELIMITER_NAMES.get(delimiter.lower(), delimiter) if delimiter else None,
+        "skip_rows": skip_rows,
+    }
+
+
+def _column(text: str | None) -> int | str | None:
+    """A column option: a 0-based index when it is a number, else a header name."""
+    if text is None:
+        return None
+    return int(text) if text.strip().isdigit() else text

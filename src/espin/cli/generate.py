@@ -1,0 +1,82 @@
+"""``espin generate``: a virtual mat and its network, with statistics, figures and VTK files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from espin.cli.common import SetOpt, SourceArg, fail, parse_set
+
+__all__ = ["register"]
+
+
+def generate(
+    source: SourceArg = None,
+    out: Annotated[
+        Optional[Path], typer.Option("--out", "-o", help="Output folder. Default: <name>_rve.")
+    ] = None,
+    seed: Annotated[Optional[int], typer.Option(help="rve.seed: random seed (>= 0).")] = None,
+    layers: Annotated[Optional[int], typer.Option(help="rve.layers: number of layers.")] = None,
+    size_ratio: Annotated[
+        Optional[float], typer.Option(help="rve.size_ratio: layer side / diameter.")
+    ] = None,
+    volume_fraction: Annotated[
+        Optional[float], typer.Option(help="rve.volume_fraction: per layer, in (0, 1).")
+    ] = None,
+    seeding: Annotated[
+        Optional[str], typer.Option(help="rve.seeding: border (paper) or lines.")
+    ] = None,
+    set_: SetOpt = None,
+    figures: Annotated[bool, typer.Option(help="Write PNG figures.")] = True,
+    vtk: Annotated[bool, typer.Option(help="Write VTK files for ParaView.")] = True,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or table.")] = False,
+) -> None:
+    """Generate a virtual mat (paper 3.1.1) and its network; write file, statistics, figures."""
+    from rich.console import Console
+    from rich.progress import Progress
+
+    from espin.core.errors import EspinError
+    from espin.geometry.rve import generate as generate_rve
+    from espin.geometry.rve import resolve_config
+    from espin.geometry.rve_folder import write_rve_folder
+
+    console = Console(stderr=True, quiet=quiet)
+    options = {
+        "rve.seed": seed,
+        "rve.layers": layers,
+        "rve.size_ratio": size_ratio,
+        "rve.volume_fraction": volume_fraction,
+        "rve.seeding": seeding,
+    }
+    try:
+        overrides = {k: v for k, v in options.items() if v is not None} | parse_set(set_)
+        config = resolve_config(source, **{k.replace(".", "__"): v for k, v in overrides.items()})
+        name = Path(source).stem if source else "plla"
+        folder = out if out is not None else Path(f"{name}_rve")
+        with Progress(console=console, transient=True) as bar:
+            task = bar.add_task("depositing layers", total=config.rve.layers)
+
+            def progress(stage: str, done: int, total: int) -> None:
+                if stage == "deposition":
+                    bar.update(task, completed=done)
+                    if done == total:
+                        bar.update(task, description="finding cross-links")
+                elif stage == "crosslinks":
+                    bar.update(task, description="building the network")
+
+            rve = generate_rve(config, progress=progress)
+            bar.update(task, description="writing files")
+            result = write_rve_folder(rve, folder, figures=figures, vtk=vtk)
+    except EspinError as err:
+        fail(str(err))
+    console.print(result.statistics.format_table(), highlight=False)
+    console.print(f"seeding: {config.rve.seeding}   wrote {folder}/: " + ", ".join(
+        p.name for p in result.files.values()
+    ), highlight=False)
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``generate`` command to a typer app."""
+    app.command("generate")(generate)
