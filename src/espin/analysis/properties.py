@@ -1,7 +1,7 @@
 """Mechanical properties from a stress-strain curve: elastic modulus, yield, post-yield modulus.
 
 The paper's PLLA mats (and espin's ``plla`` RVE) are linear to about 3 % strain, then yield,
-then harden nearly linearly to 30 % (SPEC 7). Their properties come from a bilinear
+then harden nearly linearly to 30 % (docs/model.md section 7). Their properties come from a bilinear
 description of the curve:
 
 * **elastic modulus** E, the initial slope;
@@ -275,7 +275,7 @@ def curve_properties(
     elastic_fraction: float = 0.5,
     max_slope_ratio: float = 0.5,
 ) -> CurveProperties:
-    """Elastic modulus, yield point and post-yield modulus of a stress-strain curve (SPEC 7).
+    """Elastic modulus, yield point and post-yield modulus of a stress-strain curve (docs/model.md section 7).
 
     The bilinear fit is described in the module docs: a least-squares hinge locates the knee
     and gives the post-yield line, a line through the initial part of the curve gives the

@@ -209,7 +209,7 @@ def register(app: typer.Typer) -> None:
                                              "(average_curve.csv, 2+ curves) and properties.png."),
         ] = None,
     ) -> None:
-        """Elastic modulus, yield and post-yield modulus of curves by a bilinear fit (SPEC 7).
+        """Elastic modulus, yield and post-yield modulus of curves by a bilinear fit (docs/model.md section 7).
 
         With several curves (specimens) also their mean ± sd and the properties of their
         average curve.

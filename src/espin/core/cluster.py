@@ -105,7 +105,7 @@ def jobqueue_cluster(
         (default: this interpreter).
     prologue
         Extra shell lines run before the workers start (e.g. ``module load python``,
-        ``source .venv/bin/activate``).
+        ``source ~/espin/env/bin/activate``).
     **options
         Passed on to the dask-jobqueue cluster class (``job_extra_directives`` ...).
 

@@ -138,7 +138,7 @@ Orientation = Annotated[
 
 
 class RVEConfig(_Section):
-    """Geometry of the virtual mat (paper Table 2, SPEC 0-2)."""
+    """Geometry of the virtual mat (paper Table 2, docs/model.md sections 0-2)."""
 
     diameter_um: Annotated[float, Field(gt=0.0)] = 0.45
     """Mean fiber diameter D [um], > 0. Also the layer thickness."""
@@ -166,7 +166,7 @@ class RVEConfig(_Section):
     """"border" (paper) or "lines" (stationary); default: border if uniform, else lines."""
     merge_tolerance_ratio: Annotated[float, Field(gt=0.0, le=0.1)] = 1e-2
     """Node candidates closer than this times D along a fiber are merged into one node, in
-    (0, 0.1]. Default 1e-2 (SPEC 2 suggests about 1e-3): elements a few 1e-4 um long make
+    (0, 0.1]. Default 1e-2 (docs/model.md section 2 suggests about 1e-3): elements a few 1e-4 um long make
     Newton's linearized rotations fail, and at 1e-2 the plla curve moves by < 0.01 %
     (docs/geometry.md)."""
     seed: Annotated[int, Field(ge=0)] = 1
@@ -223,7 +223,7 @@ class RVEConfig(_Section):
 # fiber
 # --------------------------------------------------------------------------------------------
 class FiberConfig(_Section):
-    """Fiber constitutive law (paper Eq. 4-5, Table 3, SPEC 3)."""
+    """Fiber constitutive law (paper Eq. 4-5, Table 3, docs/model.md section 3)."""
 
     taut_modulus_MPa: Annotated[float, Field(gt=0.0)] = 3000.0
     """Modulus of a straight (recruited) fiber E_t [MPa], > slack_modulus_MPa."""
@@ -308,7 +308,7 @@ Lateral = Annotated[
 
 
 class LoadingConfig(_Section):
-    """Macroscopic loading program (SPEC 6)."""
+    """Macroscopic loading program (docs/model.md section 6)."""
 
     test: Literal["uniaxial", "equibiaxial", "pure_shear", "simple_shear", "path"] = "uniaxial"
     """Kind of test."""
@@ -357,7 +357,7 @@ class LoadingConfig(_Section):
 # solver, output
 # --------------------------------------------------------------------------------------------
 class SolverConfig(_Section):
-    """Equilibrium solver (SPEC 4)."""
+    """Equilibrium solver (docs/model.md section 4)."""
 
     linear: Literal["auto", "superlu", "pardiso"] = "auto"
     """Sparse linear solver: auto (pardiso if installed, else superlu), superlu, pardiso."""

@@ -134,7 +134,7 @@ def _crossings_in_bins(seg, cell, lo, seg_fiber, seg_layer, base, n_cells, p, q)
 
 
 def find_crosslinks(mat: FiberMat, cell_size: float | None = None) -> Crosslinks:
-    """Find every cross-link of a mat (paper 3.1.1; SPEC 2).
+    """Find every cross-link of a mat (paper 3.1.1; docs/model.md section 2).
 
     A cross-link is an intersection in the plane of two segments of different fibers whose
     layers differ by at most one. A fiber crossing itself makes no cross-link. Each segment is

@@ -1,4 +1,4 @@
-"""Virtual deposition of fiber layers (paper 3.1.1, Fig. 4; SPEC 1).
+"""Virtual deposition of fiber layers (paper 3.1.1, Fig. 4; docs/model.md section 1).
 
 A fiber starts at a point of the border of the square [0, L]^2 and walks inwards in segments
 of length l_s, each turned from the previous one by a uniform random angle in

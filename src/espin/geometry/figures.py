@@ -129,7 +129,7 @@ def plot_statistics(stats: NetworkStatistics, path: str | Path, *, dpi: float = 
     window against the measured half-normal; diameter against the measured normal; element
     tortuosity; element length (log scale). Panel titles carry the KS statistics. With the
     paper's Table 2 parameters the tortuosity panel shows virtual fibers far straighter than
-    the measured ones: that is the model's result (SPEC 7), not a plotting problem.
+    the measured ones: that is the model's result (docs/model.md section 7), not a plotting problem.
 
     Parameters
     ----------

@@ -1,6 +1,6 @@
 """The mechanical network: nodes (border and cross-links) and the fiber elements between them.
 
-Every fiber is cut at its nodes into elements (paper Fig. 8, SPEC 2). Border nodes are the two
+Every fiber is cut at its nodes into elements (paper Fig. 8, docs/model.md section 2). Border nodes are the two
 ends of each fiber and follow the macroscopic deformation; inner nodes are the cross-links,
 with two in-plane degrees of freedom each. Nodes are numbered inner first, then border.
 """
@@ -124,7 +124,7 @@ def _clusters(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def build_network(mat: FiberMat, crosslinks: Crosslinks, tolerance: float) -> Network:
-    """Cut every fiber at its nodes into elements (paper Fig. 8; SPEC 2).
+    """Cut every fiber at its nodes into elements (paper Fig. 8; docs/model.md section 2).
 
     Node candidates are the cross-links and the two ends of every fiber. Candidates that
     follow each other along a fiber closer than ``tolerance`` are merged into one node (which

@@ -1,4 +1,4 @@
-"""Fiber orientation distributions over axes theta in [0, pi) (SPEC 1).
+"""Fiber orientation distributions over axes theta in [0, pi) (docs/model.md section 1).
 
 Each distribution draws samples, and gives its density and cumulative distribution, so the
 same object serves the deposition and the statistical comparison with a mat.

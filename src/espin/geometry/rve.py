@@ -65,7 +65,7 @@ def generate(
     progress: Progress | None = None,
     **overrides: Any,
 ) -> RVE:
-    """Generate a virtual electrospun mat and its fiber network (paper 3.1.1; SPEC 1-2).
+    """Generate a virtual electrospun mat and its fiber network (paper 3.1.1; docs/model.md sections 1-2).
 
     Parameters
     ----------

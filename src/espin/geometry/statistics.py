@@ -1,7 +1,7 @@
 """Statistics of a virtual mat and its network, and their comparison with measured targets.
 
-This module measures what SPEC 2 lists and what the paper compares with SEM images (Fig. 10,
-12; SPEC 7): counts, the achieved volume fraction, cross-link densities against the
+This module measures what docs/model.md section 2 lists and what the paper compares with SEM images (Fig. 10,
+12; docs/model.md section 7): counts, the achieved volume fraction, cross-link densities against the
 integral-geometry expectation, and samples of orientation, tortuosity, diameter and element
 length, with Kolmogorov-Smirnov statistics against their targets.
 
@@ -20,7 +20,7 @@ With the paper's Table 2 deposition parameters (max deviation 5 deg between segm
 virtual fibers are far straighter than the measured ones: whole fibers have a tortuosity of
 about 1.006 and the portions visible in a 50 D window about 1.002, while the SEM half-normal
 ``halfnorm(loc=1, scale=0.14)`` has mean 1.112. The KS statistic of window tortuosity is then
-about 0.95 (1 = disjoint distributions). espin reports this honestly (SPEC 7-8): matching the
+about 0.95 (1 = disjoint distributions). espin reports this honestly (docs/model.md sections 7-8): matching the
 measured tortuosity needs other deposition parameters (a larger ``max_deviation_deg`` or
 segment length), and then the material parameters must be fitted again.
 
@@ -291,7 +291,7 @@ def centred_window(size: float, side: float) -> tuple[np.ndarray, float]:
 class MeasuredTargets:
     """Distributions measured on SEM images that a virtual mat is compared with.
 
-    Defaults are the paper's PLLA measurements (Fig. 10, SPEC 7).
+    Defaults are the paper's PLLA measurements (Fig. 10, docs/model.md section 7).
 
     Attributes
     ----------
@@ -346,7 +346,7 @@ def ks_statistic(sample: ArrayLike, cdf: Callable[[np.ndarray], np.ndarray]) -> 
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class NetworkStatistics:
-    """Statistics of a mat and its network (SPEC 2) and the fit to measured targets (SPEC 7).
+    """Statistics of a mat and its network (docs/model.md section 2) and the fit to measured targets (docs/model.md section 7).
 
     Cross-link conventions
     ----------------------
@@ -358,7 +358,7 @@ class NetworkStatistics:
       when none are merged; its inverse is the mean spacing of cross-links along a fiber.
     - ``crosslink_density_per_um2``: cross-links per um^2 of one layer,
       n_crosslinks / (N_l L^2).
-    - Integral-geometry expectation (SPEC 2): isotropic stationary lines of length density
+    - Integral-geometry expectation (docs/model.md section 2): isotropic stationary lines of length density
       L_A,k (um of fiber per um^2) in layer k cross L_A,k^2 / pi times per unit area within
       the layer and 2 L_A,k L_A,k+1 / pi times between adjacent layers. L_A,k is the achieved
       density (fiber length in layer k / L^2), so with equal layers the expected total is
@@ -400,7 +400,7 @@ class NetworkStatistics:
     crosslink_density_per_um2 : float [1/um^2]
         Cross-links per um^2 of layer.
     expected_crosslinks_within, expected_crosslinks_between : float
-        Integral-geometry expectation for the whole mat (SPEC 2 formula).
+        Integral-geometry expectation for the whole mat (docs/model.md section 2 formula).
     expected_crosslinks_within_distinct : float
         Within-layer expectation without self-pairs (see above).
     fiber_orientation : (n_fibers,) float64 [rad]
@@ -497,7 +497,7 @@ class NetworkStatistics:
 
     @property
     def crosslink_ratio(self) -> float:
-        """Cross-links found over the integral-geometry expectation (SPEC 2 formula)."""
+        """Cross-links found over the integral-geometry expectation (docs/model.md section 2 formula)."""
         e = self.expected_crosslinks
         return self.n_inner_nodes / e if e > 0 else math.nan
 

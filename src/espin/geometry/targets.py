@@ -16,7 +16,7 @@ The targets come from SEM images, one row per traced fiber, as written by ``espi
 * an :class:`espin.imaging.measurement.SEMMeasurement` (:meth:`GeometryTargets.from_measurement`).
 
 Or they are typed in: a normal diameter distribution (mean, sd), a half-normal tortuosity
-``halfnorm(loc=1, scale)`` as the paper fitted (SPEC 7), and a uniform or axial von Mises
+``halfnorm(loc=1, scale)`` as the paper fitted (docs/model.md section 7), and a uniform or axial von Mises
 orientation distribution.
 
 Units: um, degrees (at this user-facing edge).

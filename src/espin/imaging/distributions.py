@@ -1,6 +1,6 @@
 """Distributions fitted to the measured fibers (maximum likelihood), as the paper reports them.
 
-- Diameter: normal (mean, sd), paper Fig. 10 / SPEC 7.
+- Diameter: normal (mean, sd), paper Fig. 10 / docs/model.md section 7.
 - Orientation (axes in [0, 180) deg): uniform, p = 1 / pi, or axial von Mises,
   p(theta) = exp(kappa cos 2 (theta - mu)) / (pi I0(kappa)) (espin's ``rve.orientation``
   form). The one with the smaller Akaike information criterion, AIC = 2 k - 2 ln L

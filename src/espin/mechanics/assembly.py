@@ -9,7 +9,7 @@ the element exerts on e1 is +T a), and the 2 x 2 stiffness block is
 
     k = (dT/dl) a (x) a + (T / l) (I - a (x) a),
 
-entering the 4 x 4 element matrix as [[k, -k], [-k, k]] (paper 3.1.4; SPEC 4).
+entering the 4 x 4 element matrix as [[k, -k], [-k, k]] (paper 3.1.4; docs/model.md section 4).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 The program's steps are the recorded points of the curve. A step that does not converge is
 cut in halves (the strain rate stays the prescribed one: time and strain are cut together)
 and grown back after easy convergence; each sub-step starts from a predictor that
-extrapolates the non-affine part of the node motion (SPEC 4, 6).
+extrapolates the non-affine part of the node motion (docs/model.md sections 4, 6).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Equilibrium of the network over one load step (paper 3.1.4; SPEC 4).
+"""Equilibrium of the network over one load step (paper 3.1.4; docs/model.md section 4).
 
 Unknowns: the inner node positions x_I and, under mixed control, the free components f_k of
 F = F_prescribed + sum_k f_k G_k. Border nodes follow x = F X (X relative to the RVE centre).
@@ -401,7 +401,7 @@ class EquilibriumSolver:
     def macroscopic_tangent(self, result: StepResult) -> np.ndarray:
         """Algorithmic macroscopic tangent A_iJkL = dP_iJ / dF_kL [MPa] at a converged step.
 
-        By condensation of the exact tangent on the border DOF (SPEC 5):
+        By condensation of the exact tangent on the border DOF (docs/model.md section 5):
         S = K_BB - K_BI K_II^-1 K_IB and A_iJkL = (1 / V0) sum_b,b' X_bJ S[(b,i),(b',k)] X_b'L,
         with four solves on one factorization of K_II. The derivative is taken at fixed
         plastic state of the step start and fixed time step (consistent with the step).

@@ -33,7 +33,7 @@ def plot_single_fiber(
         PNG file to write (atomically).
     rate_per_s
         If given, the plateau estimate b_p asinh(rate / a_p) [MPa] of a fiber pulled at this
-        stretch rate [1/s] is drawn (SPEC 3).
+        stretch rate [1/s] is drawn (docs/model.md section 3).
     dpi
         Resolution.
 

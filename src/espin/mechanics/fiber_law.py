@@ -1,4 +1,4 @@
-"""The fiber constitutive law (paper Eq. 1, 4, 5; SPEC 3), vectorized over elements.
+"""The fiber constitutive law (paper Eq. 1, 4, 5; docs/model.md section 3), vectorized over elements.
 
 An element of end-to-end stretch ``lambda = l / l0``, plastic stretch ``lambda_p`` (1 at
 deposition) and tortuosity ``lambda_r = L0 / l0 >= 1`` has the elastic stretch
@@ -78,7 +78,7 @@ MAX_PANELS = 64
 """Most quadrature panels per element (reached only by stretch increments > 0.5 or so)."""
 
 YIELD_THRESHOLD = 1e-3
-"""An element counts as yielded when lambda_p - 1 exceeds this (SPEC 3)."""
+"""An element counts as yielded when lambda_p - 1 exceeds this (docs/model.md section 3)."""
 
 _MAX_ITERATIONS = 200
 _RTOL = 4.0 * np.finfo(float).eps
@@ -500,7 +500,7 @@ def work_increment(
 
     ``t_alg(lambda')`` is the stress :func:`update` returns for stretch ``lambda'`` from the
     same ``lambda_p_n`` and ``dt``, so this is the element potential whose derivative is the
-    algorithmic stress (SPEC 4: ``Pi = sum_e A_e l0_e * work``). It is the exact integral of
+    algorithmic stress (docs/model.md section 4: ``Pi = sum_e A_e l0_e * work``). It is the exact integral of
     the trial stress (``lambda_p = lambda_p_n``, piecewise quadratic) plus the integral of the
     flow correction ``t_alg - t_trial`` by composite Gauss-Legendre quadrature, one return
     mapping per point. The increment is cut at the two recruitment kinks (of the trial stress,
@@ -589,5 +589,5 @@ def axial_force_and_stiffness(
 
 
 def yielded(plastic_stretch: ArrayLike, threshold: float = YIELD_THRESHOLD) -> np.ndarray:
-    """Whether each element has yielded, lambda_p - 1 > threshold (SPEC 3)."""
+    """Whether each element has yielded, lambda_p - 1 > threshold (docs/model.md section 3)."""
     return np.asarray(plastic_stretch) - 1.0 > threshold

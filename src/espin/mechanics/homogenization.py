@@ -1,4 +1,4 @@
-"""Homogenized stresses of a network in equilibrium (paper 3.1.5; SPEC 5).
+"""Homogenized stresses of a network in equilibrium (paper 3.1.5; docs/model.md section 5).
 
 Reference volume V0 = L^2 N_l D. Index convention P_iJ: i spatial, J reference.
 
@@ -20,7 +20,7 @@ __all__ = ["nominal_stress", "paper_stress", "cauchy_stress"]
 
 
 def nominal_stress(network: Network, force: np.ndarray, kin: Kinematics) -> np.ndarray:
-    """(2, 2) nominal stress P [MPa] from element forces T [uN] (SPEC 5)."""
+    """(2, 2) nominal stress P [MPa] from element forces T [uN] (docs/model.md section 5)."""
     return np.einsum("e,ei,eJ->iJ", force, kin.unit, network.element_vector) / network.reference_volume
 
 

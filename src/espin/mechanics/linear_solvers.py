@@ -1,4 +1,4 @@
-"""Sparse symmetric linear solvers for the Newton tangent (SPEC 4, STYLE 4).
+"""Sparse symmetric linear solvers for the Newton tangent (docs/model.md section 4).
 
 Newton's method factorizes the tangent stiffness K once per iteration. K is symmetric, may be
 indefinite (compressed elements contribute a negative geometric stiffness), and keeps one

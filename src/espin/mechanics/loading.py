@@ -1,4 +1,4 @@
-"""Macroscopic loading programs: tests, segments, steps (SPEC 6).
+"""Macroscopic loading programs: tests, segments, steps (docs/model.md section 6).
 
 A test is defined in the loading frame, whose axes are those of the RVE rotated by
 ``direction_deg``; the deformation gradient applied to the RVE is F = R F' R^T. A program is a

@@ -51,7 +51,7 @@ def simulate(
     threads: int | None = None,
     **overrides: Any,
 ) -> SimulationResult:
-    """Pull on a virtual mat and record its stress-strain response (SPEC 3-6).
+    """Pull on a virtual mat and record its stress-strain response (docs/model.md sections 3-6).
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""One fiber pulled along a prescribed stretch history (paper Fig. 6, SPEC 3).
+"""One fiber pulled along a prescribed stretch history (paper Fig. 6, docs/model.md section 3).
 
 A check of the fiber law on its own, without a network: the stretch lambda(t) of a single
 element is prescribed and the law (:mod:`espin.mechanics.fiber_law`) is integrated step by step.

@@ -1,9 +1,9 @@
 """Degrees of freedom of espin's network model against a beam finite-element model (paper 4.3).
 
 espin's reduced kinematics give each inner node (cross-link) two in-plane DOF and nothing else
-(SPEC 2): ``Network.n_dof = 2 * n_inner``. The usual model of a fiber network (Zündel et al.,
+(docs/model.md section 2): ``Network.n_dof = 2 * n_inner``. The usual model of a fiber network (Zündel et al.,
 the paper's ref. 23) meshes every fiber with 3-D beam elements, whose nodes carry three
-translations and three rotations. For the same geometry such a model needs (SPEC 7):
+translations and three rotations. For the same geometry such a model needs (docs/model.md section 7):
 
 * a node at every deposition vertex (the fiber's polyline has a corner there) and at every
   cross-link (shared by the two fibers it joins);
@@ -25,12 +25,12 @@ Default ``elements_per_segment = 1``: one two-node (cubic, Hermite) beam element
 which is exact for a straight beam loaded at its ends, so this is the smallest beam model of
 the geometry and the reported ratio is a lower bound. Models that resolve bending between
 cross-links use a few elements per piece; the paper's "over 10x" used Zündel's parameters and
-meshes, which are not available (SPEC 7), so espin reports the ratio that results from this
+meshes, which are not available (docs/model.md section 7), so espin reports the ratio that results from this
 count and lets the user choose ``elements_per_segment``.
 
 For a fixed number of layers the DOF of both models grow as the square of the RVE size L_tilde
 (paper Fig. 14): the fiber length per layer grows as L^2, so do the cross-links (integral
-geometry, SPEC 2) and the vertices, while the border nodes grow only as L.
+geometry, docs/model.md section 2) and the vertices, while the border nodes grow only as L.
 """
 
 from __future__ import annotations

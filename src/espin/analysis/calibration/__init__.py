@@ -1,4 +1,4 @@
-"""Calibrate the volume fraction and fiber-law parameters to a measured curve (paper 4.2; SPEC 7).
+"""Calibrate the volume fraction and fiber-law parameters to a measured curve (paper 4.2; docs/model.md section 7).
 
 The model curve of a parameter set is the mean, over a fixed set of RVE realizations (the same
 seeds for every evaluation: common random numbers), of the simulated stress at the measured

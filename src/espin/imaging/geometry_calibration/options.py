@@ -91,7 +91,7 @@ def _fitted(targets: GeometryTargets, fit: str) -> list[str]:
 
 
 DERIVED_RVE_KEYS = ("size_ratio", "segment_ratio", "diameter_min_um", "seeding")
-"""rve keys that espin derives when unset (SPEC 1 defaults, :class:`espin.core.config.RVEConfig`)."""
+"""rve keys that espin derives when unset (docs/model.md section 1 defaults, :class:`espin.core.config.RVEConfig`)."""
 
 
 def _written_data(config: Config) -> dict[str, Any]:
