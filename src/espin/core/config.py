@@ -166,9 +166,9 @@ class RVEConfig(_Section):
     """"border" (paper) or "lines" (stationary); default: border if uniform, else lines."""
     merge_tolerance_ratio: Annotated[float, Field(gt=0.0, le=0.1)] = 1e-2
     """Node candidates closer than this times D along a fiber are merged into one node, in
-    (0, 0.1]. Default 1e-2 (docs/model.md section 2 suggests about 1e-3): elements a few 1e-4 um long make
-    Newton's linearized rotations fail, and at 1e-2 the plla curve moves by < 0.01 %
-    (docs/geometry.md)."""
+    (0, 0.1]. Default 1e-2 (docs/model.md section 2): at 1e-3, elements a few 1e-4 um long
+    make Newton's linearized rotations fail, and from 1e-3 to 1e-2 the plla curve moves by
+    < 0.01 % (docs/geometry.md)."""
     seed: Annotated[int, Field(ge=0)] = 1
     """Random seed, an integer >= 0."""
 
@@ -366,7 +366,7 @@ class SolverConfig(_Section):
     atol: Annotated[float, Field(gt=0.0, lt=1.0)] = 1e-8
     """Absolute tolerance, in units of E_t mean(A_e), in (0, 1)."""
     max_iterations: Annotated[int, Field(ge=1, le=10000)] | None = None
-    """Newton iterations per load step before the step is cut, in [1, 10000]. Default 50,
+    """Newton iterations per load step before the step is cut, in [1, 10000]. Default 200,
     or 500 under mixed control (lateral free), where buckling chains need hundreds."""
     max_cuts: Annotated[int, Field(ge=0, le=60)] = 12
     """Times a load step may be halved before the solve fails, in [0, 60]."""
