@@ -109,6 +109,15 @@ def _call(fn: Callable[[Any], Any], item: Any, blas_threads: int | None) -> tupl
     return value, None, None, time.perf_counter() - start
 
 
+def _call_in_worker(fn: Callable[[Any], Any], item: Any,
+                    blas_threads: int | None) -> tuple[Any, str | None, str | None, float]:
+    """:func:`_call` in a worker process (local or Dask), its allocator set for numpy first."""
+    from espin.core.allocator import keep_freed_memory
+
+    keep_freed_memory()
+    return _call(fn, item, blas_threads)
+
+
 class TaskPool:
     """Workers that run tasks; a context manager, reusable for many :meth:`map` calls.
 
@@ -230,7 +239,7 @@ class TaskPool:
         """All items through the shared executor; indices lost to a broken pool go to ``suspects``."""
         executor = self._get_executor()
         futures: dict[Future, int] = {
-            executor.submit(_call, fn, item, self.blas_threads): index for index, item in enumerate(items)
+            executor.submit(_call_in_worker, fn, item, self.blas_threads): index for index, item in enumerate(items)
         }
         for future in as_completed(futures):
             index = futures[future]
@@ -260,7 +269,7 @@ class TaskPool:
                     index = queue.pop(0)
                     solo = ProcessPoolExecutor(1, mp_context=context, initializer=_limit_threads,
                                                initargs=(self.blas_threads,))
-                    running[solo.submit(_call, fn, items[index], self.blas_threads)] = (index, solo)
+                    running[solo.submit(_call_in_worker, fn, items[index], self.blas_threads)] = (index, solo)
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 for future in done:
                     index, solo = running.pop(future)
