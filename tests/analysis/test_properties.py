@@ -348,10 +348,10 @@ def test_command_reports_bad_files(tmp_path):
     bad = tmp_path / "bad.csv"
     bad.write_text("strain,stress\n0,0\n0.01,oops\n")
     result = invoke(bad)
-    assert result.exit_code == 2
+    assert result.exit_code == 3  # bad input data (docs/command_line.md)
     assert "bad.csv, line 3" in result.output and "oops" in result.output
     result = invoke(bad, "--stress-column", "load")
-    assert result.exit_code == 2 and "no stress column named 'load'" in result.output
+    assert result.exit_code == 3 and "no stress column named 'load'" in result.output
 
 
 def toe_specimen(path, toe=0.01):
@@ -393,5 +393,5 @@ def test_command_bad_strain_range(tmp_path, text):
 def test_command_names_the_curve_that_cannot_be_fitted(tmp_path):
     toe_specimen(tmp_path / "toe.csv")
     result = invoke(tmp_path / "toe.csv", "--percent-strain", "--strain-range", "50:")  # ends at 30 %
-    assert result.exit_code == 2
+    assert result.exit_code == 3
     assert "toe.csv: a curve needs at least two distinct strains within strain_range" in result.output

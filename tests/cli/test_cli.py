@@ -162,3 +162,24 @@ def test_image_to_mechanics_end_to_end(tmp_path):
     assert calibrated["rve"]["max_deviation_deg"] > 5.0
     curve = np.genfromtxt(tmp_path / "test" / "curve.csv", delimiter=",", names=True)
     assert curve["stress_MPa"][-1] > 0
+
+
+def test_exit_codes_tell_usage_input_and_solver_failures_apart(tmp_path):
+    """docs/command_line.md: 2 usage, 3 bad input data, 4 solver failure."""
+    usage = runner.invoke(app, ["simulate", "--steps", "0", "-o", str(tmp_path / "u")])
+    assert usage.exit_code == 2 and "loading.steps" in usage.output
+    not_rve = tmp_path / "not_rve.h5"
+    not_rve.write_bytes(b"not an HDF5 file")
+    bad_file = runner.invoke(app, ["simulate", str(not_rve), "-o", str(tmp_path / "b")])
+    assert bad_file.exit_code == 3 and "not_rve.h5" in bad_file.output
+    out = tmp_path / "s"
+    solver = runner.invoke(app, ["simulate", "--set", "rve.size_ratio=30", "--set", "rve.layers=2",
+                                 "--max-strain", "0.02", "--steps", "2", "--set", "solver.max_iterations=1",
+                                 "--set", "solver.max_cuts=0", "-q", "-o", str(out)])
+    assert solver.exit_code == 4
+    message = solver.output.strip().splitlines()
+    assert len(message) == 1 and "did not converge" in message[0] and "Try " in message[0]
+    assert "the 0 converged steps are kept" in message[0] and "solver.log" in message[0]
+    log = (out / "solver.log").read_text().splitlines()
+    assert len(log) - log.index("iteration  residual [uN]") - 1 == 2  # the residual of each iteration
+    assert (out / "curve.csv").exists()  # the converged steps (here the initial state) are kept

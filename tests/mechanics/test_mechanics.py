@@ -187,10 +187,13 @@ def test_macroscopic_tangent_matches_finite_differences(linear):
                 assert np.allclose(A[:, :, k, L], fd, atol=1e-6 * np.abs(A).max()), (fiber, k, L)
 
 
-def test_failed_solve_says_where_and_why(small_rve, linear):
+def test_failed_solve_says_where_why_and_what_to_try(small_rve, linear):
     config = _config(loading__max_strain=0.05, loading__steps=2, solver__max_iterations=1, solver__max_cuts=0)
-    with pytest.raises(SolverError, match=r"step 1 of 2 \(time .* strain .*\) did not converge.*residual history"):
+    with pytest.raises(SolverError, match=r"step 1 of 2 \(strain .*, time .*\) did not converge: the residual "
+                                          r"stalled \(1 iteration; .*\)\. Try .*loading\.steps") as err:
         run_program(small_rve.network, config, linear)
+    assert "\n" not in str(err.value) and len(err.value.history) == 2
+    assert err.value.kind == "stalled" and err.value.step == 1 and err.value.strain == pytest.approx(0.025)
 
 
 @pytest.mark.parametrize("direction", [0.0, 30.0])
@@ -242,10 +245,13 @@ def test_a_failed_step_keeps_the_converged_ones(small_rve, linear, tmp_path, mon
         return solve(self, start, time, *args)
 
     monkeypatch.setattr(EquilibriumSolver, "solve", failing_from_step_3)
-    with pytest.raises(SimulationFailed, match=r"step 3 of 4 .* after 2 cuts: forced") as err:
+    with pytest.raises(SimulationFailed, match=r"step 3 of 4 .* after 2 cuts: the residual stalled .*"
+                                               r"residual history in .*solver\.log") as err:
         espin.simulate(small_rve, tmp_path / "out", loading__max_strain=0.04, loading__steps=4,
                        solver__max_cuts=2, output__figures=False, output__vtk=False)
     assert len(err.value.partial.time) == 3  # steps 0, 1, 2
+    log_text = (tmp_path / "out" / "solver.log").read_text()
+    assert "last attempt: forced" in log_text and "5.000000e-01" in log_text
     curve = np.genfromtxt(tmp_path / "out" / "curve.csv", delimiter=",", names=True)
     assert list(curve["step"]) == [0, 1, 2]
 

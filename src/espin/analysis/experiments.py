@@ -47,7 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from espin.core.atomic import atomic_write_bytes
-from espin.core.errors import EspinError
+from espin.core.errors import InputError
 
 __all__ = ["CurveFileError", "Curve", "AveragedCurve", "read_curve", "average_curves"]
 
@@ -56,7 +56,7 @@ _STRESS_NAMES = ("stress_MPa", "stress [MPa]", "stress (MPa)", "stress", "mean_M
 _DELIMITERS = ("\t", ";", ",")
 
 
-class CurveFileError(EspinError, ValueError):
+class CurveFileError(InputError):
     """A curve file cannot be read (the message names the file and line), or curves cannot be
     averaged."""
 

@@ -60,7 +60,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.optimize import minimize_scalar
 
-from espin.core.errors import EspinError
+from espin.core.errors import InputError
 
 if TYPE_CHECKING:  # pragma: no cover
     from espin.mechanics.driver import SimulationResult
@@ -81,7 +81,7 @@ _GRID_POINTS = 200
 _ROUNDING = 1e-9
 
 
-class CurveError(EspinError, ValueError):
+class CurveError(InputError):
     """A stress-strain curve cannot be analysed (too short, not finite, strain decreasing)."""
 
 

@@ -81,14 +81,14 @@ def calibrate_geometry_command(
     generate / simulate. The mechanics change with the geometry: run espin fit next."""
     from rich.console import Console
 
-    from espin.core.errors import EspinError
+    from espin.core.errors import ConfigError, EspinError
     from espin.geometry.targets import GeometryTargets, MeasurementError
     from espin.imaging.geometry_calibration import MECHANICS_NOTE, calibrate_geometry
 
     console = Console(stderr=True, quiet=quiet)
     try:
         if orientation not in (None, "uniform"):
-            raise MeasurementError(
+            raise ConfigError(
                 f"--orientation must be uniform (or give --orientation-mean-deg and "
                 f"--orientation-kappa), got {orientation!r}"
             )
@@ -97,10 +97,11 @@ def calibrate_geometry_command(
             "tortuosity_scale": tortuosity_scale, "orientation_uniform": orientation == "uniform",
             "orientation_mean_deg": orientation_mean_deg, "orientation_kappa": orientation_kappa,
         }
-        if measured is not None:
-            targets = GeometryTargets.from_path(measured).with_typed(**typed)
-        else:
-            targets = GeometryTargets(**typed)
+        measured_targets = GeometryTargets.from_path(measured) if measured is not None else None
+        try:  # a typed-in value out of range is a usage error, a bad measured file an input error
+            targets = measured_targets.with_typed(**typed) if measured_targets else GeometryTargets(**typed)
+        except MeasurementError as err:
+            raise ConfigError(str(err)) from None
         with console.status("calibrating the deposition") as status:
             result = calibrate_geometry(
                 targets, base, fit=fit, segment_ratio=segment_ratio,
@@ -110,7 +111,7 @@ def calibrate_geometry_command(
             )
         files = result.write(out)
     except EspinError as err:
-        fail(str(err))
+        fail(err)
     console.print(result.format_table(), highlight=False, soft_wrap=True)
     console.print("wrote " + ", ".join(str(f) for f in files.values()), highlight=False)
     # The note (last line of the table) and the next steps are printed even with --quiet.

@@ -46,10 +46,14 @@ def parse_set(items: list[str] | None) -> dict[str, Any]:
     return out
 
 
-def fail(message: str) -> NoReturn:
-    """Print ``error: message`` in red on stderr and exit with code 2."""
-    typer.secho(f"error: {message}", fg=typer.colors.RED, err=True)
-    raise typer.Exit(code=2)
+def fail(error: Exception | str) -> NoReturn:
+    """Print ``error: message`` in red on stderr and exit with the error's code.
+
+    The code follows the error's type (:mod:`espin.core.errors`): 2 for a usage error (and for
+    a plain message), 3 for bad input data, 4 for a solver failure.
+    """
+    typer.secho(f"error: {error}", fg=typer.colors.RED, err=True)
+    raise typer.Exit(code=getattr(error, "exit_code", 2))
 
 
 _DELIMITER_NAMES = {"tab": "\t", "\\t": "\t", "space": " ", "whitespace": " "}

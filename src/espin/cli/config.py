@@ -21,7 +21,7 @@ def show_config(source: SourceArg = None, set_: SetOpt = None) -> None:
         overrides = parse_set(set_)
         config = resolve_config(source, **{k.replace(".", "__"): v for k, v in overrides.items()})
     except EspinError as err:
-        fail(str(err))
+        fail(err)
     sys.stdout.write(config_to_toml(config))
 
 

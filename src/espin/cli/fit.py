@@ -301,7 +301,7 @@ def register(app: typer.Typer) -> None:
                 )
             written = result.write(out)
         except EspinError as err:
-            fail(str(err))
+            fail(err)
         finally:
             logging.getLogger("espin.analysis.calibration").removeHandler(live)
         console.print(_table(result))

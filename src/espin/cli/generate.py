@@ -70,7 +70,7 @@ def generate(
             bar.update(task, description="writing files")
             result = write_rve_folder(rve, folder, figures=figures, vtk=vtk)
     except EspinError as err:
-        fail(str(err))
+        fail(err)
     console.print(result.statistics.format_table(), highlight=False)
     console.print(f"seeding: {config.rve.seeding}   wrote {folder}/: " + ", ".join(
         p.name for p in result.files.values()

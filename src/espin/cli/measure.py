@@ -78,7 +78,7 @@ def measure(
             )
             files = result.write(folder, figures=figures)
     except EspinError as err:
-        fail(str(err))
+        fail(err)
     table = Table(title=f"{image.name}", show_header=False)
     for name, value in result.table_rows():
         table.add_row(name, value)

@@ -35,12 +35,12 @@ def _strain_range(text: str | None, percent: bool) -> tuple[float | None, float 
 
     Raises
     ------
-    CurveError
+    ConfigError
         If the text is not ``LO:HI`` with finite numbers and LO < HI.
     """
     import math
 
-    from espin.analysis.properties import CurveError
+    from espin.core.errors import ConfigError
 
     if text is None:
         return None
@@ -48,7 +48,7 @@ def _strain_range(text: str | None, percent: bool) -> tuple[float | None, float 
             "or, with --percent-strain, 2:)")
     parts = text.split(":")
     if len(parts) != 2:
-        raise CurveError(f"{rule}; got {text!r}")
+        raise ConfigError(f"{rule}; got {text!r}")
     bounds: list[float | None] = []
     for part in parts:
         if not part.strip():
@@ -57,13 +57,13 @@ def _strain_range(text: str | None, percent: bool) -> tuple[float | None, float 
         try:
             value = float(part)
         except ValueError:
-            raise CurveError(f"{rule}; got {text!r}") from None
+            raise ConfigError(f"{rule}; got {text!r}") from None
         if not math.isfinite(value):
-            raise CurveError(f"{rule}; got {text!r}")
+            raise ConfigError(f"{rule}; got {text!r}")
         bounds.append(value / 100.0 if percent else value)
     lo, hi = bounds
     if lo is not None and hi is not None and not lo < hi:
-        raise CurveError(f"{rule}; got {text!r}")
+        raise ConfigError(f"{rule}; got {text!r}")
     return lo, hi
 
 
@@ -226,7 +226,7 @@ def register(app: typer.Typer) -> None:
             analysis = _analyse([read_curve(path, **options) for path in curves], fit_range)
             written = [] if out is None else _write_outputs(analysis, out)
         except EspinError as err:
-            fail(str(err))
+            fail(err)
         table = Table(*_HEADER, title="bilinear fit: E = initial slope, yield = intersection of the lines")
         for row in analysis.rows:
             table.add_row(*row)

@@ -91,7 +91,7 @@ def simulate(
 
             result = run_simulation(target, folder, on_step=on_step)
     except EspinError as err:
-        fail(str(err))
+        fail(err)
     stress = result.stress()
     console.print(
         f"{config.loading.test} test, {program.n_steps} steps: stress {stress[-1]:.4g} MPa at strain "

@@ -8,6 +8,7 @@ from typing import Annotated, Any, Optional
 import typer
 
 from espin.cli.common import fail, parse_set
+from espin.core.errors import EXIT_SOLVER
 
 __all__ = ["register", "parse_grid"]
 
@@ -108,7 +109,7 @@ def _run_study(prepare, out: Path, columns: list[str], quiet: bool) -> None:
         run, n_tasks = prepare()
         result = _run_with_progress(run, n_tasks, quiet)
     except EspinError as err:
-        fail(str(err))
+        fail(err)
     _report(result, out, columns, quiet)
 
 
@@ -138,7 +139,7 @@ def _report(result, folder: Path, columns: list[str], quiet: bool) -> None:
             console.print(f"[red]failed[/red] {failure['parameters']} seed {failure['seed']}: {first_line}")
         console.print(f"{len(ensemble.failures)} task(s) failed (tracebacks in {folder}/failed/); rerun the "
                       "same command to retry them: finished tasks are skipped")
-        raise typer.Exit(code=1)
+        raise typer.Exit(code=EXIT_SOLVER)
 
 
 _MEANS = [f"{p}_mean" for p in ("modulus_MPa", "yield_stress_MPa", "post_yield_modulus_MPa")]
@@ -257,7 +258,7 @@ def dof(
                  plot_dof_study(table, out / "dof.png"),
                  atomic_write(out / "dof_fit.csv", lambda tmp: fits.to_csv(tmp, index=False))]
     except EspinError as err:
-        fail(str(err))
+        fail(err)
     if not quiet:
         typer.echo(table.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
         typer.echo(fits.to_string(index=False, float_format=lambda v: f"{v:.4g}"))

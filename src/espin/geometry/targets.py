@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from espin.core.errors import EspinError
+from espin.core.errors import InputError
 
 __all__ = ["MeasurementError", "GeometryTargets", "MIN_SAMPLE_SIZE", "equivalent_square_side"]
 
@@ -44,7 +44,7 @@ SAMPLE_COLUMNS = ("diameter_um", "orientation_deg", "tortuosity")
 LENGTH_COLUMNS = ("contour_length_um", "end_to_end_um")
 
 
-class MeasurementError(EspinError, ValueError):
+class MeasurementError(InputError):
     """Measured or typed-in targets are missing, unreadable or out of range."""
 
 

@@ -222,12 +222,10 @@ def run_program(
     threshold = config.output.yield_threshold
     records: list[StepRecord] = []
 
-    def fail(k: int, t: float, failure: StepFailed, what: str) -> SimulationFailed:
-        history = ", ".join(f"{r:.3g}" for r in failure.history)
+    def fail(k: int, t: float, failure: StepFailed, cuts: int) -> SimulationFailed:
         return SimulationFailed(
-            f"step {k} of {program.n_steps} (time {t:.6g} s, strain {program.strain_at(t):.6g}) "
-            f"{what}: {failure.reason}; residual history [uN]: {history}",
-            _result(config, program, records) if records else None,
+            failure, step=k, n_steps=program.n_steps, time=t, strain=program.strain_at(t), cuts=cuts,
+            mixed=bool(len(directions)), partial=_result(config, program, records) if records else None,
         )
 
     F0 = program.prescribed_F(0.0)
@@ -241,7 +239,7 @@ def run_program(
     try:
         first = solver.solve(state, 0.0, F0, directions, state.inner, state.free)
     except StepFailed as failure:
-        raise fail(0, 0.0, failure, "(the initial state) did not converge") from None
+        raise fail(0, 0.0, failure, 0) from None
     state = first.state
     records.append(_record(0, solver, first, program.strain[0], (first.iterations, first.factorizations, 1), threshold))
     if on_step is not None:
@@ -267,10 +265,11 @@ def run_program(
                 result = solver.solve(state, t_next, F_next, directions, guess_inner, guess_free)
             except StepFailed as failure:
                 counts[0] += max(len(failure.history) - 1, 0)
+                counts[1] += failure.factorizations
                 cuts += 1
                 fraction /= 2.0
                 if cuts > config.solver.max_cuts:
-                    raise fail(k, t_next, failure, f"did not converge after {config.solver.max_cuts} cuts") from None
+                    raise fail(k, t_next, failure, config.solver.max_cuts) from None
                 continue
             counts[0] += result.iterations
             counts[1] += result.factorizations
@@ -285,12 +284,86 @@ def run_program(
     return _result(config, program, records)
 
 
-class SimulationFailed(SolverError):
-    """A step could not converge; ``partial`` holds the curve up to the last converged step."""
+_WHY = {
+    "stalled": "the residual stalled",
+    "uphill": "no step along the Newton direction lowered the potential (the tangent points uphill)",
+    "inadmissible": "an iterate left the admissible states (non-finite, or the RVE inverted)",
+    "singular": "the tangent could not be factorized (a part of the network without stiffness?)",
+}
+_TRY = {
+    "stalled": "a larger rve.merge_tolerance_ratio (0.1: very short elements between close "
+               "cross-links stall Newton on wavy mats) or more load steps (loading.steps)",
+    "uphill": "more load steps (loading.steps)",
+    "inadmissible": "more load steps (loading.steps)",
+    "singular": "a mat that holds together: a larger rve.volume_fraction or more rve.layers",
+}
+_TRY_MIXED = ("lateral = \"fixed\" or {poisson_ratio = ...} (a free lateral stress is the hardest "
+              "case, docs/mechanics.md), or more load steps (loading.steps)")
 
-    def __init__(self, message: str, partial: SimulationResult | None) -> None:
-        super().__init__(message)
+
+class SimulationFailed(SolverError):
+    """A load step could not converge.
+
+    ``str()`` is one line: which step, at which strain, why and what to try. :meth:`details`
+    adds the residual history of the last attempt (``espin simulate`` writes it to
+    ``solver.log`` in the output folder, named then in the message as ``log_path``).
+
+    Attributes
+    ----------
+    step, n_steps : int
+        The reported step that failed (0: the initial state) and the program's steps.
+    time : float [s]
+    strain : float
+        Time and load parameter of the last attempt.
+    cuts : int
+        Halvings of the step tried.
+    kind : str
+        Why (:data:`espin.mechanics.equilibrium.FAILURE_KINDS`).
+    reason : str
+        The last attempt's failure, in words.
+    history : list of float [uN]
+        Residual norm per iteration of the last attempt.
+    partial : SimulationResult or None
+        The curve up to the last converged step.
+    log_path : Path or None
+        Where the details were written, if they were.
+    """
+
+    def __init__(self, failure: StepFailed, *, step: int, n_steps: int, time: float, strain: float,
+                 cuts: int, mixed: bool, partial: SimulationResult | None) -> None:
+        self.step, self.n_steps, self.time, self.strain, self.cuts = step, n_steps, time, strain, cuts
+        self.kind, self.reason, self.history = failure.kind, failure.reason, list(failure.history)
+        self.advice = _TRY_MIXED if mixed and failure.kind != "singular" else _TRY[failure.kind]
         self.partial = partial
+        self.log_path = None
+        super().__init__(self.summary())
+
+    def summary(self) -> str:
+        """The one-line message."""
+        where = "the initial state" if self.step == 0 else f"step {self.step} of {self.n_steps}"
+        cuts = f" after {self.cuts} cuts" if self.cuts else ""
+        why = _WHY[self.kind]
+        if self.kind == "stalled" and self.history:
+            n = len(self.history) - 1
+            why += (f" ({n} iteration{'s' * (n != 1)}; residual {self.history[-1]:.3g} uN at the end, "
+                    f"{min(self.history):.3g} at best)")
+        log_note = ""
+        if self.log_path is not None:
+            kept = 0 if self.partial is None else len(self.partial.time) - 1
+            log_note = (f"; the {kept} converged step{'s' * (kept != 1)} are kept beside the residual "
+                        f"history in {self.log_path}")
+        return (f"{where} (strain {self.strain:.6g}, time {self.time:.6g} s) did not converge{cuts}: "
+                f"{why}. Try {self.advice}{log_note}.")
+
+    def __str__(self) -> str:
+        return self.summary()
+
+    def details(self) -> str:
+        """The message, the last attempt's failure and its residual history, as log text."""
+        history = "\n".join(f"{k:5d}  {r:.6e}" for k, r in enumerate(self.history))
+        return (f"{self.summary()}\n\nlast attempt: {self.reason}\n"
+                f"converged steps kept: {0 if self.partial is None else len(self.partial.time) - 1}\n\n"
+                f"iteration  residual [uN]\n{history}\n")
 
 
 def _result(config: Config, program: LoadProgram, records: list[StepRecord]) -> SimulationResult:

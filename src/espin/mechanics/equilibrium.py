@@ -41,7 +41,7 @@ from espin.geometry.network import Network
 from espin.mechanics.assembly import Kinematics, NetworkAssembler
 from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
 
-__all__ = ["StepState", "StepResult", "StepFailed", "EquilibriumSolver"]
+__all__ = ["StepState", "StepResult", "StepFailed", "FAILURE_KINDS", "EquilibriumSolver"]
 
 _MAX_ITERATIONS = 200  # default per step: plla seed 6 needs 75 at its first step (kink cycling)
 _MAX_ITERATIONS_MIXED = 500  # under mixed control: buckling chains need hundreds
@@ -91,12 +91,33 @@ class StepResult:
 
 
 class StepFailed(Exception):
-    """Newton did not converge in a step; ``history`` holds the residual per iteration."""
+    """Newton did not converge in a step.
 
-    def __init__(self, reason: str, history: list[float]):
+    Attributes
+    ----------
+    reason : str
+        What happened, in words.
+    kind : str
+        Why, as one of :data:`FAILURE_KINDS`.
+    history : list of float [uN]
+        The residual norm per iteration.
+    factorizations : int
+        Tangent factorizations the attempt took.
+    """
+
+    def __init__(self, reason: str, history: list[float], factorizations: int = 0, kind: str = "stalled"):
         super().__init__(reason)
         self.reason = reason
+        self.kind = kind
         self.history = history
+        self.factorizations = factorizations
+
+
+FAILURE_KINDS = ("stalled", "uphill", "inadmissible", "singular")
+"""Why a step failed: the residual stalled within the iteration limit; no step along the
+Newton direction lowered the potential (the tangent points uphill); an iterate left the
+admissible states (non-finite, or the RVE inverted); the tangent could not be factorized or the
+fiber law not solved."""
 
 
 @dataclass(eq=False)
@@ -212,7 +233,8 @@ class EquilibriumSolver:
         free = z[n:]
         F = step.F_prescribed + np.tensordot(free, step.directions, axes=1) if len(free) else step.F_prescribed
         if not (np.all(np.isfinite(z)) and np.linalg.det(F) > 0.0):
-            raise StepFailed("the iterate left the admissible states (non-finite, or det F <= 0)", [])
+            raise StepFailed("the iterate left the admissible states (non-finite, or det F <= 0)", [],
+                             kind="inadmissible")
         x = self.asm.positions(z[:n], F)
         kin = self.asm.kinematics(x)
         stretch = kin.length / self.l0
@@ -332,12 +354,12 @@ class EquilibriumSolver:
                 factorizations += used
                 p = self._line_search(p, direction, step)
         except StepFailed as failure:
-            raise StepFailed(failure.reason, history) from None
+            raise StepFailed(failure.reason, history, factorizations, failure.kind) from None
         except (SolverError, ValueError, ArithmeticError) as err:
             # A singular factorization or a failed return mapping: the step is cut like any
             # other failure.
-            raise StepFailed(f"{type(err).__name__}: {err}", history) from None
-        raise StepFailed(f"no convergence in {limit} iterations", history)
+            raise StepFailed(f"{type(err).__name__}: {err}", history, factorizations, "singular") from None
+        raise StepFailed(f"no convergence in {limit} iterations", history, factorizations)
 
     def _line_search(self, p: _Point, direction: np.ndarray, step: _Step) -> _Point:
         """Step length along the Newton direction on the incremental potential Phi.
@@ -382,7 +404,7 @@ class EquilibriumSolver:
                 break
         if best is not None and self._decreases(p, best, direction, lo, s0, s_lo, step):
             return best  # no better point found, but Phi falls up to it
-        raise StepFailed("line search could not lower the incremental potential", [])
+        raise StepFailed("line search could not lower the incremental potential", [], kind="uphill")
 
     def _decreases(self, p: _Point, trial: _Point, direction: np.ndarray, alpha: float, s0: float,
                    s_trial: float, step: _Step) -> bool:

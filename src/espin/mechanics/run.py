@@ -16,9 +16,12 @@ from espin.geometry.rve_file import load_rve
 from espin.mechanics.driver import SimulationFailed, SimulationResult, StepRecord, run_program
 from espin.mechanics.linear_solvers import make_linear_solver
 
-__all__ = ["simulate", "resolve_rve"]
+__all__ = ["simulate", "resolve_rve", "SOLVER_LOG"]
 
 log = logging.getLogger(__name__)
+
+SOLVER_LOG = "solver.log"
+"""File of the output folder that a failed run writes its residual history to."""
 
 
 def resolve_rve(source: RVE | Config | str | Path | None, overrides: dict[str, Any]) -> tuple[RVE, bool]:
@@ -78,8 +81,9 @@ def simulate(
     ConfigError
         For an invalid configuration (before any work starts).
     SimulationFailed
-        When a step cannot converge (which step, and the residual history); the results
-        folder then holds the curve and results of the steps that converged.
+        When a step cannot converge: one line says which step, why and what to try; the
+        results folder then holds the curve and results of the steps that converged and
+        ``solver.log``, the residual history of the last attempt.
     """
     flat = {key.replace("__", "."): value for key, value in overrides.items()}
     rve, generated = resolve_rve(source, flat)
@@ -106,11 +110,15 @@ def simulate(
         with threadpool_limits(limits=threads):
             result = run_program(rve.network, config, linear, on_step=step_done)
     except SimulationFailed as failure:
-        if folder is not None and failure.partial is not None:
-            from espin.mechanics.results_file import write_results
+        if folder is not None:
+            from espin.core.atomic import atomic_write_bytes
 
-            write_results(failure.partial, folder)  # the steps that converged are kept
-            log.error("wrote the %d converged steps to %s", len(failure.partial.time), folder)
+            failure.log_path = atomic_write_bytes(folder / SOLVER_LOG, failure.details().encode("utf-8"))
+            if failure.partial is not None:
+                from espin.mechanics.results_file import write_results
+
+                write_results(failure.partial, folder)  # the steps that converged are kept
+                log.info("wrote the %d converged steps to %s", len(failure.partial.time) - 1, folder)
         raise
     if folder is not None:
         from espin.mechanics.results_file import write_results

@@ -11,7 +11,7 @@ from typing import Any
 import tomli_w
 
 from espin.core.config import Config
-from espin.core.errors import EspinError
+from espin.core.errors import ConfigError, RVEFileError
 from espin.geometry.targets import GeometryTargets
 from espin.imaging.geometry_calibration.matching import DistributionMatch
 from espin.imaging.geometry_calibration.options import _written_data
@@ -152,20 +152,21 @@ class GeometryCalibration:
 
         Raises
         ------
-        EspinError
-            If the path is an existing file that is not a ``.toml`` (it would be a folder), or
-            a file cannot be written.
+        ConfigError
+            If the path is an existing file that is not a ``.toml`` (it would be a folder).
+        RVEFileError
+            If a file cannot be written.
         """
         from espin.core.atomic import atomic_write_bytes
 
         path = Path(path)
         if path.suffix == ".toml":
             if path.is_dir():
-                raise EspinError(f"{path} is a folder: give a .toml file or a folder name without .toml")
+                raise ConfigError(f"{path} is a folder: give a .toml file or a folder name without .toml")
             files = {"config": path, "report": path.with_name(f"{path.stem}.calibration.json")}
         else:
             if path.exists() and not path.is_dir():
-                raise EspinError(
+                raise ConfigError(
                     f"{path} is an existing file: a path without .toml is a folder "
                     "(config.toml, calibration.json, calibration.txt); give a .toml file or a folder"
                 )
@@ -180,7 +181,7 @@ class GeometryCalibration:
             if "table" in files:
                 atomic_write_bytes(files["table"], (self.format_table() + "\n").encode("utf-8"))
         except OSError as err:
-            raise EspinError(f"cannot write the calibration to {path}: {err}") from None
+            raise RVEFileError(f"cannot write the calibration to {path}: {err}") from None
         return files
 
     def _header_lines(self) -> list[str]:
