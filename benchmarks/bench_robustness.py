@@ -2,6 +2,7 @@
 
 Run:  python benchmarks/bench_robustness.py [--out robustness] [--workers 2] [--cap-s 240]
                                              [--cases 0-40] [--loadings fixed,poisson,...]
+      python benchmarks/bench_robustness.py --set rve.merge_tolerance_ratio=0.1 --out merge01
       python benchmarks/bench_robustness.py --report robustness     # the table of a folder
 
 The sample: 40 geometries from a seeded Latin hypercube (scipy.stats.qmc) over
@@ -14,7 +15,8 @@ Each geometry runs five loadings to 20 % strain in 20 reported steps:
   fixed     uniaxial, lateral fixed            poisson   uniaxial, lateral {poisson_ratio = 0.3}
   biaxial   equibiaxial                        shear     simple shear
   unload    uniaxial fixed to 20 %, back to 10 % (10 + 10 steps)
-with the default solver settings. A task that runs longer than ``--cap-s`` seconds counts as a
+with the default solver settings (``--set KEY=VALUE``, TOML values, overrides a key in every
+task, to compare a variant; it is part of each task's key). A task that runs longer than ``--cap-s`` seconds counts as a
 failure. Tasks run on espin's task pool (local processes); each finished task is written to
 ``OUT/tasks/<key>.json`` at once, so a rerun skips what is done (resumable).
 
@@ -108,12 +110,14 @@ def run_task(task: dict) -> dict:
     loading_overrides = dict(LOADINGS[loading])
     if "loading.program" not in loading_overrides:
         loading_overrides |= {"loading.max_strain": STRAIN, "loading.steps": STEPS}
+    loading_overrides |= {k: v for k, v in task.get("set", {}).items() if not k.startswith("rve.")}
     signal.signal(signal.SIGALRM, _on_alarm)
     signal.setitimer(signal.ITIMER_REAL, cap)
     start = time.perf_counter()
     record = {"key": task["key"], "index": task["index"], "loading": loading}
     try:
-        overrides = _overrides(case)
+        overrides = _overrides(case) | _overrides({k: v for k, v in task.get("set", {}).items()
+                                                     if k.startswith("rve.")})
         rve = generate(case["source"], **overrides)
         while case["source"] == "plla" and rve.network.n_dof > MAX_DOF:
             overrides["rve__size_ratio"] = round(0.9 * overrides["rve__size_ratio"], 1)
@@ -199,14 +203,19 @@ def main() -> int:
     parser.add_argument("--cap-s", type=float, default=240.0)
     parser.add_argument("--cases", default="", help="e.g. 0-10,40 (default: all)")
     parser.add_argument("--loadings", default=",".join(LOADINGS))
+    parser.add_argument("--set", action="append", default=[], help="KEY=VALUE for every task (TOML value)")
     parser.add_argument("--report", type=Path, default=None, help="print the table of a folder and stop")
     args = parser.parse_args()
+    import tomllib
+
+    variant = {k: tomllib.loads(f"v = {v}")["v"] for k, _, v in (s.partition("=") for s in args.set)}
     cases = geometries()
     if args.report is not None:
         report(args.report, cases)
         return 0
     loadings = args.loadings.split(",")
-    tasks = [{"case": cases[i], "loading": name, "index": i, "cap_s": args.cap_s, "key": _key(cases[i], name)}
+    tasks = [{"case": cases[i], "loading": name, "index": i, "cap_s": args.cap_s, "set": variant,
+              "key": _key(cases[i] | {"set": variant} if variant else cases[i], name)}
              for i in _select(args.cases, len(cases)) for name in loadings]
     folder = args.out / "tasks"
     folder.mkdir(parents=True, exist_ok=True)
