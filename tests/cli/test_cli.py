@@ -181,5 +181,5 @@ def test_exit_codes_tell_usage_input_and_solver_failures_apart(tmp_path):
     assert len(message) == 1 and "did not converge" in message[0] and "Try " in message[0]
     assert "the 0 converged steps are kept" in message[0] and "solver.log" in message[0]
     log = (out / "solver.log").read_text().splitlines()
-    assert len(log) - log.index("iteration  residual [uN]") - 1 == 2  # the residual of each iteration
+    assert len(log) - log.index("    k  residual") - 1 == 4  # Newton, then the first continuation stage
     assert (out / "curve.csv").exists()  # the converged steps (here the initial state) are kept

@@ -190,9 +190,11 @@ def test_macroscopic_tangent_matches_finite_differences(linear):
 def test_failed_solve_says_where_why_and_what_to_try(small_rve, linear):
     config = _config(loading__max_strain=0.05, loading__steps=2, solver__max_iterations=1, solver__max_cuts=0)
     with pytest.raises(SolverError, match=r"step 1 of 2 \(strain .*, time .*\) did not converge: the residual "
-                                          r"stalled \(1 iteration; .*\)\. Try .*loading\.steps") as err:
+                                          r"stalled \(2 iterations; .*\)\. Try .*loading\.steps") as err:
         run_program(small_rve.network, config, linear)
-    assert "\n" not in str(err.value) and len(err.value.history) == 2
+    # One iteration of Newton, then one of the first continuation stage (stiffer E_b), failed.
+    assert "\n" not in str(err.value) and len(err.value.history) == 4
+    assert "continuation in the slack modulus failed at E_b = 300 MPa" in err.value.reason
     assert err.value.kind == "stalled" and err.value.step == 1 and err.value.strain == pytest.approx(0.025)
 
 

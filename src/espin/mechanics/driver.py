@@ -264,7 +264,7 @@ def run_program(
             try:
                 result = solver.solve(state, t_next, F_next, directions, guess_inner, guess_free)
             except StepFailed as failure:
-                counts[0] += max(len(failure.history) - 1, 0)
+                counts[0] += failure.iterations
                 counts[1] += failure.factorizations
                 cuts += 1
                 fraction /= 2.0
@@ -322,7 +322,9 @@ class SimulationFailed(SolverError):
     reason : str
         The last attempt's failure, in words.
     history : list of float [uN]
-        Residual norm per iteration of the last attempt.
+        Residual norms of the last attempt (of each of its solves, one after another).
+    iterations : int
+        Newton iterations of the last attempt.
     partial : SimulationResult or None
         The curve up to the last converged step.
     log_path : Path or None
@@ -333,6 +335,7 @@ class SimulationFailed(SolverError):
                  cuts: int, mixed: bool, partial: SimulationResult | None) -> None:
         self.step, self.n_steps, self.time, self.strain, self.cuts = step, n_steps, time, strain, cuts
         self.kind, self.reason, self.history = failure.kind, failure.reason, list(failure.history)
+        self.iterations = failure.iterations
         self.advice = _TRY_MIXED if mixed and failure.kind != "singular" else _TRY[failure.kind]
         self.partial = partial
         self.log_path = None
@@ -344,7 +347,7 @@ class SimulationFailed(SolverError):
         cuts = f" after {self.cuts} cuts" if self.cuts else ""
         why = _WHY[self.kind]
         if self.kind == "stalled" and self.history:
-            n = len(self.history) - 1
+            n = self.iterations
             why += (f" ({n} iteration{'s' * (n != 1)}; residual {self.history[-1]:.3g} uN at the end, "
                     f"{min(self.history):.3g} at best)")
         log_note = ""
@@ -363,7 +366,8 @@ class SimulationFailed(SolverError):
         history = "\n".join(f"{k:5d}  {r:.6e}" for k, r in enumerate(self.history))
         return (f"{self.summary()}\n\nlast attempt: {self.reason}\n"
                 f"converged steps kept: {0 if self.partial is None else len(self.partial.time) - 1}\n\n"
-                f"iteration  residual [uN]\n{history}\n")
+                f"residual [uN] at the start and after each Newton iteration (solves one after another)\n"
+                f"    k  residual\n{history}\n")
 
 
 def _result(config: Config, program: LoadProgram, records: list[StepRecord]) -> SimulationResult:

@@ -19,7 +19,13 @@ consistent tangent. Newton's method with:
   the increment of Phi from the current iterate to the trial is checked, by Simpson's rule
   on that derivative along the line (never as a difference of two large totals);
 * convergence when max |g_I| <= rtol max_e |T_e| + atol E_t mean(A_e) and, under mixed
-  control, |P : G_k| <= rtol max |P| + atol E_t phi (phi: fiber volume over V0).
+  control, |P : G_k| <= rtol max |P| + atol E_t phi (phi: fiber volume over V0);
+* when Newton fails, a continuation in the slack modulus before the driver cuts the step:
+  the step is solved with E_b raised 100-fold (capped at E_t / 2), then 10-fold, then with
+  the true E_b, each solve starting from the equilibrium of the one before. Slack and
+  compressed fibers (E_b = E_t / 1000 for plla) make a network nearly a mechanism, where
+  Newton from the step's predictor does not find the basin of the solution; a stiffer E_b
+  leads it there. The last solve is the true model, so the result is exact.
 
 A step that does not converge raises :class:`StepFailed` with the residual history; the
 driver cuts the step.
@@ -29,7 +35,7 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -49,6 +55,7 @@ _SLOPE_RATIO = 0.5
 _MAX_SEARCH = 10
 _MIN_STEP = 1e-6
 _CLIPPED_AFTER_INDEFINITE = 3
+_SLACK_CONTINUATION = (100.0, 10.0, 1.0)  # E_b factors of the fallback, ending at the true law
 _ELEMENTS_PER_THREAD = 10_000  # fewer per thread: the threads cost more than they save
 
 
@@ -100,17 +107,21 @@ class StepFailed(Exception):
     kind : str
         Why, as one of :data:`FAILURE_KINDS`.
     history : list of float [uN]
-        The residual norm per iteration.
-    factorizations : int
-        Tangent factorizations the attempt took.
+        The residual norm at the start and after each iteration (of each solve, one after
+        another, when the continuation was tried).
+    factorizations, iterations : int
+        Tangent factorizations and Newton iterations the attempt took (default for the
+        iterations: those of ``history``, one solve).
     """
 
-    def __init__(self, reason: str, history: list[float], factorizations: int = 0, kind: str = "stalled"):
+    def __init__(self, reason: str, history: list[float], factorizations: int = 0, kind: str = "stalled",
+                 iterations: int | None = None):
         super().__init__(reason)
         self.reason = reason
         self.kind = kind
         self.history = history
         self.factorizations = factorizations
+        self.iterations = max(len(history) - 1, 0) if iterations is None else iterations
 
 
 FAILURE_KINDS = ("stalled", "uphill", "inadmissible", "singular")
@@ -328,7 +339,47 @@ class EquilibriumSolver:
         openblas = (nullcontext() if getattr(self.linear, "uses_openblas", True)
                     else ThreadpoolController().select(internal_api="openblas").limit(limits=1))
         with openblas:
-            return self._solve(start, time, F_prescribed, directions, guess_inner, guess_free)
+            try:
+                return self._solve(start, time, F_prescribed, directions, guess_inner, guess_free)
+            except StepFailed as failure:
+                return self._solve_by_continuation(failure, start, time, F_prescribed, directions,
+                                                   guess_inner, guess_free)
+
+    def _solve_by_continuation(self, failure: StepFailed, start: StepState, time: float,
+                               F_prescribed: np.ndarray, directions: np.ndarray,
+                               guess_inner: np.ndarray, guess_free: np.ndarray) -> StepResult:
+        """The step again, through a continuation in the slack modulus (module docstring).
+
+        Raises
+        ------
+        StepFailed
+            When a stage does not converge; counts include the first attempt's.
+        """
+        true_law = self._law_update.law
+        history = list(failure.history)
+        iterations, factorizations = failure.iterations, failure.factorizations
+        inner, free = guess_inner, guess_free
+        try:
+            for factor in _SLACK_CONTINUATION:
+                slack = min(factor * true_law.slack_modulus, 0.5 * true_law.taut_modulus)
+                self._law_update.law = replace(true_law, slack_modulus=slack) if factor != 1.0 else true_law
+                try:
+                    result = self._solve(start, time, F_prescribed, directions, inner, free)
+                except StepFailed as stage:
+                    raise StepFailed(
+                        f"{failure.reason}; then the continuation in the slack modulus failed at "
+                        f"E_b = {slack:g} MPa: {stage.reason}",
+                        history + stage.history, factorizations + stage.factorizations, stage.kind,
+                        iterations + stage.iterations,
+                    ) from None
+                iterations += result.iterations
+                factorizations += result.factorizations
+                history += result.residual_history
+                inner, free = result.state.inner, result.state.free
+        finally:
+            self._law_update.law = true_law
+        return StepResult(result.state, result.law, result.force, result.kinematics, iterations,
+                          factorizations, result.residual, history)
 
     def _solve(self, start: StepState, time: float, F_prescribed: np.ndarray,
                directions: np.ndarray, guess_inner: np.ndarray, guess_free: np.ndarray

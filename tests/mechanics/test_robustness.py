@@ -1,0 +1,48 @@
+"""Mats that users bring: the continuation in the slack modulus solves what Newton alone cannot.
+
+A small subset of ``benchmarks/bench_robustness.py`` (which runs the whole sample).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from espin.geometry.rve import generate
+from espin.mechanics.equilibrium import EquilibriumSolver, StepFailed
+from espin.mechanics.run import simulate
+
+# Case 2 of the robustness sample: a sparse, wavy, polydisperse, slightly aligned mat.
+WAVY_SPARSE = dict(rve__volume_fraction=0.0718, rve__max_deviation_deg=35.77, rve__segment_ratio=13.016,
+                   rve__diameter_sd_um=0.106, rve__orientation={"von_mises": {"mean_deg": 0.0, "kappa": 2.084}},
+                   rve__size_ratio=111.9, rve__layers=7, rve__seed=3)
+
+
+def test_wavy_sparse_mat_in_simple_shear_converges():
+    """Before the continuation, step 2 failed after 12 cuts (35 s); now both steps converge in
+    about 6 s. Step 1 needs the continuation: Newton alone stops at 200 iterations."""
+    rve = generate("plla", **WAVY_SPARSE)
+    result = simulate(rve, loading__test="simple_shear", loading__max_strain=0.02, loading__steps=2)
+    assert len(result.strain) == 3 and result.strain[-1] == pytest.approx(0.02)
+    assert result.iterations[1] > 200  # Newton failed first, the continuation then converged
+    assert np.all(np.isfinite(result.P)) and result.stress()[-1] > result.stress()[1] > 0
+
+
+def test_continuation_ends_at_the_true_model(small_rve, monkeypatch):
+    """Forcing the continuation at every step gives the same equilibrium as Newton alone:
+    its last solve is the true model (unique here: lateral fixed, elastic-plastic, 2 steps)."""
+    common = dict(loading__max_strain=0.02, loading__steps=2)
+    plain = simulate(small_rve, **common)
+    solve = EquilibriumSolver._solve
+    seen = set()
+
+    def newton_fails_once_per_step(self, start, time, *args):
+        if time not in seen:
+            seen.add(time)
+            raise StepFailed("forced", [1.0, 1.0])
+        return solve(self, start, time, *args)
+
+    monkeypatch.setattr(EquilibriumSolver, "_solve", newton_fails_once_per_step)
+    continued = simulate(small_rve, **common)
+    assert np.all(continued.iterations[1:] > plain.iterations[1:])  # the stages ran
+    np.testing.assert_allclose(continued.P, plain.P, rtol=1e-6, atol=1e-9 * np.abs(plain.P).max())
