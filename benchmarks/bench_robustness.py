@@ -36,6 +36,7 @@ import signal
 import statistics
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 SHARED_CONFIG = Path(__file__).resolve().parents[2] / "shared" / "data" / "configs" / "plga_calibrated.toml"
@@ -102,6 +103,7 @@ def run_task(task: dict) -> dict:
     """Generate the geometry (shrunk below MAX_DOF) and run one loading; never raises."""
     import numpy as np
 
+    from espin.core.config import config_from_dict
     from espin.geometry.rve import generate
     from espin.mechanics.driver import SimulationFailed
     from espin.mechanics.run import simulate
@@ -123,6 +125,11 @@ def run_task(task: dict) -> dict:
             overrides["rve__size_ratio"] = round(0.9 * overrides["rve__size_ratio"], 1)
             rve = generate(case["source"], **overrides)
         record |= {"dof": int(rve.network.n_dof), "size_ratio": rve.config.rve.size_ratio}
+        if "loading.program" in loading_overrides:  # a program replaces a config's shorthand loading
+            data = rve.config.model_dump(mode="json", exclude_none=True, exclude_unset=True)
+            for key in ("max_strain", "strain_rate_per_s", "steps"):
+                data.get("loading", {}).pop(key, None)
+            rve = replace(rve, config=config_from_dict(data, "(benchmark)"))
         try:
             result = simulate(rve, **_overrides(loading_overrides))
             record |= {"converged": True, "message": ""}
