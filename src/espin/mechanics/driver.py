@@ -353,8 +353,8 @@ class SimulationFailed(SolverError):
         log_note = ""
         if self.log_path is not None:
             kept = 0 if self.partial is None else len(self.partial.time) - 1
-            log_note = (f"; the {kept} converged step{'s' * (kept != 1)} are kept beside the residual "
-                        f"history in {self.log_path}")
+            what = {0: "the initial state is", 1: "the converged step is"}.get(kept, f"the {kept} converged steps are")
+            log_note = f"; {what} kept beside the residual history in {self.log_path}"
         return (f"{where} (strain {self.strain:.6g}, time {self.time:.6g} s) did not converge{cuts}: "
                 f"{why}. Try {self.advice}{log_note}.")
 
