@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from espin.mechanics.fiber_law import FiberLaw, elastic_stress, update
+from espin.mechanics.time_steps import local_error, next_step
 
 __all__ = ["FiberHistory", "constant_rate_history", "pull_fiber"]
 
@@ -37,6 +38,8 @@ class FiberHistory:
         The law that was integrated.
     tortuosity : float
         lambda_r of the fiber.
+    substeps : (n,) int64
+        Time steps of the law taken to reach each point (0 at the first).
     """
 
     time: np.ndarray
@@ -46,6 +49,7 @@ class FiberHistory:
     recruited: np.ndarray
     law: FiberLaw
     tortuosity: float
+    substeps: np.ndarray
 
 
 def constant_rate_history(
@@ -86,9 +90,17 @@ def constant_rate_history(
 
 
 def pull_fiber(
-    law: FiberLaw, time: ArrayLike, stretch: ArrayLike, tortuosity: float = 1.0
+    law: FiberLaw,
+    time: ArrayLike,
+    stretch: ArrayLike,
+    tortuosity: float = 1.0,
+    time_rtol: float | None = None,
 ) -> FiberHistory:
     """Integrate the fiber law (Eq. 1, 4, 5) along a prescribed stretch history.
+
+    One backward-Euler step per interval of the history, or, with ``time_rtol``, as many as
+    the local error control of :mod:`espin.mechanics.time_steps` asks for, the stretch
+    varying linearly in time within an interval.
 
     Parameters
     ----------
@@ -100,6 +112,9 @@ def pull_fiber(
         (n,) stretches lambda > 0; the fiber starts undeformed (lambda_p = 1) at ``time[0]``.
     tortuosity
         lambda_r >= 1 of the fiber.
+    time_rtol
+        Relative stress tolerance of each step's local error, in (0, 1); None: one step
+        per interval.
 
     Returns
     -------
@@ -109,12 +124,36 @@ def pull_fiber(
     stretch = np.asarray(stretch, dtype=float)
     if time.ndim != 1 or time.shape != stretch.shape or np.any(np.diff(time) < 0):
         raise ValueError("time and stretch must be 1-D of equal length, time non-decreasing")
+    if time_rtol is not None and not 0.0 < time_rtol < 1.0:
+        raise ValueError(f"time_rtol must be in (0, 1), got {time_rtol}")
     stress = np.empty_like(stretch)
     plastic = np.ones_like(stretch)
+    substeps = np.zeros(len(stretch), dtype=np.int64)
     stress[0] = elastic_stress(law, stretch[0], tortuosity)
+    step = None  # the adaptive step, carried between intervals
     for k in range(1, len(stretch)):
-        state = update(law, stretch[k], plastic[k - 1], tortuosity, time[k] - time[k - 1])
-        stress[k], plastic[k] = state.stress[0], state.plastic_stretch[0]
+        t, t_end = time[k - 1], time[k]
+        t_stress, t_plastic = stress[k - 1], plastic[k - 1]
+        while True:
+            remaining = t_end - t
+            h = remaining
+            if time_rtol is not None and remaining > 0.0:
+                step = step or remaining
+                h = remaining / max(1.0, np.ceil(remaining / step - 1e-9))
+            last = h == remaining
+            at = stretch[k] if last else np.interp(t + h, time[k - 1:k + 1], stretch[k - 1:k + 1])
+            state = update(law, at, t_plastic, tortuosity, h)
+            if time_rtol is not None and h > 0.0:
+                error = local_error(law, t_stress, t_plastic, state, at, tortuosity, h)
+                step = next_step(h, error, time_rtol)
+                if error > time_rtol:
+                    continue
+            substeps[k] += 1
+            t_stress, t_plastic = state.stress[0], state.plastic_stretch[0]
+            if last:
+                break
+            t += h
+        stress[k], plastic[k] = t_stress, t_plastic
     return FiberHistory(
         time=time,
         stretch=stretch,
@@ -123,4 +162,5 @@ def pull_fiber(
         recruited=stretch / plastic >= max(tortuosity, 1.0),
         law=law,
         tortuosity=tortuosity,
+        substeps=substeps,
     )
