@@ -370,6 +370,10 @@ class SolverConfig(_Section):
     or 500 under mixed control (lateral free), where buckling chains need hundreds."""
     max_cuts: Annotated[int, Field(ge=0, le=60)] = 12
     """Times a load step may be halved before the solve fails, in [0, 60]."""
+    time_rtol: Annotated[float, Field(gt=0.0, lt=1.0)] | Literal["off"] = 1e-3
+    """Local error of the plastic update per time step, relative to the fiber stresses, in
+    (0, 1): load steps are split into as many time steps as it takes (docs/model.md
+    section 4). "off": one time step per load step, halved only when Newton fails."""
 
 
 class OutputConfig(_Section):

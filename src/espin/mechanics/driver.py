@@ -1,8 +1,11 @@
 """Pull on a virtual mat: run a loading program and record the homogenized response.
 
-The program's steps are the recorded points of the curve. A step that does not converge is
-cut in halves (the strain rate stays the prescribed one: time and strain are cut together)
-and grown back after easy convergence; each sub-step starts from a predictor that
+The program's steps are the recorded points of the curve, hit exactly. Each is reached in one
+or more time steps (sub-steps): their size follows the local error of the plastic update
+(``solver.time_rtol``, :mod:`espin.mechanics.time_steps`; a step over the tolerance is done
+again, smaller), is halved when Newton does not converge (the strain rate stays the
+prescribed one: time and strain are cut together) and grows after easy convergence; it is
+carried from one recorded step to the next. Each sub-step starts from a predictor that
 extrapolates the non-affine part of the node motion (docs/model.md sections 4, 6).
 """
 
@@ -21,6 +24,7 @@ from espin.mechanics.equilibrium import EquilibriumSolver, StepFailed, StepResul
 from espin.mechanics.fiber_law import FiberLaw, yielded
 from espin.mechanics.homogenization import cauchy_stress, nominal_stress, paper_stress
 from espin.mechanics.loading import LoadProgram, load_program
+from espin.mechanics.time_steps import local_error, next_step
 
 __all__ = ["StepRecord", "SimulationResult", "SimulationFailed", "run_program", "FREE_LATERAL_NOTE"]
 
@@ -33,7 +37,7 @@ FREE_LATERAL_NOTE = (
     "the stress P, not the lateral stretch, between runs."
 )
 
-_GROW_BELOW = 0.1  # of the iteration limit: a sub-step that converged in fewer lets the next double
+_GROW_BELOW = 0.1  # of the iteration limit: a sub-step that converged in fewer may let the next double
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,7 +61,8 @@ class StepRecord:
     recruited_fraction, yielded_fraction : float
         Fiber volume (A L0) fraction of recruited / yielded elements.
     iterations, factorizations, substeps : int
-        Newton iterations, matrix factorizations and sub-steps spent on the step.
+        Newton iterations and matrix factorizations spent on the step (failed and rejected
+        attempts included), and the time steps it took.
     residual : float [uN]
         Final max |residual force| on inner nodes.
     positions : (n_nodes, 2) float64 [um]
@@ -245,18 +250,20 @@ def run_program(
     if on_step is not None:
         on_step(records[0])
     previous: StepState | None = None
-    fraction = 1.0  # sub-step size as a fraction of the program step, carried between steps
+    start_law = first.law  # the law's state at the start of the next sub-step
+    volume = solver.area * solver.l0
+    tolerance = config.solver.time_rtol
+    step: float | None = None  # the sub-step [s], carried between reported steps
     for k in range(1, program.n_steps + 1):
         t_end = program.time[k]
-        span = t_end - program.time[k - 1]
         counts = [0, 0, 0]
         cuts = 0
         if k > 1 and program.segment[k - 1] != program.segment[k - 2]:
             previous = None  # a new segment (e.g. unloading): do not extrapolate across it
         while state.time < t_end:
-            t_next = min(state.time + fraction * span, t_end)
-            if t_end - t_next < 1e-9 * span:
-                t_next = t_end
+            remaining = t_end - state.time
+            h = remaining if step is None else remaining / max(1.0, np.ceil(remaining / step - 1e-9))
+            t_next = t_end if h == remaining else state.time + h
             F_next = program.prescribed_F(t_next)
             guess_inner, guess_free = _predict(
                 state, previous, t_next, F_next, directions, solver.asm, n_inner
@@ -267,16 +274,22 @@ def run_program(
                 counts[0] += failure.iterations
                 counts[1] += failure.factorizations
                 cuts += 1
-                fraction /= 2.0
+                step = h / 2.0
                 if cuts > config.solver.max_cuts:
                     raise fail(k, t_next, failure, config.solver.max_cuts) from None
                 continue
             counts[0] += result.iterations
             counts[1] += result.factorizations
+            step = 2.0 * h if result.iterations < limit * _GROW_BELOW else h
+            if tolerance != "off":
+                error = local_error(law, start_law.stress, state.plastic_stretch, result.law,
+                                    result.kinematics.length / solver.l0, solver.tortuosity,
+                                    t_next - state.time, volume)
+                step = min(step, next_step(h, error, tolerance))
+                if error > tolerance:
+                    continue  # rejected: again from the same state with the smaller step
             counts[2] += 1
-            previous, state = state, result.state
-            if result.iterations < limit * _GROW_BELOW:
-                fraction = min(1.0, 2.0 * fraction)
+            previous, state, start_law = state, result.state, result.law
         record = _record(k, solver, result, program.strain[k], counts, threshold)
         records.append(record)
         if on_step is not None:
