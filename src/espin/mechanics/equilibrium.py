@@ -14,6 +14,8 @@ consistent tangent. Newton's method with:
   tangent without the negative geometric stiffness of compressed elements (positive
   semi-definite by construction); after an indefinite exact tangent the next few iterations
   use the clipped one directly;
+* a chord step: an iteration that cut the residual 10-fold or more lends its factorization
+  to the next one (no new factorization), as long as that gives a descent direction;
 * a line search on Phi along the Newton direction through its exact derivative (the residual
   projected on the direction, one residual evaluation per trial); where the residual grew,
   the increment of Phi from the current iterate to the trial is checked, by Simpson's rule
@@ -55,6 +57,7 @@ _SLOPE_RATIO = 0.5
 _MAX_SEARCH = 10
 _MIN_STEP = 1e-6
 _CLIPPED_AFTER_INDEFINITE = 3
+_CHORD_RATIO = 0.1  # an iteration that cut the residual this much lends its factorization to the next
 _SLACK_CONTINUATION = (100.0, 10.0, 1.0)  # E_b factors of the fallback, ending at the true law
 _ELEMENTS_PER_THREAD = 10_000  # fewer per thread: the threads cost more than they save
 
@@ -224,6 +227,7 @@ class EquilibriumSolver:
         fiber_fraction = float(np.sum(self.area * network.element_contour_length)) / network.reference_volume
         self.stress_tolerance_abs = config.atol * law.taut_modulus * fiber_fraction
         self._clipped_left = 0
+        self._chord = None  # a factorization the next direction may reuse
 
     # -- evaluation ---------------------------------------------------------------------------
     def _context(self, start: StepState, time: float, F_prescribed, directions) -> _Step:
@@ -293,8 +297,17 @@ class EquilibriumSolver:
         corner = modes @ (K_BB @ modes.T)
         return sp.bmat([[K_II, coupling], [coupling.T, sp.csr_matrix(corner)]], format="csr")
 
-    def _direction(self, p: _Point, step: _Step) -> tuple[np.ndarray, int]:
-        """Newton direction and the number of factorizations it took."""
+    def _direction(self, p: _Point, step: _Step) -> tuple[np.ndarray, int, object]:
+        """Newton direction, the number of factorizations it took and the factorization.
+
+        When the last iteration cut the residual by _CHORD_RATIO or more, its factorization
+        is reused (a chord step, no factorization) if that gives a descent direction.
+        """
+        chord, self._chord = self._chord, None
+        if chord is not None:
+            direction = chord.solve(-p.residual)
+            if np.dot(direction, p.residual) < 0.0:
+                return direction, 0, chord
         factorizations = 0
         if self._clipped_left == 0:
             fact = self.linear.factorize(self._hessian(p, step, clipped=False))
@@ -304,11 +317,11 @@ class EquilibriumSolver:
             if not indefinite:
                 direction = fact.solve(-p.residual)
                 if np.dot(direction, p.residual) < 0.0:
-                    return direction, factorizations
+                    return direction, factorizations, fact
             self._clipped_left = _CLIPPED_AFTER_INDEFINITE
         self._clipped_left -= 1
         fact = self.linear.factorize(self._hessian(p, step, clipped=True))
-        return fact.solve(-p.residual), factorizations + 1
+        return fact.solve(-p.residual), factorizations + 1, fact
 
     # -- one step -----------------------------------------------------------------------------
     def iteration_limit(self, n_free: int) -> int:
@@ -390,10 +403,13 @@ class EquilibriumSolver:
         history: list[float] = []
         factorizations = 0
         self._clipped_left = 0
+        self._chord = fact = None
         try:
             p = self._evaluate(np.concatenate([guess_inner.ravel(), guess_free]), step)
             for iteration in range(limit + 1):
                 ok, norm = self._converged(p, n_free)
+                if history and norm <= _CHORD_RATIO * history[-1]:
+                    self._chord = fact
                 history.append(norm)
                 if ok:
                     n = 2 * self.n_inner
@@ -401,7 +417,7 @@ class EquilibriumSolver:
                     return StepResult(state, p.law, p.force, p.kin, iteration, factorizations, norm, history)
                 if iteration == limit:
                     break
-                direction, used = self._direction(p, step)
+                direction, used, fact = self._direction(p, step)
                 factorizations += used
                 p = self._line_search(p, direction, step)
         except StepFailed as failure:
