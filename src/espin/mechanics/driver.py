@@ -24,7 +24,7 @@ from espin.mechanics.equilibrium import EquilibriumSolver, StepFailed, StepResul
 from espin.mechanics.fiber_law import FiberLaw, yielded
 from espin.mechanics.homogenization import cauchy_stress, nominal_stress, paper_stress
 from espin.mechanics.loading import LoadProgram, load_program
-from espin.mechanics.time_steps import local_error, next_step
+from espin.mechanics.time_steps import StepSizeControl, local_error
 
 __all__ = ["StepRecord", "SimulationResult", "SimulationFailed", "run_program", "FREE_LATERAL_NOTE"]
 
@@ -252,7 +252,7 @@ def run_program(
     previous: StepState | None = None
     start_law = first.law  # the law's state at the start of the next sub-step
     volume = solver.area * solver.l0
-    tolerance = config.solver.time_rtol
+    control = None if config.solver.time_rtol == "off" else StepSizeControl(config.solver.time_rtol)
     step: float | None = None  # the sub-step [s], carried between reported steps
     for k in range(1, program.n_steps + 1):
         t_end = program.time[k]
@@ -281,12 +281,12 @@ def run_program(
             counts[0] += result.iterations
             counts[1] += result.factorizations
             step = 2.0 * h if result.iterations < limit * _GROW_BELOW else h
-            if tolerance != "off":
-                error = local_error(law, start_law.stress, state.plastic_stretch, result.law,
-                                    result.kinematics.length / solver.l0, solver.tortuosity,
-                                    t_next - state.time, volume)
-                step = min(step, next_step(h, error, tolerance))
-                if error > tolerance:
+            if control is not None:
+                accepted, wanted = control.judge(h, local_error(
+                    law, start_law.stress, state.plastic_stretch, result.law,
+                    result.kinematics.length / solver.l0, solver.tortuosity, t_next - state.time, volume))
+                step = min(step, wanted)
+                if not accepted:
                     continue  # rejected: again from the same state with the smaller step
             counts[2] += 1
             previous, state, start_law = state, result.state, result.law

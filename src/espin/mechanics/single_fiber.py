@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from espin.mechanics.fiber_law import FiberLaw, elastic_stress, update
-from espin.mechanics.time_steps import local_error, next_step
+from espin.mechanics.time_steps import StepSizeControl, local_error
 
 __all__ = ["FiberHistory", "constant_rate_history", "pull_fiber"]
 
@@ -131,6 +131,7 @@ def pull_fiber(
     substeps = np.zeros(len(stretch), dtype=np.int64)
     stress[0] = elastic_stress(law, stretch[0], tortuosity)
     step = None  # the adaptive step, carried between intervals
+    control = StepSizeControl(time_rtol) if time_rtol is not None else None
     for k in range(1, len(stretch)):
         t, t_end = time[k - 1], time[k]
         t_stress, t_plastic = stress[k - 1], plastic[k - 1]
@@ -144,9 +145,8 @@ def pull_fiber(
             at = stretch[k] if last else np.interp(t + h, time[k - 1:k + 1], stretch[k - 1:k + 1])
             state = update(law, at, t_plastic, tortuosity, h)
             if time_rtol is not None and h > 0.0:
-                error = local_error(law, t_stress, t_plastic, state, at, tortuosity, h)
-                step = next_step(h, error, time_rtol)
-                if error > time_rtol:
+                accepted, step = control.judge(h, local_error(law, t_stress, t_plastic, state, at, tortuosity, h))
+                if not accepted:
                     continue
             substeps[k] += 1
             t_stress, t_plastic = state.stress[0], state.plastic_stretch[0]

@@ -11,7 +11,8 @@ An element's stress error is the elastic modulus times the elastic-stretch error
 M(e) e / lambda_p d lambda_p; a step's error is the volume-weighted sum of those over the
 volume-weighted sum of |t|, a relative stress error. A step is accepted when that is at most
 the tolerance (``solver.time_rtol``), and the next step is scaled by 0.9 sqrt(tol / error)
-(the local error is O(dt^2)), by a factor between 1/5 and 2.
+(the local error is O(dt^2)), by a factor between 1/5 and 2; the step after a rejected one
+does not grow.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from numpy.typing import ArrayLike
 
 from espin.mechanics.fiber_law import FiberLaw, LawState, elastic_modulus
 
-__all__ = ["flow_rate", "local_error", "next_step"]
+__all__ = ["flow_rate", "local_error", "next_step", "StepSizeControl"]
 
 _SAFETY = 0.9
 _SHRINK_MIN = 0.2
@@ -93,3 +94,26 @@ def next_step(dt: float, error: float, tolerance: float) -> float:
         return _GROW_MAX * dt
     factor = _SAFETY * np.sqrt(tolerance / error)
     return dt * float(np.clip(factor, _SHRINK_MIN, _GROW_MAX))
+
+
+class StepSizeControl:
+    """The accept / next-step rule of one integration (the driver's and the single fiber's).
+
+    Parameters
+    ----------
+    tolerance
+        Relative local error allowed per step, in (0, 1).
+    """
+
+    def __init__(self, tolerance: float) -> None:
+        self.tolerance = tolerance
+        self._rejected = False
+
+    def judge(self, dt: float, error: float) -> tuple[bool, float]:
+        """Whether a step of ``dt`` [s] with relative ``error`` is accepted, and the next step [s]."""
+        accepted = error <= self.tolerance
+        step = next_step(dt, error, self.tolerance)
+        if accepted and self._rejected:
+            step = min(step, dt)
+        self._rejected = not accepted
+        return accepted, step
