@@ -164,11 +164,11 @@ class RVEConfig(_Section):
     """Fiber axis distribution: "uniform", {von_mises = {...}} or {histogram = {...}}."""
     seeding: Literal["border", "lines"] | None = None
     """"border" (paper) or "lines" (stationary); default: border if uniform, else lines."""
-    merge_tolerance_ratio: Annotated[float, Field(gt=0.0, le=0.1)] = 1e-2
+    merge_tolerance_ratio: Annotated[float, Field(gt=0.0, le=0.1)] = 0.1
     """Node candidates closer than this times D along a fiber are merged into one node, in
-    (0, 0.1]. Default 1e-2 (docs/model.md section 2): at 1e-3, elements a few 1e-4 um long
-    make Newton's linearized rotations fail, and from 1e-3 to 1e-2 the plla curve moves by
-    < 0.01 % (docs/geometry.md)."""
+    (0, 0.1]. Default 0.1 (docs/model.md section 2): shorter elements between close
+    cross-links stall Newton on wavy mats, in shear and on unloading, while from 1e-3 to 0.1
+    the plla curve moves by < 0.01 % (docs/geometry.md)."""
     seed: Annotated[int, Field(ge=0)] = 1
     """Random seed, an integer >= 0."""
 

@@ -304,8 +304,9 @@ _WHY = {
     "singular": "the tangent could not be factorized (a part of the network without stiffness?)",
 }
 _TRY = {
-    "stalled": "a larger rve.merge_tolerance_ratio (0.1: very short elements between close "
-               "cross-links stall Newton on wavy mats) or more load steps (loading.steps)",
+    "stalled": "more load steps (loading.steps); where slack and compressed fibers dominate "
+               "(unloading, shear) the network is nearly a mechanism, and a larger "
+               "fiber.slack_modulus_MPa makes it solvable but is another model (docs/mechanics.md)",
     "uphill": "more load steps (loading.steps)",
     "inadmissible": "more load steps (loading.steps)",
     "singular": "a mat that holds together: a larger rve.volume_fraction or more rve.layers",
