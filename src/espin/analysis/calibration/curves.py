@@ -10,7 +10,13 @@ from typing import Any
 
 import numpy as np
 
-from espin.analysis.calibration.simulation import STEP_STRAIN, _load_steps, _simulate_task, _Task
+from espin.analysis.calibration.simulation import (
+    STEP_STRAIN,
+    _load_steps,
+    _simulate_task,
+    _steps_are_time_steps,
+    _Task,
+)
 from espin.core.config import Config, apply_overrides, config_to_toml
 from espin.core.errors import ConfigError, SolverError
 
@@ -210,7 +216,7 @@ def synthetic_curve(
     """
     from espin.geometry.rve import resolve_config
 
-    config = resolve_config(config)
+    config = _steps_are_time_steps(resolve_config(config))
     rate = config.loading.strain_rate_per_s if strain_rate_per_s is None else strain_rate_per_s
     curve = _validated_curve(rate, strain, np.zeros(len(strain)), None, "synthetic")
     if noise_sd_MPa < 0 or not seeds:

@@ -12,7 +12,7 @@ import numpy as np
 
 from espin.analysis.calibration.curves import AverageGrid, FittedCurve, _measured_curves
 from espin.analysis.calibration.parameters import ETA_KEY, FIT_PARAMETERS, _bounds_table, _keys_of, parameter_key
-from espin.analysis.calibration.simulation import _curve_steps, _loading_config, _Steps
+from espin.analysis.calibration.simulation import _curve_steps, _loading_config, _steps_are_time_steps, _Steps
 from espin.core.config import Config, apply_overrides
 from espin.core.errors import ConfigError
 
@@ -110,7 +110,7 @@ def _problem(
 ) -> _Problem:
     from espin.geometry.rve import resolve_config
 
-    config = resolve_config(base)
+    config = _steps_are_time_steps(resolve_config(base))
     keys = _keys_of(parameters, "parameters")
     if not keys:
         raise ConfigError("parameters: name at least one parameter to fit")

@@ -98,6 +98,14 @@ def _curve_steps(strain: np.ndarray, stress: np.ndarray | None, step_strain: flo
     return _load_steps(strain, step_strain, fine_until)
 
 
+def _steps_are_time_steps(config: Config) -> Config:
+    """``config`` with ``solver.time_rtol = "off"`` unless it sets it: a fit's load steps (fine
+    up to past the knee, docs/calibration.md) are its time steps."""
+    if "time_rtol" in config.solver.model_fields_set:
+        return config
+    return apply_overrides(config, {"solver.time_rtol": "off"})
+
+
 def _loading_config(config: Config, steps: _Steps, rate: float,
                     overrides: Mapping[str, Any] | None = None) -> Config:
     """``config`` with ``overrides``, loaded by the curve's program instead of the shorthand;
