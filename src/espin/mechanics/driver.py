@@ -284,7 +284,7 @@ def run_program(
             if control is not None:
                 accepted, wanted = control.judge(h, local_error(
                     law, start_law.stress, state.plastic_stretch, result.law,
-                    result.kinematics.length / solver.l0, solver.tortuosity, t_next - state.time, volume))
+                    result.kinematics.length / solver.l0, solver.tortuosity, h, volume))
                 step = min(step, wanted)
                 if not accepted:
                     continue  # rejected: again from the same state with the smaller step

@@ -48,6 +48,7 @@ from espin.core.errors import SolverError
 from espin.geometry.network import Network
 from espin.mechanics.assembly import Kinematics, NetworkAssembler
 from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
+from espin.mechanics.linear_solvers import Factorization
 
 __all__ = ["StepState", "StepResult", "StepFailed", "FAILURE_KINDS", "EquilibriumSolver"]
 
@@ -227,7 +228,6 @@ class EquilibriumSolver:
         fiber_fraction = float(np.sum(self.area * network.element_contour_length)) / network.reference_volume
         self.stress_tolerance_abs = config.atol * law.taut_modulus * fiber_fraction
         self._clipped_left = 0
-        self._chord = None  # a factorization the next direction may reuse
 
     # -- evaluation ---------------------------------------------------------------------------
     def _context(self, start: StepState, time: float, F_prescribed, directions) -> _Step:
@@ -297,13 +297,13 @@ class EquilibriumSolver:
         corner = modes @ (K_BB @ modes.T)
         return sp.bmat([[K_II, coupling], [coupling.T, sp.csr_matrix(corner)]], format="csr")
 
-    def _direction(self, p: _Point, step: _Step) -> tuple[np.ndarray, int, object]:
-        """Newton direction, the number of factorizations it took and the factorization.
+    def _direction(self, p: _Point, step: _Step, chord: Factorization | None
+                   ) -> tuple[np.ndarray, int, Factorization]:
+        """Newton direction, the number of factorizations it took and the factorization used.
 
-        When the last iteration cut the residual by _CHORD_RATIO or more, its factorization
-        is reused (a chord step, no factorization) if that gives a descent direction.
+        ``chord``: a factorization to reuse (a chord step, no factorization) if it gives a
+        descent direction.
         """
-        chord, self._chord = self._chord, None
         if chord is not None:
             direction = chord.solve(-p.residual)
             if np.dot(direction, p.residual) < 0.0:
@@ -403,13 +403,14 @@ class EquilibriumSolver:
         history: list[float] = []
         factorizations = 0
         self._clipped_left = 0
-        self._chord = fact = None
+        fact = None
         try:
             p = self._evaluate(np.concatenate([guess_inner.ravel(), guess_free]), step)
             for iteration in range(limit + 1):
                 ok, norm = self._converged(p, n_free)
-                if history and norm <= _CHORD_RATIO * history[-1]:
-                    self._chord = fact
+                # An iteration that cut the residual 1 / _CHORD_RATIO-fold lends its
+                # factorization to the next.
+                chord = fact if history and norm <= _CHORD_RATIO * history[-1] else None
                 history.append(norm)
                 if ok:
                     n = 2 * self.n_inner
@@ -417,7 +418,7 @@ class EquilibriumSolver:
                     return StepResult(state, p.law, p.force, p.kin, iteration, factorizations, norm, history)
                 if iteration == limit:
                     break
-                direction, used, fact = self._direction(p, step)
+                direction, used, fact = self._direction(p, step, chord)
                 factorizations += used
                 p = self._line_search(p, direction, step)
         except StepFailed as failure:
