@@ -24,7 +24,7 @@ from espin.mechanics.equilibrium import EquilibriumSolver, StepFailed, StepResul
 from espin.mechanics.fiber_law import FiberLaw, yielded
 from espin.mechanics.homogenization import cauchy_stress, nominal_stress, paper_stress
 from espin.mechanics.loading import LoadProgram, load_program
-from espin.mechanics.time_steps import StepSizeControl, local_error
+from espin.mechanics.time_steps import StepSizeControl, local_error, split
 
 __all__ = ["StepRecord", "SimulationResult", "SimulationFailed", "run_program", "FREE_LATERAL_NOTE"]
 
@@ -262,7 +262,7 @@ def run_program(
             previous = None  # a new segment (e.g. unloading): do not extrapolate across it
         while state.time < t_end:
             remaining = t_end - state.time
-            h = remaining if step is None else remaining / max(1.0, np.ceil(remaining / step - 1e-9))
+            h = split(remaining, step)
             t_next = t_end if h == remaining else state.time + h
             F_next = program.prescribed_F(t_next)
             guess_inner, guess_free = _predict(

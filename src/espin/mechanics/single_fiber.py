@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from espin.mechanics.fiber_law import FiberLaw, elastic_stress, update
-from espin.mechanics.time_steps import StepSizeControl, local_error
+from espin.mechanics.time_steps import StepSizeControl, local_error, split
 
 __all__ = ["FiberHistory", "constant_rate_history", "pull_fiber"]
 
@@ -137,10 +137,7 @@ def pull_fiber(
         t_stress, t_plastic = stress[k - 1], plastic[k - 1]
         while True:
             remaining = t_end - t
-            h = remaining
-            if time_rtol is not None and remaining > 0.0:
-                step = step or remaining
-                h = remaining / max(1.0, np.ceil(remaining / step - 1e-9))
+            h = split(remaining, step) if remaining > 0.0 else remaining
             last = h == remaining
             at = stretch[k] if last else np.interp(t + h, time[k - 1:k + 1], stretch[k - 1:k + 1])
             state = update(law, at, t_plastic, tortuosity, h)

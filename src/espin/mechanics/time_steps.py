@@ -22,7 +22,7 @@ from numpy.typing import ArrayLike
 
 from espin.mechanics.fiber_law import FiberLaw, LawState, elastic_modulus
 
-__all__ = ["flow_rate", "local_error", "next_step", "StepSizeControl"]
+__all__ = ["flow_rate", "local_error", "next_step", "split", "StepSizeControl"]
 
 _SAFETY = 0.9
 _SHRINK_MIN = 0.2
@@ -86,6 +86,14 @@ def local_error(
     if error == 0.0:
         return 0.0
     return error / scale if scale > 0.0 else np.inf
+
+
+def split(remaining: float, step: float | None) -> float:
+    """The next time step [s] towards a reported point ``remaining`` seconds away: the
+    interval cut into equal steps no longer than ``step`` (None: one step)."""
+    if step is None:
+        return remaining
+    return remaining / max(1.0, np.ceil(remaining / step - 1e-9))
 
 
 def next_step(dt: float, error: float, tolerance: float) -> float:
