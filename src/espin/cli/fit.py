@@ -242,7 +242,18 @@ def register(app: typer.Typer) -> None:
         ] = None,
         scheduler: Annotated[
             Optional[str],
-            typer.Option(help="Dask scheduler: 'local' or an address such as tcp://host:8786."),
+            typer.Option(help="Dask scheduler: 'local', tcp://host:port or tls://host:port (with --tls-ca-file, "
+                              "--tls-cert, --tls-key). It and its workers run the tasks they are sent "
+                              "(pickles): use only one you trust; tcp:// is unencrypted."),
+        ] = None,
+        tls_ca_file: Annotated[
+            Optional[Path], typer.Option("--tls-ca-file", help="CA certificate (PEM) of a tls:// scheduler.")
+        ] = None,
+        tls_cert: Annotated[
+            Optional[Path], typer.Option("--tls-cert", help="This client's certificate (PEM) for tls://.")
+        ] = None,
+        tls_key: Annotated[
+            Optional[Path], typer.Option("--tls-key", help="Its key (PEM), unless --tls-cert holds it.")
         ] = None,
         base: Annotated[
             str, typer.Option(help="Preset or TOML config holding every value not fitted.")
@@ -272,6 +283,7 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
 
         from espin.analysis.calibration import fit
+        from espin.core.cluster import tls_security
         from espin.core.errors import EspinError
         from espin.geometry.rve import resolve_config
 
@@ -280,6 +292,7 @@ def register(app: typer.Typer) -> None:
         logging.getLogger("espin.analysis.calibration").addHandler(live)
         csv_options = read_options(strain_column, stress_column, percent_strain, delimiter, skip_rows)
         try:
+            security = tls_security(tls_ca_file, tls_cert, tls_key)
             overrides = parse_set(set_)
             config = resolve_config(base, **{k.replace(".", "__"): v for k, v in overrides.items()})
             curve, strain_rate = _curves(curves, rate, _parse_rates(curves_at_rate))
@@ -296,7 +309,7 @@ def register(app: typer.Typer) -> None:
                     bounds=_parse_bounds(bounds), fixed=_parse_fixed(fix), realizations=realizations,
                     seeds=seed_list, strain_rate_per_s=strain_rate, step_strain=step_strain,
                     average_grid=grid, large_strain=large_strain, eta_points=eta_points,
-                    eta_tolerance=eta_tolerance, workers=workers, scheduler=scheduler,
+                    eta_tolerance=eta_tolerance, workers=workers, scheduler=scheduler, security=security,
                     read_options=csv_options, on_evaluation=on_evaluation,
                 )
             written = result.write(out)

@@ -27,9 +27,14 @@ WorkersOpt = Annotated[
 ]
 SchedulerOpt = Annotated[
     Optional[str],
-    typer.Option(help="Dask scheduler address (tcp://host:8786) or 'local' (a Dask LocalCluster). "
+    typer.Option(help="Dask scheduler: 'local' (a Dask LocalCluster), tcp://host:port or tls://host:port "
+                      "(with --tls-ca-file, --tls-cert, --tls-key). The scheduler and its workers run the "
+                      "tasks they are sent (pickles): use only one you trust; tcp:// is unencrypted. "
                       "Default: local processes without Dask."),
 ]
+TlsCaOpt = Annotated[Optional[Path], typer.Option("--tls-ca-file", help="CA certificate (PEM) of a tls:// scheduler.")]
+TlsCertOpt = Annotated[Optional[Path], typer.Option("--tls-cert", help="This client's certificate (PEM) for tls://.")]
+TlsKeyOpt = Annotated[Optional[Path], typer.Option("--tls-key", help="Its key (PEM), unless --tls-cert holds it.")]
 BlasThreadsOpt = Annotated[int, typer.Option(help="BLAS / MKL threads per worker.")]
 SetOpt = Annotated[
     Optional[list[str]],
@@ -159,6 +164,9 @@ def rve_size(
     out: Annotated[Path, typer.Option("--out", "-o", help="Results folder.")] = Path("rve_size_study"),
     workers: WorkersOpt = None,
     scheduler: SchedulerOpt = None,
+    tls_ca_file: TlsCaOpt = None,
+    tls_cert: TlsCertOpt = None,
+    tls_key: TlsKeyOpt = None,
     blas_threads: BlasThreadsOpt = 1,
     set_: SetOpt = None,
     quiet: QuietOpt = False,
@@ -167,16 +175,18 @@ def rve_size(
 
     Reruns skip finished realizations (resume after a crash or a killed job).
     """
+    from espin.core.cluster import tls_security
     from espin.studies.sweeps import rve_size_study
 
     def prepare():
+        security = tls_security(tls_ca_file, tls_cert, tls_key)
         sizes = _numbers("--size-ratios", size_ratios, float)
         layers = _numbers("--layer-counts", layer_counts, int)
         n_points = len({*((s, layers_for_sizes) for s in sizes), *((size_for_layers, n) for n in layers)})
         return (lambda on_outcome: rve_size_study(
             base, size_ratios=sizes, layer_counts=layers, layers_for_sizes=layers_for_sizes,
             size_for_layers=size_for_layers, realizations=realizations, seed_start=seed_start,
-            folder=out, workers=workers, scheduler=scheduler, blas_threads=blas_threads,
+            folder=out, workers=workers, scheduler=scheduler, blas_threads=blas_threads, security=security,
             on_outcome=on_outcome, **_overrides(set_))), n_points * realizations
 
     _run_study(prepare, out, _MEANS + _RSDS, quiet)
@@ -197,6 +207,9 @@ def sweep(
     table_format: Annotated[str, typer.Option("--format", help="Table format: csv or parquet.")] = "csv",
     workers: WorkersOpt = None,
     scheduler: SchedulerOpt = None,
+    tls_ca_file: TlsCaOpt = None,
+    tls_cert: TlsCertOpt = None,
+    tls_key: TlsKeyOpt = None,
     blas_threads: BlasThreadsOpt = 1,
     set_: SetOpt = None,
     quiet: QuietOpt = False,
@@ -208,15 +221,17 @@ def sweep(
     """
     import math
 
+    from espin.core.cluster import tls_security
     from espin.studies.sweeps import sweep as run_sweep
 
     def prepare():
+        security = tls_security(tls_ca_file, tls_cert, tls_key)
         parsed = parse_grid(grid)
         n_points = math.prod(len(values) for values in parsed.values())
         return (lambda on_outcome: run_sweep(
             base, parsed, realizations=realizations, seed_start=seed_start, folder=out,
             table_format=table_format, workers=workers, scheduler=scheduler, blas_threads=blas_threads,
-            on_outcome=on_outcome, **_overrides(set_))), n_points * realizations
+            security=security, on_outcome=on_outcome, **_overrides(set_))), n_points * realizations
 
     _run_study(prepare, out, _MEANS + _SDS, quiet)
 

@@ -13,17 +13,26 @@ cluster's client to any study as ``scheduler``::
     cluster.scale(jobs=4)                # submit 4 jobs (32 workers)
     espin.studies.sweeps.sweep("plla", grid, realizations=10, folder="sweep", scheduler=Client(cluster))
 
+A Dask scheduler and its workers run the pickled tasks they are sent: connect only to one you
+trust. :func:`tls_security` gives the TLS settings of a ``tls://`` scheduler (encrypted, both
+ends authenticated by certificates)::
+
+    security = tls_security("ca.pem", "client-cert.pem", "client-key.pem")
+    espin.studies.sweeps.sweep("plla", grid, scheduler="tls://host:8786", security=security)
+
 """
 
 from __future__ import annotations
 
+import os
 import re
+from pathlib import Path
 from typing import Any
 
 from espin.core.errors import ConfigError
 from espin.core.parallel import THREAD_VARIABLES  # exported as 1 in every job: one core per worker
 
-__all__ = ["jobqueue_cluster", "BATCH_SYSTEMS", "THREAD_VARIABLES"]
+__all__ = ["jobqueue_cluster", "tls_security", "BATCH_SYSTEMS", "THREAD_VARIABLES"]
 
 BATCH_SYSTEMS = ("slurm", "pbs")
 """Batch systems espin configures (any other dask-jobqueue cluster works as a plain Client)."""
@@ -141,4 +150,61 @@ def jobqueue_cluster(
         python=python,
         job_script_prologue=[*(prologue or []), *(f"export {v}=1" for v in THREAD_VARIABLES)],
         **options,
+    )
+
+
+def _readable_file(path: str | Path, option: str) -> str:
+    """``path`` as text, after checking it names a readable file (its contents are never read)."""
+    if not Path(path).is_file():
+        raise ConfigError(f"{option}: no such file: {path}")
+    if not os.access(path, os.R_OK):
+        raise ConfigError(f"{option}: cannot read {path} (permission denied)")
+    return str(path)
+
+
+def tls_security(
+    tls_ca_file: str | Path | None = None,
+    tls_cert: str | Path | None = None,
+    tls_key: str | Path | None = None,
+) -> Any:
+    """The TLS settings of a client of a ``tls://`` Dask scheduler, or None without TLS files.
+
+    Dask's TLS is mutual: the client checks the scheduler's certificate against the CA, and
+    shows its own certificate, signed by a CA the scheduler trusts. Encryption is required:
+    the settings refuse a ``tcp://`` connection.
+
+    Parameters
+    ----------
+    tls_ca_file
+        PEM file of the certificate authority (``--tls-ca-file``).
+    tls_cert
+        PEM file of this client's certificate (``--tls-cert``); it may hold the key too.
+    tls_key
+        PEM file of the client's private key (``--tls-key``), unless ``tls_cert`` holds it.
+
+    Returns
+    -------
+    distributed.security.Security or None
+        None when no file is given; else ``Security(tls_ca_file=..., tls_client_cert=...,
+        tls_client_key=..., require_encryption=True)``.
+
+    Raises
+    ------
+    ConfigError
+        If the CA file or the certificate is missing while another TLS file is given, or a
+        file does not exist or cannot be read (the message names the option and the path,
+        never a file's contents).
+    """
+    if tls_ca_file is None and tls_cert is None and tls_key is None:
+        return None
+    if tls_ca_file is None or tls_cert is None:
+        raise ConfigError("tls_ca_file, tls_cert (--tls-ca-file, --tls-cert): TLS needs both the CA file and "
+                          "the client certificate (and --tls-key unless the certificate file holds the key)")
+    from distributed.security import Security
+
+    return Security(
+        tls_ca_file=_readable_file(tls_ca_file, "tls_ca_file (--tls-ca-file)"),
+        tls_client_cert=_readable_file(tls_cert, "tls_cert (--tls-cert)"),
+        tls_client_key=None if tls_key is None else _readable_file(tls_key, "tls_key (--tls-key)"),
+        require_encryption=True,
     )

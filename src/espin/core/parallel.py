@@ -2,9 +2,16 @@
 
 One code path for every back end: a :class:`concurrent.futures.Executor`. Locally it is a pool of
 worker processes (all cores by default); on a Dask cluster it is the executor of a
-``distributed.Client`` (``scheduler="tcp://host:8786"``, a ``Client``, or ``"local"`` for a
-``LocalCluster`` of processes on this machine). Each worker limits BLAS / MKL to
-``blas_threads`` threads (default 1), so N workers use N cores without oversubscription.
+``distributed.Client`` (``scheduler="tcp://host:8786"``, ``"tls://host:8786"`` with a
+``security``, a ``Client``, or ``"local"`` for a ``LocalCluster`` of processes on this machine).
+Each worker limits BLAS / MKL to ``blas_threads`` threads (default 1), so N workers use N cores
+without oversubscription. A local worker process exits as soon as the process that started it
+is gone (killed included), so no worker outlives its study.
+
+A Dask scheduler receives the tasks as pickles and its workers run them: it must be trusted.
+Over ``tcp://`` the traffic is unencrypted and unauthenticated (a warning says so for a host
+other than this machine); ``tls://`` with a ``distributed.security.Security`` (see
+:func:`espin.core.cluster.tls_security`) encrypts it and authenticates both ends.
 
 A task that raises is reported as a failed :class:`TaskOutcome` (with its traceback); the
 others go on.
@@ -12,8 +19,11 @@ others go on.
 
 from __future__ import annotations
 
+import ipaddress
 import logging
 import os
+import re
+import threading
 import time
 import traceback
 from collections.abc import Callable, Iterable, Iterator
@@ -26,7 +36,7 @@ from espin.core.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["TaskOutcome", "TaskPool", "parallel_map", "default_workers"]
+__all__ = ["TaskOutcome", "TaskPool", "parallel_map", "default_workers", "check_scheduler"]
 
 
 @dataclass(frozen=True)
@@ -70,11 +80,34 @@ def default_workers() -> int:
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 
 
-def _limit_threads(blas_threads: int | None) -> None:
-    """Process initializer: thread caps in the environment, read by BLAS / MKL / OpenMP at load."""
+PARENT_POLL_S = 0.5
+"""How often [s] a local worker process checks that the process that started it is alive."""
+
+
+def _start_worker(blas_threads: int | None, parent_pid: int) -> None:
+    """Process initializer: thread caps in the environment (read by BLAS / MKL / OpenMP at
+    load), and a watchdog that ends this worker when its parent process is gone."""
     if blas_threads is not None:
         for variable in THREAD_VARIABLES:
             os.environ[variable] = str(blas_threads)
+    threading.Thread(target=_exit_with_parent, args=(parent_pid,), name="espin-parent-watchdog",
+                     daemon=True).start()
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    """Exit the process (never return) once ``parent_pid`` is no longer its parent.
+
+    A killed parent cannot stop its workers, and an idle worker waits for tasks forever (every
+    worker holds the task queue open), so each worker watches for itself: on POSIX a dead
+    parent's children are given to another process (``os.getppid()`` changes); everywhere the
+    pipe (Windows: handle) that ``multiprocessing`` keeps to the parent reports its end.
+    """
+    import multiprocessing
+
+    parent = multiprocessing.parent_process()
+    while os.getppid() == parent_pid and (parent is None or parent.is_alive()):
+        time.sleep(PARENT_POLL_S)
+    os._exit(1)  # no cleanup: nothing is left to report the tasks to
 
 
 def _load_threaded_libraries() -> None:
@@ -118,6 +151,79 @@ def _call_in_worker(fn: Callable[[Any], Any], item: Any,
     return _call(fn, item, blas_threads)
 
 
+_ADDRESS = re.compile(r"^(?P<scheme>tcp|tls)://(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9._-]+):(?P<port>\d{1,5})$")
+_ADDRESS_FORMS = "'local', tcp://host:port or tls://host:port"
+
+
+def check_scheduler(scheduler: Any, security: Any = None) -> None:
+    """Check a ``scheduler`` (and its ``security``) before any work; connect to nothing.
+
+    Parameters
+    ----------
+    scheduler
+        None, ``"local"``, ``"tcp://host:port"``, ``"tls://host:port"`` (host a name, an IPv4
+        address or a bracketed IPv6 address; port 1-65535) or a ``distributed.Client``.
+    security
+        A ``distributed.security.Security`` (TLS files), required by a ``tls://`` address and
+        refused with anything else (a ``Client`` brings its own).
+
+    Raises
+    ------
+    ConfigError
+        Naming ``scheduler`` or ``security`` and what they accept.
+    """
+    if isinstance(scheduler, str):
+        if scheduler == "local":
+            scheme = "local"
+        else:
+            found = _ADDRESS.match(scheduler)
+            if found is None or not 1 <= int(found["port"]) <= 65535:
+                raise ConfigError(f"scheduler: expected {_ADDRESS_FORMS} (got {scheduler!r})")
+            scheme = found["scheme"]
+    elif scheduler is None or hasattr(scheduler, "get_executor"):
+        scheme = None
+    else:
+        raise ConfigError(f"scheduler: expected {_ADDRESS_FORMS} or a distributed.Client "
+                          f"(got a {type(scheduler).__name__})")
+    if scheme == "tls" and security is None:
+        raise ConfigError(f"scheduler {scheduler}: a tls:// address needs the TLS files (--tls-ca-file and "
+                          "--tls-cert, with --tls-key unless the certificate file holds the key; in Python "
+                          "security=espin.core.cluster.tls_security(...))")
+    if security is not None:
+        _check_security(security, scheme)
+
+
+def _check_security(security: Any, scheme: str | None) -> None:
+    """``security`` is a Dask Security and goes with a ``tls://`` address."""
+    from distributed.security import Security
+
+    if not isinstance(security, Security):
+        raise ConfigError(f"security: expected a distributed.security.Security (got a {type(security).__name__})")
+    if scheme != "tls":
+        raise ConfigError("security: the TLS options need a tls://host:port scheduler address (a Client "
+                          "brings its own security; local processes and 'local' need none)")
+
+
+def _is_loopback(host: str) -> bool:
+    """True for ``localhost`` and loopback addresses (127.0.0.0/8, ::1)."""
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def _warn_if_unencrypted(scheduler: Any) -> None:
+    """Log a warning for a ``tcp://`` address of another machine."""
+    found = _ADDRESS.match(scheduler) if isinstance(scheduler, str) else None
+    if found is not None and found["scheme"] == "tcp" and not _is_loopback(found["host"]):
+        log.warning("scheduler %s: tcp:// is unencrypted and unauthenticated, and the scheduler and its "
+                    "workers run whatever task they are sent (pickles): use only a scheduler you trust "
+                    "on a network you trust, or tls:// with --tls-ca-file, --tls-cert and --tls-key",
+                    scheduler)
+
+
 class TaskPool:
     """Workers that run tasks; a context manager, reusable for many :meth:`map` calls.
 
@@ -129,23 +235,32 @@ class TaskPool:
         for ``scheduler="local"`` it is the number of Dask workers.
     scheduler
         None (local processes), ``"local"`` (a Dask ``LocalCluster`` of processes), a scheduler
-        address such as ``"tcp://host:8786"``, or a ``distributed.Client``.
+        address ``"tcp://host:port"`` or ``"tls://host:port"``, or a ``distributed.Client``.
+        A Dask scheduler and its workers run the pickled tasks: use only one you trust.
     blas_threads
         BLAS / MKL threads per task (default 1). None keeps the library's own choice.
+    security
+        The TLS files of a ``tls://`` scheduler, a ``distributed.security.Security`` (see
+        :func:`espin.core.cluster.tls_security`); required by ``tls://``, refused otherwise.
+
+    Raises
+    ------
+    ConfigError
+        For an invalid option (see :func:`check_scheduler`); nothing is started.
     """
 
-    def __init__(self, workers: int | None = None, scheduler: Any = None, blas_threads: int | None = 1):
+    def __init__(self, workers: int | None = None, scheduler: Any = None, blas_threads: int | None = 1,
+                 security: Any = None):
         if workers is not None and workers < 1:
             raise ConfigError(f"workers: must be >= 1 (got {workers})")
         if blas_threads is not None and blas_threads < 1:
             raise ConfigError(f"blas_threads: must be >= 1 or None (got {blas_threads})")
-        if isinstance(scheduler, str) and scheduler != "local" and "://" not in scheduler:
-            raise ConfigError(
-                f"scheduler: expected 'local' or an address such as tcp://host:8786 (got {scheduler!r})"
-            )
+        check_scheduler(scheduler, security)
+        _warn_if_unencrypted(scheduler)
         self.workers = workers if workers is not None else default_workers()
         self.scheduler = scheduler
         self.blas_threads = blas_threads
+        self.security = security
         self._executor: Executor | None = None
         self._closers: list[Callable[[], None]] = []
 
@@ -186,8 +301,8 @@ class TaskPool:
                 self._executor = ProcessPoolExecutor(
                     max_workers=self.workers,
                     mp_context=multiprocessing.get_context("spawn"),
-                    initializer=_limit_threads,
-                    initargs=(self.blas_threads,),
+                    initializer=_start_worker,
+                    initargs=(self.blas_threads, os.getpid()),
                 )
             else:
                 self._executor = self._dask_executor()
@@ -206,7 +321,7 @@ class TaskPool:
                 self._closers.append(cluster.close)
                 client = Client(cluster)
             else:
-                client = Client(client)
+                client = Client(client, security=self.security)
             self._closers.insert(0, client.close)
         return client.get_executor(pure=False)
 
@@ -267,8 +382,8 @@ class TaskPool:
             while queue or running:
                 while queue and len(running) < self.workers:
                     index = queue.pop(0)
-                    solo = ProcessPoolExecutor(1, mp_context=context, initializer=_limit_threads,
-                                               initargs=(self.blas_threads,))
+                    solo = ProcessPoolExecutor(1, mp_context=context, initializer=_start_worker,
+                                               initargs=(self.blas_threads, os.getpid()))
                     running[solo.submit(_call_in_worker, fn, items[index], self.blas_threads)] = (index, solo)
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 for future in done:
@@ -315,7 +430,8 @@ def parallel_map(
     workers: int | None = None,
     scheduler: Any = None,
     blas_threads: int | None = 1,
+    security: Any = None,
 ) -> list[TaskOutcome]:
     """All outcomes of ``fn`` over ``items``, in the order of ``items`` (see :class:`TaskPool`)."""
-    with TaskPool(workers, scheduler, blas_threads) as pool:
+    with TaskPool(workers, scheduler, blas_threads, security) as pool:
         return sorted(pool.map(fn, items), key=lambda outcome: outcome.index)

@@ -5,29 +5,37 @@ properties (:mod:`espin.analysis.properties`). Tasks run through :class:`espin.c
 (local processes, or a Dask cluster). With a results folder, every finished task is written at
 once to ``tasks/<key>.json`` (atomically), so a crash or a killed job loses nothing that was
 finished, and a rerun skips those tasks; the key is a hash of the task's whole resolved
-config, so a changed setting is a new task. A task that fails is written to
-``failed/<key>.json`` with its parameters, seed and traceback, and is tried again on a rerun.
-``results.csv`` (one row per task: parameters, seed, properties) is rewritten after every task.
+config and of the bytes of every file it references (``loading.path_csv``,
+``loading.lateral.transverse_csv``), so a changed setting or an edited input file is a new task.
+A task file that is not a complete record of its task is run again. A task that fails is
+written to ``failed/<key>.json`` with its parameters, seed and traceback, and is tried again on
+a rerun. ``results.csv`` (one row per task: parameters, seed, properties) is rewritten after
+every task. A rerun first removes the temporary files of atomic writes that an interrupted run
+left behind; two runs in one folder at the same time are not supported.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
+import math
+import re
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
+from pydantic import BaseModel
 
 from espin.core.atomic import atomic_write, atomic_write_bytes
 from espin.core.config import Config, config_to_toml
 from espin.core.errors import ConfigError
-from espin.core.parallel import TaskOutcome, TaskPool
+from espin.core.parallel import TaskOutcome, TaskPool, check_scheduler
 
 __all__ = ["TensileTask", "plan_tasks", "run_tensile", "run_ensemble", "Ensemble", "PROPERTIES"]
 
@@ -44,7 +52,8 @@ class TensileTask:
     Attributes
     ----------
     key : str
-        Hash of the resolved config (seed included): the task's identity on disk.
+        Hash of the resolved config (seed included) and of the files it references: the
+        task's identity on disk.
     parameters : dict
         The dotted config keys this task sets (its point of a sweep), without the seed.
     seed : int
@@ -75,7 +84,8 @@ def plan_tasks(base: Config, points: Sequence[Mapping[str, Any]], seeds: Sequenc
     Raises
     ------
     ConfigError
-        Naming the point whose values are invalid.
+        Naming the point whose values are invalid, or the config key and path of a referenced
+        file that is missing or unreadable.
     """
     from espin.core.config import apply_overrides
 
@@ -84,6 +94,7 @@ def plan_tasks(base: Config, points: Sequence[Mapping[str, Any]], seeds: Sequenc
     if len(set(seeds)) != len(seeds):
         raise ConfigError(f"seeds: must be distinct (got {list(seeds)})")
     tasks: list[TensileTask] = []
+    digests: dict[Path, str] = {}
     for point in points:
         if "rve.seed" in point:
             raise ConfigError("rve.seed: set the realizations' seeds with seeds / --realizations, not in the grid")
@@ -92,12 +103,49 @@ def plan_tasks(base: Config, points: Sequence[Mapping[str, Any]], seeds: Sequenc
                 config = apply_overrides(base, {**point, "rve.seed": int(seed)})
             except ConfigError as err:
                 raise ConfigError(f"parameter point {dict(point)}: {err}") from None
-            key = hashlib.sha256(config_to_toml(config).encode()).hexdigest()[:16]
+            key = _task_key(config, digests)
             tasks.append(TensileTask(key, dict(point), int(seed), config))
     keys = [t.key for t in tasks]
     if len(set(keys)) != len(keys):
         raise ConfigError("grid: two parameter points give the same configuration (repeated values?)")
     return tasks
+
+
+def _task_key(config: Config, digests: dict[Path, str]) -> str:
+    """16 hex digits of the SHA-256 of the config's TOML and of each referenced file's bytes.
+
+    A config that references no file keeps the key of its TOML alone (the key of earlier
+    versions). ``digests`` caches file hashes by path within one plan.
+    """
+    text = config_to_toml(config)
+    for name, path in _referenced_files(config):
+        if path not in digests:
+            digests[path] = _file_digest(name, path)
+        text += f"\n# {name}: sha256 {digests[path]}"
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _referenced_files(node: Any, name: str = "") -> Iterator[tuple[str, Path]]:
+    """(dotted config key, path) of every file a config (or a part of it) references."""
+    if isinstance(node, Path):
+        yield name, node
+    elif isinstance(node, BaseModel):
+        for field_name in type(node).model_fields:
+            yield from _referenced_files(getattr(node, field_name), f"{name}.{field_name}" if name else field_name)
+    elif isinstance(node, (list, tuple)):
+        for index, item in enumerate(node):
+            yield from _referenced_files(item, f"{name}[{index}]")
+
+
+def _file_digest(name: str, path: Path) -> str:
+    """SHA-256 of a referenced file's bytes; an error names the key and the path, not the contents."""
+    try:
+        with open(path, "rb") as fh:
+            return hashlib.file_digest(fh, "sha256").hexdigest()
+    except FileNotFoundError:
+        raise ConfigError(f"{name}: the file it references does not exist: {path}") from None
+    except OSError as err:
+        raise ConfigError(f"{name}: cannot read the file it references, {path}: {err.strerror}") from None
 
 
 def run_tensile(task: TensileTask) -> dict[str, Any]:
@@ -231,6 +279,7 @@ def run_ensemble(
     workers: int | None = None,
     scheduler: Any = None,
     blas_threads: int | None = 1,
+    security: Any = None,
     task_function: Callable[[TensileTask], dict[str, Any]] = run_tensile,
     on_outcome: Callable[[TaskOutcome, TensileTask], None] | None = None,
 ) -> Ensemble:
@@ -241,29 +290,42 @@ def run_ensemble(
     tasks
         From :func:`plan_tasks`.
     folder
-        Results folder; tasks already finished there are skipped (resume). None keeps
-        everything in memory.
-    workers, scheduler, blas_threads
-        Where the tasks run (see :class:`espin.core.parallel.TaskPool`).
+        Results folder; tasks already finished there are skipped (resume), and stale
+        temporary files of interrupted writes are removed first. None keeps everything in
+        memory. One run at a time per folder.
+    workers, scheduler, blas_threads, security
+        Where the tasks run (see :class:`espin.core.parallel.TaskPool`); checked before
+        anything is read or written.
     task_function
-        What a task does (default :func:`run_tensile`); a module-level function.
+        What a task does (default :func:`run_tensile`); a module-level function. A record it
+        returns without the fields of :func:`run_tensile`'s that a rerun needs (``key``, the
+        properties, ``has_yield``, ``strain``, ``stress_MPa``) counts as a failed task.
     on_outcome
         Called in this process after each task finishes or fails (e.g. a progress bar).
 
     Returns
     -------
     Ensemble
+
+    Raises
+    ------
+    ConfigError
+        For an invalid ``scheduler`` or ``security``.
     """
+    check_scheduler(scheduler, security)
     folder = Path(folder) if folder is not None else None
     names = sorted({name for task in tasks for name in task.parameters})
+    if folder is not None:
+        _remove_stale_temporaries(folder)
     done: dict[str, dict[str, Any]] = _finished_records(folder, tasks) if folder is not None else {}
     todo = [task for task in tasks if task.key not in done]
     failures: dict[str, dict[str, Any]] = {}
     if todo:
         log.info("%d tasks to run, %d already finished", len(todo), len(done))
-        with TaskPool(workers, scheduler, blas_threads) as pool:
+        with TaskPool(workers, scheduler, blas_threads, security) as pool:
             for outcome in pool.map(task_function, todo):
                 task = todo[outcome.index]
+                outcome = _checked(outcome, task)
                 if outcome.ok:
                     done[task.key] = outcome.value
                     if folder is not None:
@@ -297,19 +359,100 @@ def _collect(tasks: Sequence[TensileTask], done: dict[str, dict[str, Any]], fail
 
 
 def _finished_records(folder: Path, tasks: Sequence[TensileTask]) -> dict[str, dict[str, Any]]:
-    """Records of planned tasks already written to ``folder/tasks`` (a damaged file is rerun)."""
+    """Records of planned tasks already written to ``folder/tasks``.
+
+    A file that cannot be read, is not JSON or is not a complete record of its task is not
+    used (a warning names it and the problem, never its contents): the task runs again.
+    """
     done = {}
     for task in tasks:
         path = folder / "tasks" / f"{task.key}.json"
         if path.is_file():
             try:
-                record = json.loads(path.read_text())
-            except (OSError, json.JSONDecodeError):
-                log.warning("%s is unreadable; the task runs again", path)
+                record = json.loads(path.read_bytes())
+            except OSError as err:
+                problem = f"cannot be read ({err.strerror})"
+            except json.JSONDecodeError as err:
+                problem = f"is not JSON (line {err.lineno}, column {err.colno})"
+            except UnicodeDecodeError:
+                problem = "is not JSON (not UTF-8 text)"
+            else:
+                problem = _record_problem(record, task.key)
+            if problem is not None:
+                log.warning("%s %s; the task runs again", path, problem)
                 continue
             # The key fixes the whole config; the names of what varies come from this plan.
             done[task.key] = {**record, "parameters": task.parameters, "seed": task.seed}
     return done
+
+
+RECORD_FIELDS = ("key", *PROPERTIES, "has_yield", "strain", "stress_MPa")
+"""Fields a task record must have to count as finished (see :func:`run_tensile`)."""
+
+
+def _record_problem(record: Any, key: str) -> str | None:
+    """What makes ``record`` unusable as the finished record of task ``key``, or None.
+
+    The message describes the problem without quoting the record's values.
+    """
+    if not isinstance(record, dict):
+        return "is not a JSON object"
+    missing = [name for name in RECORD_FIELDS if name not in record]
+    if missing:
+        return f"lacks {', '.join(missing)}"
+    if record["key"] != key:
+        return "holds the record of another task (its key is not the file's name)"
+    wrong = [name for name in PROPERTIES if record[name] is not None and not _is_finite_number(record[name])]
+    if not isinstance(record["has_yield"], bool):
+        wrong.append("has_yield")
+    wrong += [name for name in ("strain", "stress_MPa") if not _is_curve(record[name])]
+    if wrong:
+        return f"has an invalid value in {', '.join(wrong)}"
+    if len(record["strain"]) != len(record["stress_MPa"]):
+        return "has strain and stress_MPa of different lengths"
+    return None
+
+
+def _is_finite_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _is_curve(values: Any) -> bool:
+    """A non-empty list of numbers."""
+    return (isinstance(values, list) and bool(values)
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values))
+
+
+def _checked(outcome: TaskOutcome, task: TensileTask) -> TaskOutcome:
+    """``outcome``, made a failure if its record would not count as finished on a rerun."""
+    problem = _record_problem(outcome.value, task.key) if outcome.ok else None
+    if problem is None:
+        return outcome
+    return dataclasses.replace(outcome, value=None, error=f"the task function's record {problem}")
+
+
+_TEMPORARY = re.compile(r"^\..+\.[a-z0-9_]{8}\.tmp$")
+"""Name of an atomic write's temporary file (:mod:`espin.core.atomic`: ``.<name>.<random>.tmp``)."""
+
+STALE_TEMPORARY_S = 60.0
+"""Age [s] beyond which such a temporary file is an interrupted write's, not one in progress."""
+
+
+def _remove_stale_temporaries(folder: Path) -> None:
+    """Delete atomic writes' temporary files older than :data:`STALE_TEMPORARY_S` in
+    ``folder``, ``folder/tasks`` and ``folder/failed`` (left by a run killed mid-write)."""
+    now = time.time()
+    removed = 0
+    for directory in (folder, folder / "tasks", folder / "failed"):
+        if not directory.is_dir():
+            continue
+        for path in directory.iterdir():
+            if (_TEMPORARY.match(path.name) and path.is_file() and not path.is_symlink()
+                    and now - path.stat().st_mtime > STALE_TEMPORARY_S):
+                path.unlink(missing_ok=True)
+                removed += 1
+    if removed:
+        log.info("removed %d temporary file(s) left in %s by an interrupted write", removed, folder)
 
 
 def _failure(task: TensileTask, outcome: TaskOutcome) -> dict[str, Any]:

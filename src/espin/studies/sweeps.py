@@ -19,7 +19,7 @@ import pandas as pd
 from espin.core.atomic import atomic_write, atomic_write_bytes
 from espin.core.config import Config, write_config
 from espin.core.errors import ConfigError
-from espin.core.parallel import TaskOutcome
+from espin.core.parallel import TaskOutcome, check_scheduler
 from espin.geometry.rve import resolve_config
 from espin.studies.ensemble import Ensemble, TensileTask, plan_tasks, run_ensemble
 
@@ -75,6 +75,7 @@ def rve_size_study(
     workers: int | None = None,
     scheduler: Any = None,
     blas_threads: int | None = 1,
+    security: Any = None,
     on_outcome: OnOutcome | None = None,
     **overrides: Any,
 ) -> StudyResult:
@@ -92,8 +93,10 @@ def rve_size_study(
         Results folder: ``results.csv``, ``summary.csv``, ``study.toml`` (the base config) and
         ``plan.json`` (sizes and seeds; both written before any work), ``tasks/``, and the figures ``rve_size_<property>.png`` (Figs. A.15-A.17) and
         ``rve_size_curves.png`` (Fig. A.18, at the largest RVE).
-    workers, scheduler, blas_threads
-        Where the tasks run (:class:`espin.core.parallel.TaskPool`).
+    workers, scheduler, blas_threads, security
+        Where the tasks run (:class:`espin.core.parallel.TaskPool`); a Dask scheduler must be
+        trusted (it runs the pickled tasks), ``security`` holds the TLS files of a ``tls://``
+        one (:func:`espin.core.cluster.tls_security`).
 
     Returns
     -------
@@ -103,6 +106,7 @@ def rve_size_study(
     if fixed:
         raise ConfigError(f"{', '.join(fixed)}: set by the study's sizes (size_ratios, layer_counts, "
                           "layers_for_sizes, size_for_layers), not as an override")
+    check_scheduler(scheduler, security)
     base = resolve_config(base, **overrides)
     if not size_ratios and not layer_counts:
         raise ConfigError("size_ratios, layer_counts: give at least one RVE size")
@@ -113,7 +117,8 @@ def rve_size_study(
     tasks = plan_tasks(base, points, seeds)
     plan = {"study": "rve-size", "size_ratios": list(size_ratios), "layer_counts": list(layer_counts),
             "layers_for_sizes": layers_for_sizes, "size_for_layers": size_for_layers, "seeds": seeds}
-    result = _run(tasks, base, plan, folder, workers, scheduler, blas_threads, on_outcome)
+    pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
+    result = _run(tasks, base, plan, folder, pool, on_outcome)
     ensemble = result.ensemble
     if folder is not None and ensemble.records:
         from espin.studies.figures import plot_curve_band, plot_rve_size
@@ -140,6 +145,7 @@ def sweep(
     workers: int | None = None,
     scheduler: Any = None,
     blas_threads: int | None = 1,
+    security: Any = None,
     on_outcome: OnOutcome | None = None,
     **overrides: Any,
 ) -> StudyResult:
@@ -160,11 +166,16 @@ def sweep(
         work), ``tasks/`` and ``sweep_<property>.png`` (property versus each parameter).
     table_format
         ``"csv"`` or ``"parquet"`` (needs pyarrow: ``pip install "espin[parquet]"``).
+    workers, scheduler, blas_threads, security
+        Where the tasks run (:class:`espin.core.parallel.TaskPool`); a Dask scheduler must be
+        trusted (it runs the pickled tasks), ``security`` holds the TLS files of a ``tls://``
+        one (:func:`espin.core.cluster.tls_security`).
 
     Returns
     -------
     StudyResult
     """
+    check_scheduler(scheduler, security)
     base = resolve_config(base, **overrides)
     if table_format not in ("csv", "parquet"):
         raise ConfigError(f"table_format: 'csv' or 'parquet' (got {table_format!r})")
@@ -178,8 +189,8 @@ def sweep(
     points = [dict(zip(keys, combo)) for combo in itertools.product(*grid.values())] if keys else [{}]
     seeds = realization_seeds(base, realizations, seed_start)
     tasks = plan_tasks(base, points, seeds)
-    result = _run(tasks, base, {"study": "sweep", "grid": grid, "seeds": seeds}, folder, workers, scheduler,
-                  blas_threads, on_outcome)
+    pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
+    result = _run(tasks, base, {"study": "sweep", "grid": grid, "seeds": seeds}, folder, pool, on_outcome)
     if folder is not None and result.ensemble.records:
         from espin.studies.figures import plot_sweep
 
@@ -205,15 +216,15 @@ def _grid_values(key: str, values: Any) -> list[Any]:
 
 
 def _run(tasks: list[TensileTask], base: Config, plan: dict[str, Any], folder: str | Path | None,
-         workers: int | None, scheduler: Any, blas_threads: int | None, on_outcome: OnOutcome | None) -> StudyResult:
-    """Write the plan (before any work), run the ensemble, write the summary."""
+         pool: dict[str, Any], on_outcome: OnOutcome | None) -> StudyResult:
+    """Write the plan (before any work), run the ensemble on the task ``pool`` (workers,
+    scheduler, blas_threads, security), write the summary."""
     files: dict[str, Path] = {}
     if folder is not None:
         folder = Path(folder)
         files["config"] = write_config(base, folder / "study.toml")
         files["plan"] = atomic_write_bytes(folder / "plan.json", json.dumps(plan, indent=1).encode())
-    ensemble = run_ensemble(tasks, folder, workers=workers, scheduler=scheduler,
-                            blas_threads=blas_threads, on_outcome=on_outcome)
+    ensemble = run_ensemble(tasks, folder, **pool, on_outcome=on_outcome)
     summary = ensemble.summary()
     if folder is not None:
         files["results"] = folder / "results.csv"

@@ -108,6 +108,7 @@ def fit(
     eta_tolerance: float = 0.002,
     workers: int | None = 1,
     scheduler: Any = None,
+    security: Any = None,
     read_options: Mapping[str, Any] | None = None,
     on_evaluation: Callable[[dict[str, Any]], None] | None = None,
 ) -> FitResult:
@@ -155,8 +156,10 @@ def fit(
         Points of the eta grid, >= 2.
     eta_tolerance
         Absolute tolerance of the bracket search on eta, in (0, 0.1).
-    workers, scheduler
-        Where simulations run (:class:`espin.core.parallel.TaskPool`); default serial.
+    workers, scheduler, security
+        Where simulations run (:class:`espin.core.parallel.TaskPool`); default serial. A Dask
+        scheduler must be trusted (it runs the pickled tasks); ``security`` holds the TLS files
+        of a ``tls://`` one (:func:`espin.core.cluster.tls_security`).
     read_options
         Keyword arguments of ``espin.analysis.experiments.read_curve`` for CSV paths.
     on_evaluation
@@ -170,19 +173,21 @@ def fit(
     ------
     ConfigError
         For an unknown parameter, bounds outside the allowed range, a_p with one rate, bad
-        curves... (before any simulation).
+        curves, an invalid scheduler or security... (before any simulation).
     SolverError
         When the model fails where the fit cannot step around it (the message names the
         parameter values).
     """
     start = time.perf_counter()
+    # the pool's options are checked first; its workers start with the first simulation
+    pool = TaskPool(workers=workers, scheduler=scheduler, blas_threads=1, security=security)
     problem = _problem(
         curve, base=base, parameters=parameters, bounds=bounds, fixed=fixed, realizations=realizations,
         seeds=seeds, strain_rate_per_s=strain_rate_per_s, step_strain=step_strain, eta_points=eta_points,
         eta_tolerance=eta_tolerance, read_options=read_options or {}, average_grid=average_grid,
         large_strain=large_strain,
     )
-    with TaskPool(workers=workers, scheduler=scheduler, blas_threads=1) as pool:
+    with pool:
         # the task function as named in this package (where it can be replaced)
         model = _Model(problem, pool, on_evaluation, simulate=_simulate_task)
         search = _search(model)
