@@ -25,7 +25,7 @@ def test_generate_writes_the_folder(tmp_path):
                                  "--seed", "4", "-o", str(out), "--set", "rve.max_deviation_deg=10"])
     assert result.exit_code == 0, result.output
     names = {p.name for p in out.iterdir()}
-    assert names == {"rve.h5", "config.toml", "statistics.json", "statistics.txt", "mat.png",
+    assert names == {"run.json", "rve.h5", "config.toml", "statistics.json", "statistics.txt", "mat.png",
                      "statistics.png", "fibers.vtu", "network.vtu"}
     assert (out / "mat.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     rve = load_rve(out / "rve.h5")

@@ -151,15 +151,33 @@ def test_writer_streams_vtk_series(network, tmp_path):
         assert np.array_equal(data["yielded"], (record.plastic_stretch - 1.0 > threshold).astype(np.int8))
     assert records[-1].plastic_stretch.max() - 1.0 > threshold  # the yielded flag was exercised
     written = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*") if p.is_file())
-    assert written == ["deformation.pvd"] + [f"vtk/step_{k:04d}.vtu" for k in range(len(records))]
+    assert written == ["curve.csv", "deformation.pvd"] + [f"vtk/step_{k:04d}.vtu" for k in range(len(records))]
 
 
-def test_writer_without_vtk_writes_nothing(network, tmp_path):
+def test_writer_streams_the_curve_as_the_final_write_does(network, tmp_path):
+    """After every step curve.csv holds the steps so far, byte for byte what write_results
+    writes for them; without VTK nothing else is written."""
     result, records = fake_result(network)
+    final = write_results(result, tmp_path / "final")["curve_csv"].read_text().splitlines(keepends=True)
     writer = SimulationWriter(tmp_path / "run", network, result.config, vtk=False)
-    for record in records:
+    for k, record in enumerate(records):
         writer(record)
-    assert not (tmp_path / "run").exists()
+        assert (tmp_path / "run" / "curve.csv").read_text() == "".join(final[: k + 2])
+    assert [p.name for p in (tmp_path / "run").iterdir()] == ["curve.csv"]
+
+
+def test_writer_saves_results_at_intervals(network, tmp_path, monkeypatch):
+    """results.h5 is rewritten with the steps so far once the interval has passed."""
+    import espin.mechanics.results_file as results_file
+
+    result, records = fake_result(network)
+    monkeypatch.setattr(results_file, "RESULTS_INTERVAL_S", 0.0)
+    writer = SimulationWriter(tmp_path, network, result.config, vtk=False)
+    for record in records[:3]:
+        writer(record)
+    saved = load_results(tmp_path / "results.h5")
+    assert np.array_equal(saved.steps["time_s"], [r.time for r in records[:3]])
+    assert np.array_equal(saved.final["positions_um"], records[2].positions)
 
 
 @pytest.mark.parametrize("overrides", [

@@ -53,10 +53,28 @@ __all__ = [
 PRESETS = ("plla",)
 
 
-class _Section(BaseModel):
-    """Base of every section: unknown keys are errors, values are validated on assignment."""
+MAX_SEED = 2**63 - 1
+"""Largest seed: seeds are stored as 64-bit signed integers in the HDF5 files."""
+MAX_MODULUS_MPA = 1e6
+"""Largest fiber modulus or flow resistance [MPa] (1 TPa, the order of carbon nanotubes)."""
+MAX_RATE_PER_S = 1e3
+"""Largest strain rate [1/s] (impact testing; electrospun mats are tested near 1e-3 1/s)."""
+MAX_HOLD_S = 1e9
+"""Longest hold [s] (about 30 years)."""
+MAX_CONFIG_BYTES = 2**20
+"""Largest config file read [bytes]; a run's config is a few kB."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+class _Section(BaseModel):
+    """Base of every section: unknown keys are errors, values are validated on assignment.
+
+    Values are taken as they are typed, not coerced (strict): ``true`` is not the integer 1,
+    ``"0.45"`` is not a number, ``5.0`` is not a count of layers; and every number must be
+    finite (no ``inf`` or ``nan``).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True, strict=True,
+                              allow_inf_nan=False)
 
 
 # --------------------------------------------------------------------------------------------
@@ -140,10 +158,11 @@ Orientation = Annotated[
 class RVEConfig(_Section):
     """Geometry of the virtual mat (paper Table 2, docs/model.md sections 0-2)."""
 
-    diameter_um: Annotated[float, Field(gt=0.0)] = 0.45
-    """Mean fiber diameter D [um], > 0. Also the layer thickness."""
+    diameter_um: Annotated[float, Field(gt=0.0, le=1000.0)] = 0.45
+    """Mean fiber diameter D [um], in (0, 1000]. Also the layer thickness."""
     diameter_sd_um: Annotated[float, Field(ge=0.0)] = 0.0
-    """Standard deviation of the (truncated) normal diameter distribution [um], >= 0."""
+    """Standard deviation of the (truncated) normal diameter distribution [um], in
+    [0, diameter_um] (a coefficient of variation up to 1; measured mats: 0.1-0.6)."""
     diameter_min_um: Annotated[float, Field(gt=0.0)] | None = None
     """Truncation of the diameter distribution [um], > 0 and < diameter_um; default 0.1 D."""
     volume_fraction: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.19
@@ -169,8 +188,8 @@ class RVEConfig(_Section):
     (0, 0.1]. Default 0.1 (docs/model.md section 2): shorter elements between close
     cross-links stall Newton on wavy mats, in shear and on unloading, while from 1e-3 to 0.1
     the plla curve moves by < 0.01 % (docs/geometry.md)."""
-    seed: Annotated[int, Field(ge=0)] = 1
-    """Random seed, an integer >= 0."""
+    seed: Annotated[int, Field(ge=0, le=MAX_SEED)] = 1
+    """Random seed, an integer in [0, 2^63 - 1]."""
 
     @model_validator(mode="after")
     def _resolve(self) -> RVEConfig:
@@ -189,6 +208,11 @@ class RVEConfig(_Section):
             updates["seeding"] = "border" if self.orientation == "uniform" else "lines"
         for key, value in updates.items():
             object.__setattr__(self, key, value)
+        if self.diameter_sd_um > self.diameter_um:
+            raise ValueError(
+                f"rve.diameter_sd_um must be in [0, rve.diameter_um = {self.diameter_um:g}] "
+                "(a coefficient of variation up to 1)"
+            )
         if self.diameter_min_um >= self.diameter_um:
             raise ValueError(
                 f"rve.diameter_min_um must be > 0 and < rve.diameter_um = {self.diameter_um}"
@@ -225,16 +249,16 @@ class RVEConfig(_Section):
 class FiberConfig(_Section):
     """Fiber constitutive law (paper Eq. 4-5, Table 3, docs/model.md section 3)."""
 
-    taut_modulus_MPa: Annotated[float, Field(gt=0.0)] = 3000.0
-    """Modulus of a straight (recruited) fiber E_t [MPa], > slack_modulus_MPa."""
-    slack_modulus_MPa: Annotated[float, Field(gt=0.0)] = 3.0
-    """Modulus of a wrinkled fiber, and in compression, E_b [MPa], > 0."""
-    flow_rate_per_s: Annotated[float, Field(ge=0.0)] = 1e-8
-    """Plastic flow rate coefficient a_p [1/s], >= 0 (0 = elastic)."""
-    flow_resistance_MPa: Annotated[float, Field(gt=0.0)] = 5.0
-    """Initial resistance to flow b_p [MPa], > 0."""
-    hardening_exponent: Annotated[float, Field(ge=0.0)] = 0.5
-    """Post-yield hardening exponent c_p, >= 0."""
+    taut_modulus_MPa: Annotated[float, Field(gt=0.0, le=MAX_MODULUS_MPA)] = 3000.0
+    """Modulus of a straight (recruited) fiber E_t [MPa], > slack_modulus_MPa and <= 1e6."""
+    slack_modulus_MPa: Annotated[float, Field(gt=0.0, le=MAX_MODULUS_MPA)] = 3.0
+    """Modulus of a wrinkled fiber, and in compression, E_b [MPa], in (0, 1e6]."""
+    flow_rate_per_s: Annotated[float, Field(ge=0.0, le=MAX_RATE_PER_S)] = 1e-8
+    """Plastic flow rate coefficient a_p [1/s], in [0, 1e3] (0 = elastic)."""
+    flow_resistance_MPa: Annotated[float, Field(gt=0.0, le=MAX_MODULUS_MPA)] = 5.0
+    """Initial resistance to flow b_p [MPa], in (0, 1e6]."""
+    hardening_exponent: Annotated[float, Field(ge=0.0, le=100.0)] = 0.5
+    """Post-yield hardening exponent c_p, in [0, 100]."""
 
     @model_validator(mode="after")
     def _check(self) -> FiberConfig:
@@ -255,8 +279,8 @@ class LoadSegment(_Section):
     to_strain: Annotated[float, Field(gt=-1.0, le=10.0)]
     """Target strain (engineering for uniaxial, lambda - 1 for biaxial / pure shear,
     gamma for simple shear), in (-1, 10]."""
-    rate_per_s: Annotated[float, Field(gt=0.0)] = 5e-3
-    """Magnitude of the strain rate [1/s], > 0."""
+    rate_per_s: Annotated[float, Field(gt=0.0, le=MAX_RATE_PER_S)] = 5e-3
+    """Magnitude of the strain rate [1/s], in (0, 1e3]."""
     steps: Annotated[int, Field(ge=1, le=100000)] | None = None
     """Number of load steps, in [1, 100000]; default 1 per percent of strain (at least 1)."""
 
@@ -264,8 +288,8 @@ class LoadSegment(_Section):
 class HoldSegment(_Section):
     """Hold the deformation for ``hold_s`` seconds (relaxation) in ``steps`` steps."""
 
-    hold_s: Annotated[float, Field(gt=0.0)]
-    """Hold time [s], > 0."""
+    hold_s: Annotated[float, Field(gt=0.0, le=MAX_HOLD_S)]
+    """Hold time [s], in (0, 1e9]."""
     steps: Annotated[int, Field(ge=1, le=100000)] = 10
     """Number of time steps, in [1, 100000]."""
 
@@ -289,7 +313,7 @@ class PoissonLateral(_Section):
 
 
 class TransverseCSVLateral(_Section):
-    transverse_csv: Path
+    transverse_csv: Annotated[Path, Field(strict=False)]
     """CSV with columns axial_strain, transverse_strain (measured transverse strain)."""
 
 
@@ -316,15 +340,16 @@ class LoadingConfig(_Section):
     """Loading axis of the uniaxial test [deg] from +x, in [0, 180)."""
     lateral: Lateral = "fixed"
     """Lateral condition of the uniaxial test."""
-    program: list[Segment] | None = None
-    """Sequence of load / unload / hold segments; default one monotonic segment."""
+    program: Annotated[list[Segment], Field(min_length=1)] | None = None
+    """Sequence of load / unload / hold segments (at least one); default one monotonic
+    segment."""
     max_strain: Annotated[float, Field(gt=-1.0, le=10.0)] = 0.30
     """Shorthand for one monotonic segment: its target strain, in (-1, 10]."""
-    strain_rate_per_s: Annotated[float, Field(gt=0.0)] = 5e-3
-    """Shorthand: strain rate [1/s] (plla: 6 mm/min over an assumed 20 mm gauge)."""
+    strain_rate_per_s: Annotated[float, Field(gt=0.0, le=MAX_RATE_PER_S)] = 5e-3
+    """Shorthand: strain rate [1/s], in (0, 1e3] (plla: 6 mm/min over an assumed 20 mm gauge)."""
     steps: Annotated[int, Field(ge=1, le=100000)] = 30
     """Shorthand: number of load steps, in [1, 100000]."""
-    path_csv: Path | None = None
+    path_csv: Annotated[Path, Field(strict=False)] | None = None
     """For test = "path": CSV with columns time_s, F11, F12, F21, F22."""
 
     @model_validator(mode="after")
@@ -383,9 +408,9 @@ class OutputConfig(_Section):
     """Stress on curves, plots and properties: nominal P or the paper's Eq. 17 (both written)."""
     yield_threshold: Annotated[float, Field(gt=0.0, lt=1.0)] = 1e-3
     """An element counts as yielded when lambda_p - 1 exceeds this, in (0, 1)."""
-    window_ratio: Annotated[float, Field(gt=0.0)] = 50.0
+    window_ratio: Annotated[float, Field(gt=0.0, le=1e6)] = 50.0
     """Side of the square observation window (an SEM field) over D, for the visible
-    tortuosity statistic; clipped to the layer side. > 0."""
+    tortuosity statistic; clipped to the layer side. In (0, 1e6]."""
     figures: bool = True
     """Write PNG figures."""
     vtk: bool = True
@@ -439,9 +464,21 @@ def config_from_dict(data: dict[str, Any], source: str = "") -> Config:
         Naming each offending key and its allowed range.
     """
     try:
-        return Config.model_validate(data)
+        return Config.model_validate(_plain(data))
     except ValidationError as err:
         raise _format_validation_error(err, source) from None
+
+
+def _plain(value: Any) -> Any:
+    """``value`` with numpy scalars turned into the Python numbers they hold (a sweep's grid
+    or an optimizer hands out ``numpy.int64`` and ``numpy.float64``), tables and lists walked."""
+    if isinstance(value, dict):
+        return {key: _plain(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(item) for item in value]
+    if type(value).__module__ == "numpy" and hasattr(value, "item"):
+        return value.item()
+    return value
 
 
 def _preset_dict(name: str) -> dict[str, Any]:
@@ -452,11 +489,22 @@ def _preset_dict(name: str) -> dict[str, Any]:
 
 
 def _read_toml(path: Path) -> dict[str, Any]:
+    if not path.exists():
+        raise ConfigError(f"config file not found: {path}")
+    if not path.is_file():
+        raise ConfigError(f"config file {path} is not a regular file (a TOML file is expected)")
+    size = path.stat().st_size
+    if size > MAX_CONFIG_BYTES:
+        raise ConfigError(f"config file {path} has {size:,} bytes; a TOML config is expected, at "
+                          f"most {MAX_CONFIG_BYTES:,} bytes")
     try:
         with open(path, "rb") as fh:
             return tomllib.load(fh)
-    except FileNotFoundError:
-        raise ConfigError(f"config file not found: {path}") from None
+    except OSError as err:
+        raise ConfigError(f"cannot read config file {path}: {err.strerror or err}") from None
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"config file {path} is not UTF-8 text (byte {err.start}): a TOML "
+                          "file is expected") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"config file {path} is not valid TOML: {err}") from None
 

@@ -12,11 +12,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from espin.core.config import Config, apply_overrides, load_config
+from espin.core.errors import ConfigError
 from espin.geometry.crosslinks import Crosslinks, find_crosslinks
 from espin.geometry.deposition import deposit
 from espin.geometry.mat import FiberMat
 from espin.geometry.network import Network, build_network
+from espin.geometry.size_estimate import check_size
 
 __all__ = ["RVE", "generate", "resolve_config"]
 
@@ -24,6 +28,9 @@ log = logging.getLogger(__name__)
 
 Progress = Callable[[str, int, int], None]
 """Progress callback: ``progress(stage, done, total)``."""
+
+VOLUME_FRACTION_RTOL = 0.1
+"""A mat whose mean layer volume fraction is further than this from the target is reported."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,6 +70,7 @@ def generate(
     config: Config | str | Path | None = None,
     *,
     progress: Progress | None = None,
+    allow_large: bool = False,
     **overrides: Any,
 ) -> RVE:
     """Generate a virtual electrospun mat and its fiber network (paper 3.1.1; docs/model.md sections 1-2).
@@ -74,6 +82,9 @@ def generate(
     progress
         Called as ``progress(stage, done, total)`` with stage ``"deposition"`` (per layer),
         ``"crosslinks"`` and ``"network"``.
+    allow_large
+        Go on when the estimated memory of the tensile test exceeds what is available
+        (:func:`espin.geometry.size_estimate.check_size`).
     **overrides
         Config keys as ``section__key=value``, e.g. ``rve__layers=5, rve__seed=3``.
 
@@ -82,12 +93,20 @@ def generate(
     RVE
         Same config and seed give the same RVE.
 
+    Raises
+    ------
+    ConfigError
+        Before any work, for a mat too sparse to form a network or too large for the memory
+        available; after the deposition, for a mat without a single free node.
+
     Examples
     --------
     >>> rve = espin.generate("plla", rve__size_ratio=50, rve__layers=3)
     >>> rve.network.n_dof
     """
     cfg = resolve_config(config, **overrides)
+    size = check_size(cfg, allow_large=allow_large)
+    log.info("expecting %s", size.describe())
     log.info("depositing %d layers with %s seeding", cfg.rve.layers, cfg.rve.seeding)
     layer_progress = None if progress is None else (lambda done, total: progress("deposition", done, total))
     mat = deposit(cfg.rve, progress=layer_progress)
@@ -101,4 +120,22 @@ def generate(
         "%d fibers, %d cross-links (%d merged), %d elements, %d DOF",
         mat.n_fibers, crosslinks.n, network.n_merged, network.n_elements, network.n_dof,
     )
+    _check_generated(cfg, mat, network)
     return RVE(config=cfg, mat=mat, crosslinks=crosslinks, network=network)
+
+
+def _check_generated(config: Config, mat: FiberMat, network: Network) -> None:
+    """Refuse a mat without free nodes; warn when its volume fraction misses the target."""
+    if network.n_dof == 0:
+        raise ConfigError(
+            f"the mat has {mat.n_fibers} fibers and no cross-link between them, so nothing to "
+            f"solve for (rve.volume_fraction = {config.rve.volume_fraction:g}, rve.orientation "
+            f"{config.rve.orientation}): raise rve.volume_fraction or rve.size_ratio, or "
+            "spread the orientations"
+        )
+    achieved = float(np.mean(mat.layer_volume_fraction()))
+    target = config.rve.volume_fraction
+    if abs(achieved - target) > VOLUME_FRACTION_RTOL * target:
+        log.warning("the mat's volume fraction is %.3g against rve.volume_fraction = %.3g "
+                    "(few, thick fibers per layer): raise rve.size_ratio or lower rve.diameter_sd_um",
+                    achieved, target)

@@ -8,12 +8,17 @@ from pathlib import Path
 
 from espin.core.atomic import atomic_write_bytes
 from espin.core.config import write_config
+from espin.core.output_folder import OutputFolder
 from espin.geometry.rve import RVE
 from espin.geometry.rve_file import save_rve
 from espin.geometry.statistics import NetworkStatistics, network_statistics
 from espin.geometry.vtk import write_mat_vtu, write_network_vtu
 
-__all__ = ["RVEFolder", "write_rve_folder"]
+__all__ = ["RVEFolder", "write_rve_folder", "write_rve_files", "RVE_OUTPUTS"]
+
+RVE_OUTPUTS = ("rve.h5", "config.toml", "statistics.json", "statistics.txt", "mat.png", "statistics.png",
+               "fibers.vtu", "network.vtu")
+"""The files an RVE folder may hold (glob patterns relative to it)."""
 
 
 @dataclass(frozen=True)
@@ -26,10 +31,10 @@ class RVEFolder:
 
 
 def write_rve_folder(
-    rve: RVE, folder: str | Path, *, figures: bool | None = None, vtk: bool | None = None
+    rve: RVE, folder: str | Path, *, figures: bool | None = None, vtk: bool | None = None,
+    overwrite: bool = False,
 ) -> RVEFolder:
-    """Write ``rve.h5``, ``config.toml``, ``statistics.json``, ``statistics.txt``, and
-    optionally ``mat.png``, ``statistics.png``, ``fibers.vtu``, ``network.vtu``.
+    """Write an RVE's folder, with its ``run.json`` manifest (:mod:`espin.core.output_folder`).
 
     Parameters
     ----------
@@ -39,11 +44,37 @@ def write_rve_folder(
         Output folder (created if needed). Every file is written atomically.
     figures, vtk
         Write PNG figures / VTK files; default from ``rve.config.output``.
+    overwrite
+        Replace the files of another run in ``folder`` instead of refusing.
 
     Returns
     -------
     RVEFolder
         The folder, the statistics and the written paths by name.
+
+    Raises
+    ------
+    ConfigError
+        If ``folder`` holds another run's results and ``overwrite`` is False.
+    """
+    claimed = OutputFolder.claim(folder, "generate", rve.config, RVE_OUTPUTS, overwrite=overwrite)
+    try:
+        written = write_rve_files(rve, folder, figures=figures, vtk=vtk)
+    except BaseException:
+        claimed.finish("failed")
+        raise
+    claimed.finish()
+    return written
+
+
+def write_rve_files(
+    rve: RVE, folder: str | Path, *, figures: bool | None = None, vtk: bool | None = None
+) -> RVEFolder:
+    """Write ``rve.h5``, ``config.toml``, ``statistics.json``, ``statistics.txt``, and
+    optionally ``mat.png``, ``statistics.png``, ``fibers.vtu``, ``network.vtu`` into a folder
+    the caller has claimed (:class:`espin.core.output_folder.OutputFolder`).
+
+    Parameters are those of :func:`write_rve_folder`.
     """
     folder = Path(folder)
     figures = rve.config.output.figures if figures is None else figures

@@ -26,7 +26,8 @@ from espin.mechanics.homogenization import cauchy_stress, nominal_stress, paper_
 from espin.mechanics.loading import LoadProgram, load_program
 from espin.mechanics.time_steps import StepSizeControl, local_error, split
 
-__all__ = ["StepRecord", "SimulationResult", "SimulationFailed", "run_program", "FREE_LATERAL_NOTE"]
+__all__ = ["StepRecord", "SimulationResult", "SimulationFailed", "run_program", "result_from_records",
+           "FREE_LATERAL_NOTE"]
 
 log = logging.getLogger(__name__)
 
@@ -230,7 +231,7 @@ def run_program(
     def fail(k: int, t: float, failure: StepFailed, cuts: int) -> SimulationFailed:
         return SimulationFailed(
             failure, step=k, n_steps=program.n_steps, time=t, strain=program.strain_at(t), cuts=cuts,
-            mixed=bool(len(directions)), partial=_result(config, program, records) if records else None,
+            mixed=bool(len(directions)), partial=result_from_records(config, program, records) if records else None,
         )
 
     F0 = program.prescribed_F(0.0)
@@ -294,7 +295,7 @@ def run_program(
         records.append(record)
         if on_step is not None:
             on_step(record)
-    return _result(config, program, records)
+    return result_from_records(config, program, records)
 
 
 _WHY = {
@@ -384,7 +385,8 @@ class SimulationFailed(SolverError):
                 f"    k  residual\n{history}\n")
 
 
-def _result(config: Config, program: LoadProgram, records: list[StepRecord]) -> SimulationResult:
+def result_from_records(config: Config, program: LoadProgram, records: list[StepRecord]) -> SimulationResult:
+    """The :class:`SimulationResult` of the recorded steps so far (``final`` is the last one)."""
     def stack(name: str) -> np.ndarray:
         return np.array([getattr(r, name) for r in records])
 

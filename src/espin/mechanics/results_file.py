@@ -1,9 +1,12 @@
 """Results of a loading program: the deformation step by step (VTK), the curve (CSV, HDF5).
 
-:class:`SimulationWriter` streams one ``vtk/step_NNNN.vtu`` per recorded step and keeps the
-ParaView collection ``deformation.pvd`` up to date, so a run that stops early still leaves a
-readable series. :func:`write_results` writes the finished curve. Every file is written
-atomically: a crash leaves the previous version or nothing, never half a file.
+:class:`SimulationWriter` follows the run step by step: it appends each converged step to
+``curve.csv`` (flushed to disk), writes one ``vtk/step_NNNN.vtu`` and keeps the ParaView
+collection ``deformation.pvd`` up to date, and rewrites ``results.h5`` every minute, so a
+run that is killed keeps its converged steps. :func:`write_results` writes the finished
+curve. Every file but the growing ``curve.csv`` is written atomically: a crash leaves the
+previous version or nothing, never half a file; ``curve.csv`` may then end on a partial line,
+which readers ignore only if it is the last one.
 
 ``curve.csv``: a header line, then one row per step (step 0 undeformed). Tensor components
 are in the RVE axes (``P12_MPa`` is P_12, i spatial, J reference); ``stress_MPa`` is the
@@ -24,6 +27,8 @@ simple shear). Floats have 17 significant digits, so reading them back is exact.
 from __future__ import annotations
 
 import io
+import os
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,13 +41,16 @@ from espin.core.errors import RVEFileError
 from espin.core.header import open_checked, read_config, write_header
 from espin.geometry.network import Network
 from espin.geometry.vtk import write_network_vtu
-from espin.mechanics.driver import SimulationResult, StepRecord
+from espin.mechanics.driver import SimulationResult, StepRecord, result_from_records
 from espin.mechanics.fiber_law import yielded
+from espin.mechanics.loading import LoadProgram, load_program
 
 __all__ = ["SimulationWriter", "write_results", "load_results", "ResultsFile", "SCHEMA", "SCHEMA_VERSION"]
 
 SCHEMA = "espin.results"
 SCHEMA_VERSION = 1
+RESULTS_INTERVAL_S = 60.0
+"""Wall time [s] between two rewrites of ``results.h5`` during a run."""
 
 # SimulationResult attribute -> (dataset in /steps, units)
 _STEPS = {
@@ -70,13 +78,14 @@ _COMPONENTS = ("11", "12", "21", "22")
 
 
 class SimulationWriter:
-    """Stream the deformed network of every step to VTK, for use as ``run_program(on_step=)``.
+    """Write a run's results as it goes, for use as ``run_program(on_step=)``.
 
-    Each call writes ``vtk/step_NNNN.vtu`` (node positions [um] relative to the RVE centre;
-    cell data ``stress_MPa``, ``plastic_stretch``, ``recruited`` and ``yielded`` as int8, plus
-    the network's own) and then rewrites ``deformation.pvd``, which indexes every step so far
-    with its time [s] as the ParaView timestep. With ``vtk=False`` a call writes nothing, so
-    callers can pass the writer unconditionally.
+    Each call appends the step's row to ``curve.csv`` (the header first; flushed and synced),
+    writes ``vtk/step_NNNN.vtu`` (node positions [um] relative to the RVE centre; cell data
+    ``stress_MPa``, ``plastic_stretch``, ``recruited`` and ``yielded`` as int8, plus the
+    network's own) and then rewrites ``deformation.pvd``, which indexes every step so far with
+    its time [s] as the ParaView timestep; and, when a minute has passed since the last time,
+    rewrites ``results.h5`` with every step so far.
 
     Parameters
     ----------
@@ -86,16 +95,23 @@ class SimulationWriter:
         The network being loaded (reference state).
     config
         The run's configuration (``output.yield_threshold`` decides ``yielded``).
+    program
+        The loading program (its frame gives the curve's stress); default from ``config``.
     vtk
-        Write the files.
+        Write the VTK files.
     """
 
-    def __init__(self, folder: str | Path, network: Network, config: Config, vtk: bool = True) -> None:
+    def __init__(self, folder: str | Path, network: Network, config: Config,
+                 program: LoadProgram | None = None, vtk: bool = True) -> None:
         self.folder = Path(folder)
         self.network = network
+        self.config = config
+        self.program = program if program is not None else load_program(config.loading)
         self.vtk = vtk
         self._threshold = config.output.yield_threshold
         self._steps: list[tuple[float, str]] = []  # (time [s], path relative to folder)
+        self._records: list[StepRecord] = []
+        self._saved = time.monotonic()
 
     @property
     def pvd_path(self) -> Path:
@@ -103,9 +119,28 @@ class SimulationWriter:
         return self.folder / "deformation.pvd"
 
     def __call__(self, record: StepRecord) -> None:
-        """Write the step's ``.vtu``, then the updated ``.pvd``."""
-        if not self.vtk:
-            return
+        """Append the step to ``curve.csv``, write its ``.vtu`` and the updated ``.pvd``,
+        and ``results.h5`` when it is due."""
+        self._records.append(record)
+        self._append_curve_row(record)
+        if self.vtk:
+            self._write_vtk(record)
+        if time.monotonic() - self._saved >= RESULTS_INTERVAL_S:
+            write_results(result_from_records(self.config, self.program, self._records), self.folder, curve=False)
+            self._saved = time.monotonic()
+
+    def _append_curve_row(self, record: StepRecord) -> None:
+        names, columns, formats = _curve_columns(result_from_records(self.config, self.program, [record]),
+                                                 first_step=record.index)
+        row = ",".join(fmt % np.asarray(column)[0] for fmt, column in zip(formats, columns)) + "\n"
+        self.folder.mkdir(parents=True, exist_ok=True)
+        first = len(self._records) == 1
+        with open(self.folder / "curve.csv", "w" if first else "a", encoding="utf-8") as fh:
+            fh.write((",".join(names) + "\n" if first else "") + row)
+            fh.flush()
+            os.fsync(fh.fileno())
+
+    def _write_vtk(self, record: StepRecord) -> None:
         name = f"vtk/step_{record.index:04d}.vtu"
         write_network_vtu(
             self.network,
@@ -131,11 +166,11 @@ class SimulationWriter:
         atomic_write_bytes(self.pvd_path, text.encode("utf-8"))
 
 
-def _curve_columns(result: SimulationResult) -> tuple[list[str], list[np.ndarray], list[str]]:
-    """Names, (n,) arrays and printf formats of the CSV columns."""
+def _curve_columns(result: SimulationResult, first_step: int = 0) -> tuple[list[str], list[np.ndarray], list[str]]:
+    """Names, (n,) arrays and printf formats of the CSV columns; steps numbered from ``first_step``."""
     n = len(result.time)
     names = ["step", "time_s", "strain"]
-    columns = [np.arange(n), result.time, result.strain]
+    columns = [first_step + np.arange(n), result.time, result.strain]
     for prefix, tensor, unit in (
         ("F", result.F, ""), ("P", result.P, "_MPa"), ("paper", result.P_paper, "_MPa"),
         ("cauchy", result.cauchy, "_MPa"),
@@ -150,7 +185,7 @@ def _curve_columns(result: SimulationResult) -> tuple[list[str], list[np.ndarray
     return names, columns, formats
 
 
-def write_results(result: SimulationResult, folder: str | Path) -> dict[str, Path]:
+def write_results(result: SimulationResult, folder: str | Path, *, curve: bool = True) -> dict[str, Path]:
     """Write ``curve.csv`` and ``results.h5`` (layouts in the module docs), atomically.
 
     Parameters
@@ -159,18 +194,22 @@ def write_results(result: SimulationResult, folder: str | Path) -> dict[str, Pat
         The recorded loading program.
     folder
         Output folder (created if needed).
+    curve
+        Write ``curve.csv`` too (False: only ``results.h5``).
 
     Returns
     -------
     dict
-        ``{"curve_csv": path, "results_h5": path}``.
+        ``{"curve_csv": path, "results_h5": path}`` (without ``curve_csv`` if not written).
     """
     folder = Path(folder)
-    names, columns, formats = _curve_columns(result)
-    buffer = io.StringIO()
-    np.savetxt(buffer, np.column_stack(columns), fmt=formats, delimiter=",",
-               header=",".join(names), comments="")
-    curve = atomic_write_bytes(folder / "curve.csv", buffer.getvalue().encode("utf-8"))
+    written = {}
+    if curve:
+        names, columns, formats = _curve_columns(result)
+        buffer = io.StringIO()
+        np.savetxt(buffer, np.column_stack(columns), fmt=formats, delimiter=",",
+                   header=",".join(names), comments="")
+        written["curve_csv"] = atomic_write_bytes(folder / "curve.csv", buffer.getvalue().encode("utf-8"))
 
     def write(tmp: Path) -> None:
         with h5py.File(tmp, "w") as f:
@@ -190,7 +229,8 @@ def write_results(result: SimulationResult, folder: str | Path) -> dict[str, Pat
                 g.create_dataset(name, data=getattr(result.final, attr)).attrs["units"] = units
             g.attrs.update(step=result.final.index, time_s=result.final.time, strain=result.final.strain)
 
-    return {"curve_csv": curve, "results_h5": atomic_write(folder / "results.h5", write)}
+    written["results_h5"] = atomic_write(folder / "results.h5", write)
+    return written
 
 
 @dataclass(frozen=True, eq=False)

@@ -11,21 +11,28 @@ from threadpoolctl import threadpool_limits
 
 from espin.core.config import Config, apply_overrides, write_config
 from espin.core.errors import ConfigError
+from espin.core.output_folder import OutputFolder
 from espin.geometry.rve import RVE, generate, resolve_config
 from espin.geometry.rve_file import load_rve
+from espin.geometry.rve_folder import RVE_OUTPUTS, write_rve_files
+from espin.geometry.size_estimate import check_size
 from espin.mechanics.driver import SimulationFailed, SimulationResult, StepRecord, run_program
 from espin.mechanics.linear_solvers import make_linear_solver
+from espin.mechanics.loading import LoadProgram, load_program
 
-__all__ = ["simulate", "resolve_rve", "SOLVER_LOG"]
+__all__ = ["simulate", "resolve_source", "SOLVER_LOG", "SIMULATION_OUTPUTS"]
 
 log = logging.getLogger(__name__)
 
 SOLVER_LOG = "solver.log"
 """File of the output folder that a failed run writes its residual history to."""
+SIMULATION_OUTPUTS = ("config.toml", "curve.csv", "results.h5", "curve.png", "deformed.png",
+                      "deformation.pvd", "vtk/step_*.vtu", SOLVER_LOG)
+"""The files a tensile test writes (glob patterns relative to its folder), besides the RVE's."""
 
 
-def resolve_rve(source: RVE | Config | str | Path | None, overrides: dict[str, Any]) -> tuple[RVE, bool]:
-    """The RVE to pull on, and whether it was generated here.
+def resolve_source(source: RVE | Config | str | Path | None, overrides: dict[str, Any]) -> tuple[Config, RVE | None]:
+    """The run's validated config, and the RVE when ``source`` is one (None: to be generated).
 
     ``source`` is an :class:`RVE`, a saved ``.h5`` RVE file, a :class:`Config`, a preset name
     or a TOML file (None: ``plla``). ``overrides`` are ``section.key`` values; on a saved or
@@ -41,9 +48,8 @@ def resolve_rve(source: RVE | Config | str | Path | None, overrides: dict[str, A
                 "new RVE instead (only fiber, loading, solver and output keys apply)"
             )
         config = apply_overrides(source.config, overrides) if overrides else source.config
-        return RVE(config, source.mat, source.crosslinks, source.network), False
-    config = resolve_config(source, **{k.replace(".", "__"): v for k, v in overrides.items()})
-    return generate(config), True
+        return config, RVE(config, source.mat, source.crosslinks, source.network)
+    return resolve_config(source, **{k.replace(".", "__"): v for k, v in overrides.items()}), None
 
 
 def simulate(
@@ -52,6 +58,8 @@ def simulate(
     *,
     on_step: Callable[[StepRecord], None] | None = None,
     threads: int | None = None,
+    overwrite: bool = False,
+    allow_large: bool = False,
     **overrides: Any,
 ) -> SimulationResult:
     """Pull on a virtual mat and record its stress-strain response (docs/model.md sections 3-6).
@@ -62,13 +70,20 @@ def simulate(
         An :class:`RVE`, a saved RVE file (``.h5``), a :class:`Config`, a preset name or a
         TOML file; default the ``plla`` preset (generated).
     out
-        Results folder. When given: ``config.toml``, ``curve.csv``, ``results.h5``, the VTK
-        series ``deformation.pvd`` (+ ``vtk/``), ``curve.png``, ``deformed.png`` and, for a
+        Results folder. When given: ``run.json`` (the manifest, ``running`` until the run
+        ends), ``config.toml``, ``curve.csv`` (one row per converged step, appended as the
+        run goes), ``results.h5`` (rewritten every minute and at the end), the VTK series
+        ``deformation.pvd`` (+ ``vtk/``), ``curve.png``, ``deformed.png`` and, for a
         generated RVE, ``rve.h5`` with its statistics and figures.
     on_step
         Called with each converged :class:`StepRecord` (e.g. for a progress display).
     threads
         Threads for BLAS / MKL (PARDISO) during the run; default the library's own choice.
+    overwrite
+        Replace the results of another run in ``out`` instead of refusing.
+    allow_large
+        Generate the RVE even when its tensile test is estimated to need more memory than is
+        available.
     **overrides
         Config keys as ``section__key=value``, e.g. ``loading__max_strain=0.1``.
 
@@ -79,27 +94,48 @@ def simulate(
     Raises
     ------
     ConfigError
-        For an invalid configuration (before any work starts).
+        For an invalid configuration, an RVE too large for the memory available, or an
+        ``out`` folder holding another run's results (before any work starts).
     SimulationFailed
         When a step cannot converge: one line says which step, why and what to try; the
         results folder then holds the curve and results of the steps that converged and
         ``solver.log``, the residual history of the last attempt.
     """
     flat = {key.replace("__", "."): value for key, value in overrides.items()}
-    rve, generated = resolve_rve(source, flat)
-    config = rve.config
-    folder = Path(out) if out is not None else None
+    config, rve = resolve_source(source, flat)
+    program = load_program(config.loading)  # its tables are read and checked before any work
+    if rve is None:
+        check_size(config, allow_large=allow_large)  # before the folder is claimed
+    claimed = None
+    if out is not None:
+        outputs = SIMULATION_OUTPUTS + (RVE_OUTPUTS if rve is None else ())
+        claimed = OutputFolder.claim(out, "simulate", config, outputs, overwrite=overwrite)
+    try:
+        result = _run(config, rve, program, claimed, on_step, threads, allow_large)
+    except BaseException:
+        if claimed is not None:
+            claimed.finish("failed")
+        raise
+    if claimed is not None:
+        claimed.finish()
+    return result
+
+
+def _run(config: Config, rve: RVE | None, program: LoadProgram, claimed: OutputFolder | None,
+         on_step: Callable[[StepRecord], None] | None, threads: int | None, allow_large: bool) -> SimulationResult:
+    """Generate the RVE if needed, run the program, write the claimed folder."""
+    folder = None if claimed is None else claimed.path
     callbacks = [c for c in (on_step,) if c is not None]
+    if rve is None:
+        rve = generate(config, allow_large=allow_large)
+        if folder is not None:
+            write_rve_files(rve, folder)
+    elif folder is not None:
+        write_config(config, folder / "config.toml")
     if folder is not None:
         from espin.mechanics.results_file import SimulationWriter
 
-        if generated:
-            from espin.geometry.rve_folder import write_rve_folder
-
-            write_rve_folder(rve, folder)
-        else:
-            write_config(config, folder / "config.toml")
-        callbacks.append(SimulationWriter(folder, rve.network, config, vtk=config.output.vtk))
+        callbacks.append(SimulationWriter(folder, rve.network, config, program, vtk=config.output.vtk))
 
     def step_done(record: StepRecord) -> None:
         for callback in callbacks:
@@ -108,7 +144,7 @@ def simulate(
     linear = make_linear_solver(config.solver.linear)
     try:
         with threadpool_limits(limits=threads):
-            result = run_program(rve.network, config, linear, on_step=step_done)
+            result = run_program(rve.network, config, linear, program, on_step=step_done)
     except SimulationFailed as failure:
         if folder is not None:
             from espin.core.atomic import atomic_write_bytes

@@ -1,0 +1,195 @@
+"""Output folders owned by one run: the ``run.json`` manifest and the overwrite policy.
+
+Every command that writes a folder first writes ``run.json``::
+
+    {"run_id": "...", "command": "simulate", "config_hash": "...", "espin_version": "...",
+     "status": "running", "started_utc": "...", "finished_utc": null}
+
+with status ``running`` before its first result, and ``complete`` (or ``failed``) when it
+ends; a folder whose manifest still says ``running`` holds a partial result (the run was
+killed or is still going). The policy, the same for every command:
+
+- a missing or empty folder, or one holding none of the command's outputs and no manifest,
+  is used as it is;
+- a folder holding another run's manifest or any of the command's outputs is refused, unless
+  ``overwrite`` (``--overwrite``): then the manifest is rewritten first, and every file the
+  command writes (stale ``vtk/step_*.vtu`` included) and the temporary files of interrupted
+  writes are removed; other files are left alone;
+- a resumable command (``study``, ``fit``) reuses a folder whose manifest has the same
+  command and config hash, and keeps what is there.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import uuid
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+from espin.core.atomic import atomic_write_bytes
+from espin.core.config import Config, config_to_toml
+from espin.core.errors import ConfigError
+from espin.core.version import __version__
+
+__all__ = ["MANIFEST", "RunManifest", "OutputFolder", "read_manifest", "config_hash"]
+
+MANIFEST = "run.json"
+"""Name of the manifest file in every output folder."""
+_TEMPORARY = ".*.tmp"  # what an interrupted atomic write leaves (espin.core.atomic)
+
+
+@dataclass(frozen=True)
+class RunManifest:
+    """What ``run.json`` records about the run that owns a folder.
+
+    Attributes
+    ----------
+    run_id : str
+        Unique id of the run (also stored in its HDF5 files).
+    command : str
+        The command that wrote the folder (``generate``, ``simulate``, ``study``, ...).
+    config_hash : str
+        SHA-256 of the resolved config and of every file it references.
+    espin_version : str
+    status : str
+        ``running``, ``complete`` or ``failed``.
+    started_utc, finished_utc : str
+        ISO 8601 times; ``finished_utc`` is None while running.
+    """
+
+    run_id: str
+    command: str
+    config_hash: str
+    espin_version: str
+    status: str
+    started_utc: str
+    finished_utc: str | None = None
+
+    @property
+    def partial(self) -> bool:
+        """Whether the folder holds less than a complete result."""
+        return self.status != "complete"
+
+
+def config_hash(config: Config) -> str:
+    """SHA-256 of the resolved config text and of the bytes of every file it references
+    (``loading.lateral.transverse_csv``, ``loading.path_csv``); a missing file hashes as
+    missing, so creating it changes the hash."""
+    digest = hashlib.sha256(config_to_toml(config).encode("utf-8"))
+    lateral = config.loading.lateral
+    for path in (getattr(lateral, "transverse_csv", None), config.loading.path_csv):
+        if path is not None:
+            digest.update(str(path).encode("utf-8"))
+            digest.update(Path(path).read_bytes() if Path(path).is_file() else b"<missing>")
+    return digest.hexdigest()
+
+
+def read_manifest(folder: str | Path) -> RunManifest | None:
+    """The manifest of ``folder``; None if it has none.
+
+    Raises
+    ------
+    ConfigError
+        If ``run.json`` exists but is not a manifest espin wrote.
+    """
+    path = Path(folder) / MANIFEST
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text("utf-8"))
+        return RunManifest(**{key: data[key] for key in RunManifest.__dataclass_fields__ if key in data})
+    except (OSError, UnicodeDecodeError, ValueError, TypeError):
+        raise ConfigError(f"{path} is not an espin run manifest (JSON with run_id, command, "
+                          "config_hash, status ...)") from None
+
+
+class OutputFolder:
+    """A results folder claimed by one run (module docs for the policy).
+
+    Use :meth:`claim` to create one; call :meth:`finish` when the run ends.
+    """
+
+    def __init__(self, path: Path, manifest: RunManifest) -> None:
+        self.path = path
+        self.manifest = manifest
+
+    @property
+    def run_id(self) -> str:
+        """The run's id."""
+        return self.manifest.run_id
+
+    @classmethod
+    def claim(cls, path: str | Path, command: str, config: Config, outputs: Sequence[str], *,
+              overwrite: bool = False, resumable: bool = False) -> OutputFolder:
+        """Check ``path`` against the policy and write a ``running`` manifest there.
+
+        Parameters
+        ----------
+        path
+            The folder (created if missing).
+        command
+            Name of the command writing it.
+        config
+            The run's resolved config (its hash is recorded).
+        outputs
+            Glob patterns, relative to the folder, of every file the command writes.
+        overwrite
+            Replace another run's results (removing ``outputs``) instead of refusing.
+        resumable
+            Reuse, keeping its files, a folder whose manifest has the same command and
+            config hash.
+
+        Raises
+        ------
+        ConfigError
+            If the folder belongs to another run and ``overwrite`` is False, or is not a folder.
+        """
+        path = Path(path)
+        if path.exists() and not path.is_dir():
+            raise ConfigError(f"output folder {path} exists and is not a folder")
+        digest = config_hash(config)
+        previous = read_manifest(path) if path.is_dir() else None
+        now = _utc_now()
+        if resumable and previous is not None and (previous.command, previous.config_hash) == (command, digest):
+            folder = cls(path, replace(previous, status="running", finished_utc=None))
+            folder._write()
+            return folder
+        found = _existing(path, outputs)
+        if (found or previous is not None) and not overwrite:
+            owner = ("files" if previous is None else
+                     f"the results of another {previous.command} run ({previous.status}, started "
+                     f"{previous.started_utc})")
+            shown = ", ".join(found[:4]) + (" ..." if len(found) > 4 else "")
+            raise ConfigError(
+                f"output folder {path} already holds {owner}{': ' + shown if shown else ''}; "
+                "pass --overwrite (overwrite=True in Python) to replace them, or choose another folder"
+            )
+        folder = cls(path, RunManifest(uuid.uuid4().hex, command, digest, __version__, "running", now))
+        path.mkdir(parents=True, exist_ok=True)
+        folder._write()  # first, so that a kill while clearing leaves a folder marked partial
+        for name in [*found, *(p.relative_to(path).as_posix() for p in path.rglob(_TEMPORARY))]:
+            (path / name).unlink(missing_ok=True)
+        return folder
+
+    def finish(self, status: str = "complete") -> None:
+        """Record the end of the run: ``complete`` or ``failed``."""
+        self.manifest = replace(self.manifest, status=status, finished_utc=_utc_now())
+        self._write()
+
+    def _write(self) -> None:
+        atomic_write_bytes(self.path / MANIFEST, json.dumps(asdict(self.manifest), indent=1).encode("utf-8"))
+
+
+def _existing(path: Path, outputs: Sequence[str]) -> list[str]:
+    """The files under ``path`` that match ``outputs``, relative, sorted."""
+    if not path.is_dir():
+        return []
+    return sorted({p.relative_to(path).as_posix() for pattern in outputs for p in path.glob(pattern)
+                   if p.is_file()})
+
+
+def _utc_now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
