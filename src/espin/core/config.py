@@ -12,7 +12,9 @@ Units inside espin: length um, stress MPa, force uN (= MPa um^2), time s, angles
 from __future__ import annotations
 
 import copy
+import hashlib
 import tomllib
+from collections.abc import Iterator
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -48,6 +50,8 @@ __all__ = [
     "config_to_toml",
     "write_config",
     "apply_overrides",
+    "config_digest",
+    "referenced_files",
 ]
 
 PRESETS = ("plla",)
@@ -596,3 +600,48 @@ def write_config(config: Config, path: str | Path) -> Path:
 
     return atomic_write_bytes(Path(path), config_to_toml(config).encode("utf-8"))
 
+
+
+def referenced_files(node: Any, name: str = "") -> Iterator[tuple[str, Path]]:
+    """(dotted config key, path) of every file a config (or a part of it) references
+    (``loading.path_csv``, ``loading.lateral.transverse_csv``)."""
+    if isinstance(node, Path):
+        yield name, node
+    elif isinstance(node, BaseModel):
+        for field_name in type(node).model_fields:
+            yield from referenced_files(getattr(node, field_name), f"{name}.{field_name}" if name else field_name)
+    elif isinstance(node, (list, tuple)):
+        for index, item in enumerate(node):
+            yield from referenced_files(item, f"{name}[{index}]")
+
+
+def config_digest(config: Config, cache: dict[Path, str] | None = None) -> str:
+    """SHA-256 (hex) of the config's TOML and of the bytes of every file it references.
+
+    A config that references no file has the digest of its TOML alone. ``cache`` keeps file
+    digests by path across calls (one plan of tasks).
+
+    Raises
+    ------
+    ConfigError
+        If a referenced file is missing or unreadable (naming the key and the path, never the
+        file's contents).
+    """
+    cache = {} if cache is None else cache
+    text = config_to_toml(config)
+    for name, path in referenced_files(config):
+        if path not in cache:
+            cache[path] = _file_digest(name, path)
+        text += f"\n# {name}: sha256 {cache[path]}"
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _file_digest(name: str, path: Path) -> str:
+    """SHA-256 of a referenced file's bytes."""
+    try:
+        with open(path, "rb") as fh:
+            return hashlib.file_digest(fh, "sha256").hexdigest()
+    except FileNotFoundError:
+        raise ConfigError(f"{name}: the file it references does not exist: {path}") from None
+    except OSError as err:
+        raise ConfigError(f"{name}: cannot read the file it references, {path}: {err.strerror}") from None

@@ -22,7 +22,6 @@ killed or is still going). The policy, the same for every command:
 from __future__ import annotations
 
 import datetime as _dt
-import hashlib
 import json
 import uuid
 from collections.abc import Sequence
@@ -30,11 +29,10 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from espin.core.atomic import atomic_write_bytes
-from espin.core.config import Config, config_to_toml
 from espin.core.errors import ConfigError
 from espin.core.version import __version__
 
-__all__ = ["MANIFEST", "RunManifest", "OutputFolder", "read_manifest", "config_hash"]
+__all__ = ["MANIFEST", "RunManifest", "OutputFolder", "read_manifest"]
 
 MANIFEST = "run.json"
 """Name of the manifest file in every output folder."""
@@ -52,7 +50,8 @@ class RunManifest:
     command : str
         The command that wrote the folder (``generate``, ``simulate``, ``study``, ...).
     config_hash : str
-        SHA-256 of the resolved config and of every file it references.
+        What identifies the run's inputs: for one config, its
+        :func:`espin.core.config.config_digest` (the config and every file it references).
     espin_version : str
     status : str
         ``running``, ``complete`` or ``failed``.
@@ -72,19 +71,6 @@ class RunManifest:
     def partial(self) -> bool:
         """Whether the folder holds less than a complete result."""
         return self.status != "complete"
-
-
-def config_hash(config: Config) -> str:
-    """SHA-256 of the resolved config text and of the bytes of every file it references
-    (``loading.lateral.transverse_csv``, ``loading.path_csv``); a missing file hashes as
-    missing, so creating it changes the hash."""
-    digest = hashlib.sha256(config_to_toml(config).encode("utf-8"))
-    lateral = config.loading.lateral
-    for path in (getattr(lateral, "transverse_csv", None), config.loading.path_csv):
-        if path is not None:
-            digest.update(str(path).encode("utf-8"))
-            digest.update(Path(path).read_bytes() if Path(path).is_file() else b"<missing>")
-    return digest.hexdigest()
 
 
 def read_manifest(folder: str | Path) -> RunManifest | None:
@@ -122,7 +108,7 @@ class OutputFolder:
         return self.manifest.run_id
 
     @classmethod
-    def claim(cls, path: str | Path, command: str, config: Config, outputs: Sequence[str], *,
+    def claim(cls, path: str | Path, command: str, digest: str, outputs: Sequence[str], *,
               overwrite: bool = False, resumable: bool = False) -> OutputFolder:
         """Check ``path`` against the policy and write a ``running`` manifest there.
 
@@ -132,8 +118,9 @@ class OutputFolder:
             The folder (created if missing).
         command
             Name of the command writing it.
-        config
-            The run's resolved config (its hash is recorded).
+        digest
+            What identifies the run's inputs (recorded; a resumable command reuses a folder
+            only for the same digest).
         outputs
             Glob patterns, relative to the folder, of every file the command writes.
         overwrite
@@ -150,7 +137,6 @@ class OutputFolder:
         path = Path(path)
         if path.exists() and not path.is_dir():
             raise ConfigError(f"output folder {path} exists and is not a folder")
-        digest = config_hash(config)
         previous = read_manifest(path) if path.is_dir() else None
         now = _utc_now()
         if resumable and previous is not None and (previous.command, previous.config_hash) == (command, digest):

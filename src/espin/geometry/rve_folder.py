@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from espin.core.atomic import atomic_write_bytes
-from espin.core.config import write_config
+from espin.core.config import config_digest, write_config
 from espin.core.output_folder import OutputFolder
 from espin.geometry.rve import RVE
 from espin.geometry.rve_file import save_rve
@@ -57,7 +57,7 @@ def write_rve_folder(
     ConfigError
         If ``folder`` holds another run's results and ``overwrite`` is False.
     """
-    claimed = OutputFolder.claim(folder, "generate", rve.config, RVE_OUTPUTS, overwrite=overwrite)
+    claimed = OutputFolder.claim(folder, "generate", config_digest(rve.config), RVE_OUTPUTS, overwrite=overwrite)
     try:
         written = write_rve_files(rve, folder, figures=figures, vtk=vtk)
     except BaseException:

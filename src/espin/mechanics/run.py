@@ -9,7 +9,7 @@ from typing import Any
 
 from threadpoolctl import threadpool_limits
 
-from espin.core.config import Config, apply_overrides, write_config
+from espin.core.config import Config, apply_overrides, config_digest, write_config
 from espin.core.errors import ConfigError
 from espin.core.output_folder import OutputFolder
 from espin.geometry.rve import RVE, generate, resolve_config
@@ -109,7 +109,7 @@ def simulate(
     claimed = None
     if out is not None:
         outputs = SIMULATION_OUTPUTS + (RVE_OUTPUTS if rve is None else ())
-        claimed = OutputFolder.claim(out, "simulate", config, outputs, overwrite=overwrite)
+        claimed = OutputFolder.claim(out, "simulate", config_digest(config), outputs, overwrite=overwrite)
     try:
         result = _run(config, rve, program, claimed, on_step, threads, allow_large)
     except BaseException:

@@ -33,7 +33,7 @@ import pandas as pd
 from pydantic import BaseModel
 
 from espin.core.atomic import atomic_write, atomic_write_bytes
-from espin.core.config import Config, config_to_toml
+from espin.core.config import Config, config_digest
 from espin.core.errors import ConfigError
 from espin.core.parallel import TaskOutcome, TaskPool, check_scheduler
 
@@ -103,49 +103,12 @@ def plan_tasks(base: Config, points: Sequence[Mapping[str, Any]], seeds: Sequenc
                 config = apply_overrides(base, {**point, "rve.seed": int(seed)})
             except ConfigError as err:
                 raise ConfigError(f"parameter point {dict(point)}: {err}") from None
-            key = _task_key(config, digests)
+            key = config_digest(config, digests)[:16]
             tasks.append(TensileTask(key, dict(point), int(seed), config))
     keys = [t.key for t in tasks]
     if len(set(keys)) != len(keys):
         raise ConfigError("grid: two parameter points give the same configuration (repeated values?)")
     return tasks
-
-
-def _task_key(config: Config, digests: dict[Path, str]) -> str:
-    """16 hex digits of the SHA-256 of the config's TOML and of each referenced file's bytes.
-
-    A config that references no file keeps the key of its TOML alone (the key of earlier
-    versions). ``digests`` caches file hashes by path within one plan.
-    """
-    text = config_to_toml(config)
-    for name, path in _referenced_files(config):
-        if path not in digests:
-            digests[path] = _file_digest(name, path)
-        text += f"\n# {name}: sha256 {digests[path]}"
-    return hashlib.sha256(text.encode()).hexdigest()[:16]
-
-
-def _referenced_files(node: Any, name: str = "") -> Iterator[tuple[str, Path]]:
-    """(dotted config key, path) of every file a config (or a part of it) references."""
-    if isinstance(node, Path):
-        yield name, node
-    elif isinstance(node, BaseModel):
-        for field_name in type(node).model_fields:
-            yield from _referenced_files(getattr(node, field_name), f"{name}.{field_name}" if name else field_name)
-    elif isinstance(node, (list, tuple)):
-        for index, item in enumerate(node):
-            yield from _referenced_files(item, f"{name}[{index}]")
-
-
-def _file_digest(name: str, path: Path) -> str:
-    """SHA-256 of a referenced file's bytes; an error names the key and the path, not the contents."""
-    try:
-        with open(path, "rb") as fh:
-            return hashlib.file_digest(fh, "sha256").hexdigest()
-    except FileNotFoundError:
-        raise ConfigError(f"{name}: the file it references does not exist: {path}") from None
-    except OSError as err:
-        raise ConfigError(f"{name}: cannot read the file it references, {path}: {err.strerror}") from None
 
 
 def run_tensile(task: TensileTask) -> dict[str, Any]:
