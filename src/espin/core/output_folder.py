@@ -16,7 +16,10 @@ killed or is still going). The policy, the same for every command:
   command writes (stale ``vtk/step_*.vtu`` included) and the temporary files of interrupted
   writes are removed; other files are left alone;
 - a resumable command (``study``, ``fit``) reuses a folder whose manifest has the same
-  command and config hash, and keeps what is there.
+  command and config hash, or that has no manifest (written before manifests existed; its
+  task files are keyed by their whole config), and keeps what is there.
+
+A run that fails before writing anything but the manifest leaves no folder behind.
 """
 
 from __future__ import annotations
@@ -95,12 +98,14 @@ def read_manifest(folder: str | Path) -> RunManifest | None:
 class OutputFolder:
     """A results folder claimed by one run (module docs for the policy).
 
-    Use :meth:`claim` to create one; call :meth:`finish` when the run ends.
+    Use :meth:`claim` to create one; call :meth:`finish` when the run ends, or use it as a
+    context manager, which finishes it ``complete``, or ``failed`` on an exception.
     """
 
-    def __init__(self, path: Path, manifest: RunManifest) -> None:
+    def __init__(self, path: Path, manifest: RunManifest, created: bool = False) -> None:
         self.path = path
         self.manifest = manifest
+        self._created = created
 
     @property
     def run_id(self) -> str:
@@ -138,12 +143,13 @@ class OutputFolder:
         if path.exists() and not path.is_dir():
             raise ConfigError(f"output folder {path} exists and is not a folder")
         previous = read_manifest(path) if path.is_dir() else None
-        now = _utc_now()
-        if resumable and previous is not None and (previous.command, previous.config_hash) == (command, digest):
-            folder = cls(path, replace(previous, status="running", finished_utc=None))
+        found = _existing(path, outputs)
+        same = previous is not None and (previous.command, previous.config_hash) == (command, digest)
+        if resumable and (same or (previous is None and found)):
+            manifest = previous or RunManifest(uuid.uuid4().hex, command, digest, __version__, "running", _utc_now())
+            folder = cls(path, replace(manifest, status="running", finished_utc=None))
             folder._write()
             return folder
-        found = _existing(path, outputs)
         if (found or previous is not None) and not overwrite:
             owner = ("files" if previous is None else
                      f"the results of another {previous.command} run ({previous.status}, started "
@@ -153,15 +159,30 @@ class OutputFolder:
                 f"output folder {path} already holds {owner}{': ' + shown if shown else ''}; "
                 "pass --overwrite (overwrite=True in Python) to replace them, or choose another folder"
             )
-        folder = cls(path, RunManifest(uuid.uuid4().hex, command, digest, __version__, "running", now))
+        folder = cls(path, RunManifest(uuid.uuid4().hex, command, digest, __version__, "running", _utc_now()),
+                     created=not path.exists())
         path.mkdir(parents=True, exist_ok=True)
         folder._write()  # first, so that a kill while clearing leaves a folder marked partial
         for name in [*found, *(p.relative_to(path).as_posix() for p in path.rglob(_TEMPORARY))]:
             (path / name).unlink(missing_ok=True)
         return folder
 
+    def __enter__(self) -> OutputFolder:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, *_: object) -> None:
+        self.finish("complete" if exc_type is None else "failed")
+
     def finish(self, status: str = "complete") -> None:
-        """Record the end of the run: ``complete`` or ``failed``."""
+        """Record the end of the run: ``complete`` or ``failed``.
+
+        A failed run that wrote nothing but the manifest into a folder it created removes
+        both.
+        """
+        if status == "failed" and self._created and [p.name for p in self.path.iterdir()] == [MANIFEST]:
+            (self.path / MANIFEST).unlink()
+            self.path.rmdir()
+            return
         self.manifest = replace(self.manifest, status=status, finished_utc=_utc_now())
         self._write()
 

@@ -7,6 +7,7 @@ table, a per-point summary (mean, sd, RSD of each property) and figures.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -17,8 +18,9 @@ from typing import Any, Literal
 import pandas as pd
 
 from espin.core.atomic import atomic_write, atomic_write_bytes
-from espin.core.config import Config, write_config
+from espin.core.config import Config, config_digest, write_config
 from espin.core.errors import ConfigError
+from espin.core.output_folder import OutputFolder
 from espin.core.parallel import TaskOutcome, check_scheduler
 from espin.geometry.rve import resolve_config
 from espin.studies.ensemble import Ensemble, TensileTask, plan_tasks, run_ensemble
@@ -77,6 +79,7 @@ def rve_size_study(
     blas_threads: int | None = 1,
     security: Any = None,
     on_outcome: OnOutcome | None = None,
+    overwrite: bool = False,
     **overrides: Any,
 ) -> StudyResult:
     """Mean, sd and RSD of modulus, yield stress and post-yield modulus versus RVE size.
@@ -97,6 +100,9 @@ def rve_size_study(
         Where the tasks run (:class:`espin.core.parallel.TaskPool`); a Dask scheduler must be
         trusted (it runs the pickled tasks), ``security`` holds the TLS files of a ``tls://``
         one (:func:`espin.core.cluster.tls_security`).
+    overwrite
+        Replace another run's results in ``folder`` instead of refusing; a folder of the
+        same study (same base config) is resumed without it.
 
     Returns
     -------
@@ -118,19 +124,20 @@ def rve_size_study(
     plan = {"study": "rve-size", "size_ratios": list(size_ratios), "layer_counts": list(layer_counts),
             "layers_for_sizes": layers_for_sizes, "size_for_layers": size_for_layers, "seeds": seeds}
     pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
-    result = _run(tasks, base, plan, folder, pool, on_outcome)
-    ensemble = result.ensemble
-    if folder is not None and ensemble.records:
-        from espin.studies.figures import plot_curve_band, plot_rve_size
+    with _claimed(folder, "rve-size", base, overwrite):
+        result = _run(tasks, base, plan, folder, pool, on_outcome)
+        ensemble = result.ensemble
+        if folder is not None and ensemble.records:
+            from espin.studies.figures import plot_curve_band, plot_rve_size
 
-        folder = Path(folder)
-        for name, path in plot_rve_size(result.summary, folder, layers_for_sizes=int(layers_for_sizes),
-                                        size_for_layers=float(size_for_layers)).items():
-            result.files[name] = path
-        largest = max(ensemble.records, key=lambda r: (r["parameters"]["rve.size_ratio"], r["parameters"]["rve.layers"]))
-        strain, stress = ensemble.curves(**{k.replace(".", "__"): v for k, v in largest["parameters"].items()})
-        label = f"L/D = {largest['parameters']['rve.size_ratio']:g}, N_l = {largest['parameters']['rve.layers']}"
-        result.files["curves"] = plot_curve_band(strain, stress, folder / "rve_size_curves.png", label=label)
+            folder = Path(folder)
+            for name, path in plot_rve_size(result.summary, folder, layers_for_sizes=int(layers_for_sizes),
+                                            size_for_layers=float(size_for_layers)).items():
+                result.files[name] = path
+            largest = max(ensemble.records, key=lambda r: (r["parameters"]["rve.size_ratio"], r["parameters"]["rve.layers"]))
+            strain, stress = ensemble.curves(**{k.replace(".", "__"): v for k, v in largest["parameters"].items()})
+            label = f"L/D = {largest['parameters']['rve.size_ratio']:g}, N_l = {largest['parameters']['rve.layers']}"
+            result.files["curves"] = plot_curve_band(strain, stress, folder / "rve_size_curves.png", label=label)
     return result
 
 
@@ -147,6 +154,7 @@ def sweep(
     blas_threads: int | None = 1,
     security: Any = None,
     on_outcome: OnOutcome | None = None,
+    overwrite: bool = False,
     **overrides: Any,
 ) -> StudyResult:
     """Properties over a full grid of parameters (every combination), ``realizations`` RVEs each.
@@ -170,6 +178,9 @@ def sweep(
         Where the tasks run (:class:`espin.core.parallel.TaskPool`); a Dask scheduler must be
         trusted (it runs the pickled tasks), ``security`` holds the TLS files of a ``tls://``
         one (:func:`espin.core.cluster.tls_security`).
+    overwrite
+        Replace another run's results in ``folder`` instead of refusing; a folder of the
+        same study (same base config) is resumed without it.
 
     Returns
     -------
@@ -190,17 +201,32 @@ def sweep(
     seeds = realization_seeds(base, realizations, seed_start)
     tasks = plan_tasks(base, points, seeds)
     pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
-    result = _run(tasks, base, {"study": "sweep", "grid": grid, "seeds": seeds}, folder, pool, on_outcome)
-    if folder is not None and result.ensemble.records:
-        from espin.studies.figures import plot_sweep
+    with _claimed(folder, "sweep", base, overwrite):
+        result = _run(tasks, base, {"study": "sweep", "grid": grid, "seeds": seeds}, folder, pool, on_outcome)
+        if folder is not None and result.ensemble.records:
+            from espin.studies.figures import plot_sweep
 
-        folder = Path(folder)
-        if table_format == "parquet":
-            table = result.table
-            result.files["table"] = atomic_write(folder / "sweep.parquet", lambda tmp: table.to_parquet(tmp, index=False))
-        if keys:
-            result.files.update(plot_sweep(result.summary, keys, folder))
+            folder = Path(folder)
+            if table_format == "parquet":
+                table = result.table
+                result.files["table"] = atomic_write(folder / "sweep.parquet", lambda tmp: table.to_parquet(tmp, index=False))
+            if keys:
+                result.files.update(plot_sweep(result.summary, keys, folder))
     return result
+
+
+STUDY_OUTPUTS = ("study.toml", "plan.json", "results.csv", "summary.csv", "sweep.parquet", "sweep_*.png",
+                 "rve_size_*.png", "tasks/*.json", "failed/*.json")
+"""The files a study writes (glob patterns relative to its folder)."""
+
+
+def _claimed(folder: str | Path | None, command: str, base: Config,
+             overwrite: bool) -> contextlib.AbstractContextManager[OutputFolder | None]:
+    """The study's claim on ``folder`` (resumed when it holds the same study), or nothing."""
+    if folder is None:
+        return contextlib.nullcontext()
+    return OutputFolder.claim(folder, command, config_digest(base), STUDY_OUTPUTS, overwrite=overwrite,
+                              resumable=True)
 
 
 def _grid_values(key: str, values: Any) -> list[Any]:

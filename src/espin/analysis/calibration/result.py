@@ -195,14 +195,32 @@ class FitResult:
             "pool": self.pool,
         }
 
-    def write(self, folder: str | Path) -> dict[str, Path]:
-        """Write ``fitted.toml``, ``fit.csv``, ``fit.json`` and ``fit.png`` into ``folder``.
+    def write(self, folder: str | Path, *, overwrite: bool = False) -> dict[str, Path]:
+        """Write ``fitted.toml``, ``fit.csv``, ``fit.json`` and ``fit.png`` into ``folder``,
+        with its ``run.json`` manifest (:mod:`espin.core.output_folder`).
+
+        Parameters
+        ----------
+        folder
+            Output folder (created if needed).
+        overwrite
+            Replace another run's results in ``folder`` instead of refusing (a folder holding
+            the same fit is rewritten without it).
 
         Returns
         -------
         dict
             File kind -> path written.
         """
+        from espin.core.config import config_digest
+        from espin.core.output_folder import OutputFolder
+
+        with OutputFolder.claim(folder, "fit", config_digest(self.config), FIT_OUTPUTS, overwrite=overwrite,
+                                resumable=True):
+            return self.write_files(folder)
+
+    def write_files(self, folder: str | Path) -> dict[str, Path]:
+        """Write the files of :meth:`write` into a folder the caller has claimed."""
         import json
 
         import pandas as pd
@@ -220,6 +238,10 @@ class FitResult:
             "report": atomic_write_bytes(folder / "fit.json", (report + "\n").encode("utf-8")),
             "figure": plot_fit(self, folder / "fit.png"),
         }
+
+
+FIT_OUTPUTS = ("fitted.toml", "fit.csv", "fit.json", "fit.png")
+"""The files a fit writes into its folder."""
 
 
 def _curve_table(curve: FittedCurve, seeds: Sequence[int]) -> Any:

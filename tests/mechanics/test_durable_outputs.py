@@ -1,0 +1,137 @@
+"""Durable outputs: a killed run keeps its converged steps and is marked partial; a folder of
+another run is refused unless overwrite, which leaves nothing stale; studies resume only
+their own folder."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+from typer.testing import CliRunner
+
+import espin
+from espin.cli import app
+from espin.core.errors import ConfigError
+from espin.core.output_folder import MANIFEST, OutputFolder, read_manifest
+
+TINY = dict(rve__size_ratio=30, rve__layers=2, loading__max_strain=0.05)
+TINY_CLI = ["--set", "rve.size_ratio=30", "--set", "rve.layers=2", "--max-strain", "0.05", "-q"]
+
+
+def _rows(folder):
+    return (folder / "curve.csv").read_text().splitlines()
+
+
+def _run_and_kill(folder, steps: int, after_rows: int, overwrite: bool = False) -> None:
+    """Start a simulate in another process, SIGKILL it once its curve.csv has ``after_rows`` steps."""
+    earlier = read_manifest(folder) if folder.exists() else None
+    code = (f"import espin; espin.simulate('plla', {str(folder)!r}, overwrite={overwrite}, "
+            f"loading__steps={steps}, solver__time_rtol='off', output__figures=False, "
+            + ", ".join(f"{k}={v!r}" for k, v in TINY.items()) + ")")
+    process = subprocess.Popen([sys.executable, "-c", code])
+    deadline = time.monotonic() + 120
+    try:
+        while time.monotonic() < deadline:
+            started = (folder / MANIFEST).exists() and read_manifest(folder) != earlier
+            if started and (folder / "curve.csv").exists() and len(_rows(folder)) > after_rows:
+                break
+            assert process.poll() is None, "the run ended before it could be killed"
+            time.sleep(0.02)
+        else:
+            pytest.fail("the run wrote no curve within 120 s")
+    finally:
+        process.send_signal(signal.SIGKILL)
+        process.wait()
+
+
+def test_a_killed_run_keeps_its_converged_steps_and_is_marked_partial(tmp_path):
+    folder = tmp_path / "killed"
+    _run_and_kill(folder, steps=400, after_rows=3)
+    manifest = read_manifest(folder)
+    assert manifest.status == "running" and manifest.partial
+    rows = _rows(folder)
+    whole = [row for row in rows if row.count(",") == rows[0].count(",")]
+    assert 4 <= len(whole) < 402 and len(rows) - len(whole) <= 1  # at most the last line cut mid-write
+
+    def stop(record):  # the same run in this process, stopped after as many steps
+        if record.index == len(whole) - 1:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        espin.simulate("plla", tmp_path / "same", on_step=stop, loading__steps=400, solver__time_rtol="off",
+                       output__figures=False, **TINY)
+    assert whole == _rows(tmp_path / "same")  # every converged step kept, as written
+
+
+def test_a_run_killed_over_an_earlier_one_leaves_no_mixed_folder(tmp_path):
+    folder = tmp_path / "run"
+    espin.simulate("plla", folder, loading__steps=5, output__figures=False, **TINY)
+    earlier = read_manifest(folder).run_id
+    _run_and_kill(folder, steps=400, after_rows=3, overwrite=True)
+    manifest = read_manifest(folder)
+    assert manifest.run_id != earlier and manifest.status == "running"
+    assert not (folder / "results.h5").exists()  # the earlier run's, removed before the first step
+    steps = sorted(folder.glob("vtk/step_*.vtu"))
+    assert len(steps) >= len(_rows(folder)) - 2  # the new run's steps, not the earlier 6
+
+
+def test_another_runs_folder_is_refused_and_left_as_it_was(tmp_path):
+    folder = tmp_path / "run"
+    result = CliRunner().invoke(app, ["simulate", "plla", "-o", str(folder), "--steps", "5", *TINY_CLI])
+    assert result.exit_code == 0, result.output
+    before = {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+    again = CliRunner().invoke(app, ["simulate", "plla", "-o", str(folder), "--steps", "3", *TINY_CLI])
+    assert again.exit_code == 2 and "--overwrite" in again.output and "Traceback" not in again.output
+    assert {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()} == before
+
+
+def test_overwrite_leaves_no_stale_steps(tmp_path):
+    folder = tmp_path / "run"
+    espin.simulate("plla", folder, loading__steps=5, output__figures=False, **TINY)
+    assert len(list(folder.glob("vtk/step_*.vtu"))) == 6
+    (folder / "notes.txt").write_text("mine")
+    espin.simulate("plla", folder, overwrite=True, loading__steps=2, output__figures=False, **TINY)
+    assert sorted(p.name for p in folder.glob("vtk/step_*.vtu")) == [f"step_{k:04d}.vtu" for k in range(3)]
+    assert len(_rows(folder)) == 4 and read_manifest(folder).status == "complete"
+    assert (folder / "notes.txt").read_text() == "mine"  # not espin's: left alone
+
+
+def test_an_interrupted_run_is_marked_failed(tmp_path):
+    def interrupt(record):
+        if record.index == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        espin.simulate("plla", tmp_path / "run", on_step=interrupt, loading__steps=5, output__figures=False, **TINY)
+    assert read_manifest(tmp_path / "run").status == "failed"
+    assert len(_rows(tmp_path / "run")) == 3  # header and steps 0, 1 (step 2's callback raised first)
+
+
+def test_a_run_refused_before_any_work_leaves_no_folder(tmp_path):
+    with pytest.raises(ConfigError, match="no cross-link"):
+        espin.simulate("plla", tmp_path / "run", rve__size_ratio=30, rve__layers=1, rve__max_deviation_deg=0,
+                       rve__orientation={"von_mises": {"mean_deg": 0, "kappa": 700}})
+    assert not (tmp_path / "run").exists()
+
+
+def test_resumable_commands_reuse_only_their_own_folder(tmp_path):
+    folder = tmp_path / "study"
+    with OutputFolder.claim(folder, "sweep", "abc", ["results.csv"], resumable=True) as claimed:
+        (folder / "results.csv").write_text("x")
+    again = OutputFolder.claim(folder, "sweep", "abc", ["results.csv"], resumable=True)
+    assert again.run_id == claimed.run_id and (folder / "results.csv").exists()
+    again.finish()
+    with pytest.raises(ConfigError, match="another sweep run"):
+        OutputFolder.claim(folder, "sweep", "other", ["results.csv"], resumable=True)
+    with pytest.raises(ConfigError, match="another sweep run"):
+        OutputFolder.claim(folder, "simulate", "abc", ["results.csv"])
+    # a study folder written before manifests existed is adopted
+    os.remove(folder / MANIFEST)
+    adopted = OutputFolder.claim(folder, "sweep", "new", ["results.csv"], resumable=True)
+    assert (folder / "results.csv").exists() and json.loads((folder / MANIFEST).read_text())["config_hash"] == "new"
+    adopted.finish()
