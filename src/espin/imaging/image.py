@@ -7,17 +7,32 @@ images are mapped through their colour table, colour images to luminance
 dropped. Grey levels are returned as float64 scaled by the range of the storage type (an 8-bit
 image is divided by 255, a 16-bit one by 65535, a float image by its own maximum), so a
 16-bit image that uses only 12 bits stays dark: segmentation normalizes contrast itself.
+
+Checks, each an :class:`~espin.core.errors.SEMError` naming the file: an image of more than
+:data:`MAX_PIXELS` pixels is refused from its header, before any pixel is decoded (so a huge
+image or a small compressed "decompression bomb" cannot exhaust memory; Pillow's own
+decompression-bomb warning and error become this error too); so is an image without pixels
+or of a type that holds no grey levels (complex numbers). A float image must hold finite
+intensities >= 0 (NaN, infinity and negative values are refused: an SEM image records
+intensities, and a float image is scaled by its largest value). An image must be at least
+16 x 16 px. Of a multi-page TIFF only the first page is read.
 """
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from espin.core.errors import ConfigError, SEMError
 
-__all__ = ["read_image", "as_grey", "parse_rows", "row_slice"]
+__all__ = ["MAX_PIXELS", "as_grey", "parse_rows", "read_image", "row_slice"]
+
+MAX_PIXELS = 89_478_485
+"""Largest image read [pixels]: Pillow's default ``Image.MAX_IMAGE_PIXELS`` (about
+9459 x 9459 px), the same limit for TIFF and every other format. Its float64 grey levels take
+0.7 GB, and segmentation works on a few arrays of that size."""
 
 _LUMINANCE = np.array([0.2125, 0.7154, 0.0721])
 _TIFF_SUFFIXES = (".tif", ".tiff")
@@ -40,9 +55,12 @@ def read_image(path: str | Path) -> np.ndarray:
     Raises
     ------
     SEMError
-        The file does not exist or is not a readable image.
+        The file does not exist or is not a readable image, or breaks a rule of the module
+        notes (size limit, finite intensities >= 0).
     """
     path = Path(path)
+    if path.is_dir():
+        raise SEMError(f"image {str(path)!r} is a directory; expected an image file")
     if not path.is_file():
         raise SEMError(f"image {str(path)!r}: no such file")
     try:
@@ -62,6 +80,7 @@ def read_image(path: str | Path) -> np.ndarray:
 def as_grey(data: np.ndarray, source: str = "image") -> np.ndarray:
     """Grey levels (float64, see the module notes) of a 2-D grey or 3-D colour array."""
     a = np.asarray(data)
+    _check_values(a, source)
     if a.ndim == 3 and a.shape[2] in (2, 4):  # grey + alpha, RGB + alpha
         a = a[..., :-1]
     if a.ndim == 3 and a.shape[2] == 1:
@@ -76,9 +95,38 @@ def as_grey(data: np.ndarray, source: str = "image") -> np.ndarray:
     if min(grey.shape) < 16:
         raise SEMError(f"{source}: image of {grey.shape[1]} x {grey.shape[0]} px is too small "
                        "(at least 16 x 16 px)")
-    if not np.all(np.isfinite(grey)):
-        raise SEMError(f"{source}: image has non-finite grey levels")
     return grey
+
+
+def _check_values(a: np.ndarray, source: str) -> None:
+    """Refuse arrays that hold no grey levels, and floats that are not finite or are < 0."""
+    if a.dtype.kind not in "biuf":
+        raise SEMError(f"{source}: image holds values of type {a.dtype}; expected integer or "
+                       "float grey levels")
+    if a.dtype.kind != "f":
+        return
+    for bad, problem in ((~np.isfinite(a), "is not finite"), (a < 0, "is negative")):
+        if np.any(bad):
+            index = tuple(int(i) for i in np.argwhere(bad)[0])
+            raise SEMError(
+                f"{source}: grey level {a[index].item()!r} at (row, column) {index[:2]} "
+                f"{problem}; expected finite intensities >= 0 (rescale the image to [0, 1] "
+                "or save it as an 8- or 16-bit image)"
+            )
+
+
+def _check_size(path: Path, width: int, height: int) -> None:
+    """Refuse an image without pixels or above :data:`MAX_PIXELS`, before decoding it."""
+    pixels = width * height
+    if pixels == 0:
+        raise SEMError(f"image {str(path)!r} has no pixels ({width} x {height} px); expected "
+                       "an image of at least 16 x 16 px")
+    if pixels > MAX_PIXELS:
+        raise SEMError(
+            f"image {str(path)!r} of {width} x {height} px ({pixels / 1e6:.1f} megapixels) is "
+            f"larger than espin reads: at most {MAX_PIXELS} px ({MAX_PIXELS / 1e6:.1f} "
+            "megapixels); crop or downscale it"
+        )
 
 
 def _scaled(a: np.ndarray) -> np.ndarray:
@@ -88,7 +136,7 @@ def _scaled(a: np.ndarray) -> np.ndarray:
         info = np.iinfo(a.dtype)
         return (a.astype(float) - min(info.min, 0)) / (info.max - min(info.min, 0))
     a = a.astype(float)
-    top = float(np.nanmax(np.abs(a))) if a.size else 0.0
+    top = float(a.max()) if a.size else 0.0  # finite and >= 0: checked by as_grey
     return a / top if top > 0 else a
 
 
@@ -97,6 +145,10 @@ def _read_tiff(path: Path) -> np.ndarray:
 
     with tifffile.TiffFile(path) as tif:
         page = tif.pages[0]
+        _check_size(path, page.imagewidth, page.imagelength * page.imagedepth)
+        if page.dtype is None or page.dtype.kind not in "biuf":
+            raise SEMError(f"image {str(path)!r}: TIFF of sample type {page.dtype}; expected "
+                           "integer or float grey levels")
         data = page.asarray()
         if int(page.photometric) == _PALETTE and page.colormap is not None:
             colormap = np.asarray(page.colormap).astype(np.uint16)  # (3, 2**bits), 16-bit
@@ -107,9 +159,24 @@ def _read_tiff(path: Path) -> np.ndarray:
 
 
 def _read_pillow(path: Path) -> np.ndarray:
+    """Decode with Pillow, its decompression-bomb warning and error turned into a SEMError."""
+    from PIL import Image
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", Image.DecompressionBombWarning)
+        try:
+            return _decode_pillow(path)
+        except (Image.DecompressionBombWarning, Image.DecompressionBombError) as err:
+            reason = str(err).rstrip(".")
+            raise SEMError(f"image {str(path)!r} is larger than espin reads: {reason}; expected "
+                           f"at most {MAX_PIXELS} px: crop or downscale it") from None
+
+
+def _decode_pillow(path: Path) -> np.ndarray:
     from PIL import Image
 
     with Image.open(path) as img:
+        _check_size(path, *img.size)
         img.seek(0)
         if img.mode in ("P", "PA"):
             img = img.convert("RGBA")
