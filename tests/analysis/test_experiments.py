@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from espin.analysis.experiments import AveragedCurve, Curve, CurveFileError, average_curves, read_curve
+from espin.analysis.experiments import (
+    AveragedCurve,
+    Curve,
+    CurveFileError,
+    CurveWarning,
+    average_curves,
+    read_curve,
+)
 from espin.core.errors import EspinError
 
 
@@ -24,8 +31,9 @@ def test_plain_two_columns(tmp_path):
 
 def test_header_names_delimiters_and_percent(tmp_path):
     text = "# exported by the testing machine\ntime_s;Strain [%];Stress (MPa)\n0;0;0\n1;1.5;3\n2;3,0;6\n"
-    # European decimal comma in one field is an error: ';' is the detected delimiter.
-    with pytest.raises(CurveFileError, match=r"line 5: strain column 'Strain \[%\]': '3,0' is not a number"):
+    # A decimal comma in one field among decimal points is an error: ';' is the detected delimiter.
+    with pytest.raises(CurveFileError, match=r"line 5, field 2 \(strain column 'Strain \[%\]'\): '3,0' is "
+                                             r"not a number .*a decimal comma\?"):
         read_curve(write(tmp_path, text), strain_column="Strain [%]", stress_column="stress (mpa)")
     path = write(tmp_path, text.replace("3,0", "3.0"))
     curve = read_curve(path, strain_column="Strain [%]", stress_column="stress (mpa)", percent_strain=True)
@@ -67,7 +75,10 @@ def test_no_default_by_position_in_a_wide_header(tmp_path):
     assert "time_s" in str(info.value)
     with pytest.raises(CurveFileError, match=r"default stress name \(stress_MPa, .*--stress-column"):
         read_curve(path, strain_column="extension_mm")
-    curve = read_curve(path, strain_column="extension_mm", stress_column="LOAD_N")
+    with pytest.warns(CurveWarning) as found:  # a length against a force: said, then read as asked
+        curve = read_curve(path, strain_column="extension_mm", stress_column="LOAD_N")
+    messages = " ".join(str(w.message) for w in found)
+    assert "labelled in mm, a length" in messages and "labelled in N, a force" in messages
     assert np.array_equal(curve.stress_MPa, [0.0, 2.0, 4.0])
     # Two columns keep the positional default whatever their names.
     two = read_curve(write(tmp_path, "extension,load\n0,0\n0.01,2\n", "two.csv"))
@@ -108,8 +119,8 @@ def test_espin_curve_csv_is_read_by_its_column_names(tmp_path):
         ("", {}, "no data"),
         ("# only a comment\n\n", {}, "no data"),
         ("strain,stress\n", {}, "0 data line"),
-        ("0,0\n0.01,abc\n0.02,2\n", {}, "line 2: stress column 1: 'abc' is not a number"),
-        ("strain,stress\n0,0\n0.01,nan\n", {}, "line 3: stress column 'stress': 'nan' is not a finite"),
+        ("0,0\n0.01,abc\n0.02,2\n", {}, r"line 2, field 2 \(stress column 1\): 'abc' is not a number"),
+        ("strain,stress\n0,0\n0.01,nan\n", {}, r"line 3, field 2 \(stress column 'stress'\): 'nan' is not a finite"),
         ("0,0\n0.02,1\n0.01,2\n", {}, "line 3: strain 0.01 does not increase from 0.02 on line 2"),
         ("0,0\n0.01,1\n0.01,2\n", {}, "line 3: strain 0.01 does not increase"),
         ("0,0\n0.01\n", {}, "line 2: 1 field"),
@@ -131,7 +142,11 @@ def test_missing_and_binary_files(tmp_path):
         read_curve(tmp_path / "missing.csv")
     binary = tmp_path / "curve.xlsx"
     binary.write_bytes(b"PK\x03\x04\xff\xfe\x00")
-    with pytest.raises(CurveFileError, match="curve.xlsx: not a UTF-8 text file"):
+    with pytest.raises(CurveFileError, match="curve.xlsx: not a readable .xlsx workbook"):
+        read_curve(binary)
+    binary = binary.with_suffix(".csv")
+    binary.write_bytes(b"0,0\n\x00\xff\n")
+    with pytest.raises(CurveFileError, match="curve.csv: not a text file"):
         read_curve(binary)
 
 

@@ -1,14 +1,25 @@
-"""Experimental stress-strain curves from CSV files, and the average of several specimens.
+"""Experimental stress-strain curves from text tables (CSV) or .xlsx workbooks, and the average
+of several specimens.
 
 File format
 -----------
 A text table, one point per line: any number of columns, separated by commas, semicolons,
-tabs or whitespace (detected from the first line unless ``delimiter`` is given). Blank lines
-and lines starting with ``#`` are ignored, as are the first ``skip_rows`` lines (an instrument's
-preamble). The first remaining line is a header when none of its fields is a number; columns
-can then be chosen by name as well as by 0-based index. Strain is engineering strain
-(0.01 = 1 %; ``percent_strain=True`` reads percent), stress is in MPa. The strain must
-increase from line to line (a monotonic loading: cut unloading parts and repeated points).
+tabs or whitespace (detected from the first line unless ``delimiter`` is given: a tab or ``;``
+in it, else whitespace when its fields are all decimal-comma numbers such as ``0,01 1,5``, else
+``,`` when it has one, else whitespace). Text may be UTF-8 (with or without a byte-order mark),
+UTF-16 with a byte-order mark, or Latin-1 (read when the bytes are not UTF-8: instrument
+exports). A file named ``.xlsx`` / ``.xlsm`` is read from its first sheet, one point per row
+(needs the optional ``openpyxl``: ``pip install "espin[xlsx]"``); errors then name the row.
+Blank lines and lines starting with ``#`` are ignored, as are the first ``skip_rows`` lines
+(an instrument's preamble). The first remaining line is a header when none of its fields is
+a number; columns can then be chosen by name as well as by 0-based index. Strain is
+engineering strain (0.01 = 1 %; ``percent_strain=True`` reads percent), stress is in MPa. The
+strain must increase from line to line (a monotonic loading: cut unloading parts and repeated
+points), reach above 0, and the stress must be positive somewhere (a tensile curve).
+
+Decimal mark: ``.`` unless ``decimal=","`` is given or detected; a decimal comma is detected
+when the separator is not ``,`` and the strain and stress fields hold commas but no point
+(``0,01;1,5``). A thousands separator is not supported (stresses in MPa and strains need none).
 
 Without explicit columns, default names are looked for in the header, case-insensitively:
 ``strain`` for the strain, and for the stress the first of ``stress_MPa`` (espin's own
@@ -19,7 +30,21 @@ more columns and no default name is an error listing its columns (choose them wi
 ``strain_column`` / ``stress_column``, ``--strain-column`` / ``--stress-column`` on the command
 line). Strain and stress resolving to the same column is an error.
 
-A bad file raises :class:`CurveFileError` naming the file and the line.
+Limits, checked before the data are parsed: a file (or a workbook's unpacked contents) of at
+most :data:`MAX_FILE_BYTES` (64 MiB), at most :data:`MAX_DATA_ROWS` (250,000) points, lines of
+at most :data:`MAX_LINE_CHARS` (4096) characters, values of magnitude at most
+:data:`MAX_MAGNITUDE` (1e12); directories, devices and pipes are refused.
+
+A bad file raises :class:`CurveFileError` naming the file, the line and the column, and the
+format expected. Messages show a field of the file only when it is short (at most 20
+printable characters): they never echo a file's contents.
+
+Units that look wrong give a :class:`CurveWarning` naming the file: a strain column read as
+fractions whose largest strain exceeds 1 (100 %, what a percent column read as fractions looks
+like; few mats stretch that far in a tensile test) or whose header says percent; a strain
+column read as percent (``percent_strain``) that ends at 1 % or less; a strain header with a
+length unit; a stress header with a unit other than MPa; a stress above 10^4 MPa (10 GPa,
+stronger than any fiber mat: probably Pa or kPa).
 
 Averaging
 ---------
@@ -31,7 +56,10 @@ specimen covers every point; a user grid may reach further, where fewer specimen
 ``grid="measured"`` keeps the measured strains instead of inventing new ones: the specimens'
 common strains when they all share them (no interpolation at all), else the union of their
 strains within the common range (each specimen interpolated at the others' strains); a fit
-to the average then weighs the points that were measured, not an arbitrary grid.
+to the average then weighs the points that were measured, not an arbitrary grid. Specimens
+whose largest strains differ by a factor of :data:`UNIT_MISMATCH_RATIO` (20) or more are
+refused: a factor of 100 is the mark of percent mixed with fractions, and specimens of one
+mat differ by a few.
 """
 
 from __future__ import annotations
@@ -39,26 +67,68 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
+import stat
+import warnings
+import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 from numpy.typing import ArrayLike
 
 from espin.core.atomic import atomic_write_bytes
-from espin.core.errors import InputError
+from espin.core.errors import ConfigError, InputError
 
-__all__ = ["CurveFileError", "Curve", "AveragedCurve", "read_curve", "average_curves"]
+__all__ = ["CurveFileError", "CurveWarning", "Curve", "AveragedCurve", "read_curve", "average_curves",
+           "MAX_FILE_BYTES", "MAX_DATA_ROWS", "MAX_LINE_CHARS", "MAX_MAGNITUDE", "UNIT_MISMATCH_RATIO"]
+
+MAX_FILE_BYTES = 64 * 2**20
+"""Largest curve file read [bytes], and largest unpacked size of an .xlsx workbook: 64 MiB. A
+tensile test of 10^5 points takes a few MB; a larger file is refused before it is read."""
+
+MAX_DATA_ROWS = 250_000
+"""Most points in one curve: 2.5 times the ~10^5 of a long, finely sampled tensile test. The
+bilinear fit of ``espin properties`` takes ~3 s per 10^5 points, so a larger curve is refused
+rather than fitted for minutes (thin it out: keep every k-th line)."""
+
+MAX_LINE_CHARS = 4096
+"""Longest line of a text table [characters]; a point is a few numbers."""
+
+MAX_MAGNITUDE = 1e12
+"""Largest magnitude of a strain or a stress [MPa] read; beyond it a value is no measurement."""
+
+UNIT_MISMATCH_RATIO = 20.0
+"""Averaging refuses specimens whose largest strains differ by this factor or more."""
+
+_SHOWN_CHARS = 20
+"""Longest field of a file an error message shows (quoted); longer ones are named by length."""
+
+_LARGE_STRESS_MPA = 1e4
+"""A stress above this [MPa] (10 GPa) is warned about as probably in Pa or kPa."""
 
 _STRAIN_NAMES = ("strain",)
 _STRESS_NAMES = ("stress_MPa", "stress [MPa]", "stress (MPa)", "stress", "mean_MPa")
-_DELIMITERS = ("\t", ";", ",")
+_WORKBOOK_SUFFIXES = (".xlsx", ".xlsm")
+_EXPECTED = ("expected a text table (CSV: one point per line, strain and stress [MPa] as numbers; "
+             "UTF-8, UTF-16 with byte-order mark or Latin-1) or an .xlsx workbook")
+_CONTROL = re.compile(r"[\x00-\x08\x0b\x0e-\x1f\x7f]")
+_DECIMAL_COMMA = re.compile(r"[+-]?(\d+,\d*|,\d+)([eE][+-]?\d+)?")
+_UNIT = re.compile(r"[\[(]\s*([^\])]*?)\s*[\])]|_([^_\s]+)$")
+_LENGTH_UNITS = ("mm", "m", "cm", "um", "µm", "μm", "in")
+_OTHER_STRESS_UNITS = {"pa": "Pa", "kpa": "kPa", "gpa": "GPa", "psi": "psi", "ksi": "ksi",
+                       "n": "N, a force", "kn": "kN, a force", "lbf": "lbf, a force"}
 
 
 class CurveFileError(InputError):
-    """A curve file cannot be read (the message names the file and line), or curves cannot be
-    averaged."""
+    """A curve file cannot be read (the message names the file, line and column), or curves
+    cannot be averaged."""
+
+
+class CurveWarning(UserWarning):
+    """A curve was read, but its units look wrong (the message names the file and the fix)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -117,43 +187,295 @@ class AveragedCurve:
 
 
 # --------------------------------------------------------------------------------------------
-# Reading
+# Reading: the file, its lines (or a workbook's rows) and their fields
 # --------------------------------------------------------------------------------------------
-def _data_lines(path: Path, skip_rows: int) -> list[tuple[int, str]]:
-    """(1-based line number, text) of the lines that carry a header or data."""
+@dataclass(frozen=True)
+class _Table:
+    """The kept lines (or workbook rows) of a curve file, split into fields."""
+
+    path: Path
+    numbers: list[int]  # 1-based line (row) number of each kept line
+    rows: list[list[str]]
+    separator: str | None  # the text's field separator; None for a workbook
+
+    def at(self, k: int) -> str:
+        """``file, line N`` of kept line ``k`` (``row N`` in a workbook)."""
+        return f"{self.path}, {'row' if self.separator is None else 'line'} {self.numbers[k]}"
+
+    def cell(self, k: int, column: int) -> str:
+        """``file, line N, field M`` (``row N, column X`` in a workbook) of a field."""
+        if self.separator is None:
+            return f"{self.at(k)}, column {_column_letters(column)}"
+        return f"{self.at(k)}, field {column + 1}"
+
+
+def _column_letters(index: int) -> str:
+    """A spreadsheet's name of the 0-based column ``index`` (0 -> A, 26 -> AA)."""
+    letters = ""
+    index += 1
+    while index:
+        index, rest = divmod(index - 1, 26)
+        letters = chr(ord("A") + rest) + letters
+    return letters
+
+
+def _showable(text: str) -> bool:
+    return len(text) <= _SHOWN_CHARS and text.isprintable()
+
+
+def _shown(text: str, noun: str = "field") -> str:
+    """A field of the file as a message may show it: quoted when short and printable, else
+    only its length (a message never echoes a file's contents)."""
+    return repr(text) if _showable(text) else f"a {len(text)}-character {noun}"
+
+
+def _too_large(path: Path, size: str) -> CurveFileError:
+    mib, rest = divmod(MAX_FILE_BYTES, 2**20)
+    limit = f"{mib} MiB" if not rest else f"{MAX_FILE_BYTES:,} bytes"
+    return CurveFileError(
+        f"{path}: {size}, over the limit of {limit} for a curve file (a "
+        "tensile test of 10^5 points takes a few MB): is this the curve? thin it out (keep "
+        "every k-th line) or cut it"
+    )
+
+
+def _too_many_points(path: Path) -> CurveFileError:
+    return CurveFileError(
+        f"{path}: more than {MAX_DATA_ROWS:,} data lines, the limit for one curve (a tensile "
+        "test has up to ~10^5 points): thin it out (keep every k-th line)"
+    )
+
+
+def _no_data(path: Path, skip_rows: int) -> CurveFileError:
+    return CurveFileError(f"{path}: no data (the file is empty after {skip_rows} skipped rows "
+                          f"and its blank and # comment lines); {_EXPECTED}")
+
+
+def _check_options(delimiter: str | None, decimal: str | None, skip_rows: int) -> None:
+    """Refuse option values that cannot describe a curve table (ConfigError: usage)."""
+    if isinstance(skip_rows, bool) or not isinstance(skip_rows, int) or skip_rows < 0:
+        raise ConfigError(f"skip_rows (--skip-rows): an integer >= 0 (got {skip_rows!r})")
+    odd = delimiter is not None and (len(delimiter) != 1 or delimiter.isalnum() or delimiter in '.+-"#\r\n')
+    if odd:
+        raise ConfigError(
+            "delimiter (--delimiter): one character such as ',', ';', tab or ' ' (any run of "
+            f"whitespace), not a letter, digit, sign, '.', '\"' or '#' (got {delimiter!r})"
+        )
+    if decimal not in (None, ".", ","):
+        raise ConfigError(f"decimal (--decimal): '.' or ',' (got {decimal!r})")
+    if decimal is not None and decimal == delimiter:
+        raise ConfigError(f"decimal and delimiter are both {decimal!r}; they must differ")
+
+
+def _check_file(path: Path) -> None:
+    """Refuse what is not a regular file of at most MAX_FILE_BYTES, before reading it."""
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        info = path.stat()
+    except (OSError, ValueError) as err:  # ValueError: a NUL in the path
+        reason = getattr(err, "strerror", None) or err
+        raise CurveFileError(f"{path}: cannot read the file ({reason})") from None
+    if stat.S_ISDIR(info.st_mode):
+        raise CurveFileError(f"{path}: a directory, not a curve file; {_EXPECTED}")
+    if not stat.S_ISREG(info.st_mode):
+        raise CurveFileError(f"{path}: not a regular file (a device, pipe or socket); {_EXPECTED}")
+    if info.st_size > MAX_FILE_BYTES:
+        raise _too_large(path, f"{info.st_size:,} bytes")
+
+
+def _read_bytes(path: Path) -> bytes:
+    """The file's bytes; one that grew past MAX_FILE_BYTES since it was checked is refused."""
+    try:
+        with path.open("rb") as stream:
+            data = stream.read(MAX_FILE_BYTES + 1)
     except OSError as err:
         raise CurveFileError(f"{path}: cannot read the file ({err.strerror or err})") from None
-    except UnicodeDecodeError:
-        raise CurveFileError(f"{path}: not a UTF-8 text file") from None
-    lines = [(k + 1, line) for k, line in enumerate(text.splitlines()) if k >= skip_rows]
-    kept = [(k, line) for k, line in lines if line.strip() and not line.lstrip().startswith("#")]
-    if not kept:
-        raise CurveFileError(f"{path}: no data (the file is empty after {skip_rows} skipped rows)")
-    return kept
+    if len(data) > MAX_FILE_BYTES:
+        raise _too_large(path, f"more than {MAX_FILE_BYTES:,} bytes")
+    return data
 
 
-def _split(lines: list[tuple[int, str]], delimiter: str | None) -> list[tuple[int, list[str]]]:
-    """Fields of each line; the delimiter is detected from the first line when None."""
-    if delimiter is None:
-        first = lines[0][1]
-        delimiter = next((d for d in _DELIMITERS if d in first), " ")
-    if delimiter.strip() == "":
-        return [(k, line.split()) for k, line in lines]
-    rows = csv.reader([line for _, line in lines], delimiter=delimiter)
-    return [(k, [field.strip() for field in row]) for (k, _), row in zip(lines, rows)]
+def _decode(path: Path, data: bytes) -> str:
+    """The text of a curve file (encodings in the module docs), newlines as ``\\n``."""
+    if data.startswith(b"PK\x03\x04"):
+        raise CurveFileError(f"{path}: a zip archive (an Excel workbook?): name it .xlsx to read "
+                             "its first sheet, or save the sheet as CSV")
+    if data.startswith(b"\xd0\xcf\x11\xe0"):
+        raise CurveFileError(f"{path}: an old-format Excel (.xls) or other OLE2 file, which espin "
+                             "does not read: save the sheet as .xlsx or CSV")
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+        try:
+            text = data.decode("utf-16")
+        except UnicodeDecodeError:
+            raise CurveFileError(f"{path}: starts with a UTF-16 byte-order mark but is not UTF-16; "
+                                 f"{_EXPECTED}") from None
+    elif b"\x00" in data:
+        raise CurveFileError(f"{path}: not a text file (it holds NUL bytes: an image or other binary "
+                             f"file, or UTF-16 without a byte-order mark?); {_EXPECTED}")
+    else:
+        try:
+            text = data.decode("utf-8-sig")
+        except UnicodeDecodeError:
+            text = data.decode("latin-1")  # never fails: an instrument's 8-bit export
+    text = text.replace("\r\n", "\n").replace("\r", "\n")
+    control = _CONTROL.search(text)
+    if control:
+        line = text.count("\n", 0, control.start()) + 1
+        code = ord(control.group())
+        raise CurveFileError(f"{path}, line {line}: a control character (code {code:#04x}), so not a "
+                             f"text table; {_EXPECTED}")
+    return text
 
 
-def _is_number(text: str) -> bool:
+def _text_lines(path: Path, text: str, skip_rows: int) -> tuple[list[int], list[str]]:
+    """Numbers (1-based) and text of the lines after ``skip_rows`` that are not blank or comments."""
+    numbers: list[int] = []
+    lines: list[str] = []
+    for number, line in enumerate(io.StringIO(text), start=1):
+        stripped = line.strip()
+        if number <= skip_rows or not stripped or stripped.startswith("#"):
+            continue
+        line = line.rstrip("\n")
+        if len(line) > MAX_LINE_CHARS:
+            raise CurveFileError(
+                f"{path}, line {number}: {len(line):,} characters, over the limit of "
+                f"{MAX_LINE_CHARS} for a line of a curve table (one point, a few numbers, per "
+                "line): is this the curve file?"
+            )
+        if len(lines) > MAX_DATA_ROWS:  # a header and MAX_DATA_ROWS points already
+            raise _too_many_points(path)
+        numbers.append(number)
+        lines.append(line)
+    if not lines:
+        raise _no_data(path, skip_rows)
+    return numbers, lines
+
+
+def _separator(first: str, decimal: str | None) -> str:
+    """The field separator, from the first line (rule in the module docs)."""
+    for candidate in ("\t", ";"):
+        if candidate in first:
+            return candidate
+    fields = first.split()
+    if decimal == "," or (len(fields) > 1 and all(_DECIMAL_COMMA.fullmatch(f) for f in fields)):
+        return " "
+    return "," if "," in first else " "
+
+
+def _separator_name(separator: str) -> str:
+    return {"\t": "tabs", " ": "whitespace"}.get(separator, repr(separator))
+
+
+def _fields(path: Path, numbers: list[int], lines: list[str], separator: str) -> list[list[str]]:
+    """Each line's fields (whitespace: any run of it; else CSV, quotes allowed within a line)."""
+    if separator == " ":
+        return [line.split() for line in lines]
+    rows: list[list[str]] = []
+    reader = csv.reader(lines, delimiter=separator, skipinitialspace=True)
     try:
-        float(text)
+        for fields in reader:
+            if reader.line_num != len(rows) + 1:  # the row took in the next line(s)
+                break
+            rows.append([field.strip() for field in fields])
+    except csv.Error:
+        pass  # reported below, at the line where it happened
+    if len(rows) < len(lines):
+        raise CurveFileError(f"{path}, line {numbers[len(rows)]}: a quoted field does not end on its "
+                             "line (an unbalanced '\"'); expected one point per line")
+    return rows
+
+
+def _read_text(path: Path, skip_rows: int, delimiter: str | None, decimal: str | None) -> _Table:
+    numbers, lines = _text_lines(path, _decode(path, _read_bytes(path)), skip_rows)
+    separator = delimiter or _separator(lines[0], decimal)
+    return _Table(path, numbers, _fields(path, numbers, lines, separator), separator)
+
+
+def _check_unpacked_size(path: Path) -> None:
+    """Refuse a workbook whose contents unpack to more than MAX_FILE_BYTES (a zip bomb)."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            unpacked = sum(item.file_size for item in archive.infolist())
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError):
+        raise CurveFileError(f"{path}: not a readable .xlsx workbook (not a zip archive); expected an "
+                             "Excel workbook with the curve on its first sheet") from None
+    if unpacked > MAX_FILE_BYTES:
+        raise _too_large(path, f"{unpacked:,} bytes unpacked")
+
+
+def _excel_frame(path: Path) -> pd.DataFrame:
+    """The first sheet, every cell as read, empty ones as "" and no text taken for NaN (row index
+    0 is the sheet's row 1)."""
+    try:
+        return pd.read_excel(path, sheet_name=0, header=None, dtype=object, na_filter=False,
+                             engine="openpyxl")
+    except ImportError:
+        raise CurveFileError(f"{path}: reading an .xlsx workbook needs the optional package openpyxl: "
+                             'pip install "espin[xlsx]" (or save the sheet as CSV)') from None
+    except Exception as err:  # noqa: BLE001 - any failure of the workbook parser is a bad file
+        raise CurveFileError(f"{path}: not a readable .xlsx workbook ({type(err).__name__}); expected "
+                             "an Excel workbook with the curve on its first sheet") from None
+
+
+def _cell(value: object) -> str:
+    """A workbook cell as a field: empty, or its value as text (a number exactly: repr)."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return ""
+    return str(value).strip()
+
+
+def _read_workbook(path: Path, skip_rows: int) -> _Table:
+    _check_unpacked_size(path)
+    numbers: list[int] = []
+    rows: list[list[str]] = []
+    for number, values in enumerate(_excel_frame(path).itertuples(index=False, name=None), start=1):
+        fields = [_cell(value) for value in values]
+        while fields and not fields[-1]:
+            fields.pop()
+        if number <= skip_rows or not fields or next(f for f in fields if f).startswith("#"):
+            continue
+        if len(rows) > MAX_DATA_ROWS:
+            raise _too_many_points(path)
+        numbers.append(number)
+        rows.append(fields)
+    if not rows:
+        raise _no_data(path, skip_rows)
+    return _Table(path, numbers, rows, None)
+
+
+def _read_table(path: Path, delimiter: str | None, decimal: str | None, skip_rows: int) -> _Table:
+    """The kept lines of a text table or the kept rows of a workbook's first sheet."""
+    _check_file(path)
+    if path.suffix.lower() in _WORKBOOK_SUFFIXES:
+        return _read_workbook(path, skip_rows)
+    return _read_text(path, skip_rows, delimiter, decimal)
+
+
+# --------------------------------------------------------------------------------------------
+# Reading: the header, the columns and their values
+# --------------------------------------------------------------------------------------------
+def _is_number(text: str, comma: bool) -> bool:
+    try:
+        float(text.replace(",", ".") if comma else text)
     except ValueError:
         return False
     return True
 
 
-def _column_index(path: Path, column: int | str | None, header: list[str] | None, line: int | None,
+def _split_header(table: _Table) -> tuple[list[str] | None, list[int]]:
+    """The header (the first line when none of its fields is a number) and the data lines."""
+    comma = table.separator != ","
+    if any(_is_number(field, comma) for field in table.rows[0]):
+        return None, list(range(len(table.rows)))
+    return table.rows[0], list(range(1, len(table.rows)))
+
+
+def _names(header: list[str]) -> str:
+    """A header's column names as a message lists them (long ones by length, at most 12)."""
+    shown = ", ".join(_shown(name, "name") for name in header[:12])
+    return shown + (f", ... ({len(header)} in all)" if len(header) > 12 else "")
+
+
+def _column_index(table: _Table, column: int | str | None, header: list[str] | None,
                   defaults: tuple[str, ...], fallback: int, what: str) -> int:
     """0-based index of a column given by index, by name, or by default (module docs)."""
     if column is None:
@@ -166,56 +488,178 @@ def _column_index(path: Path, column: int | str | None, header: list[str] | None
         if len(header) == 2:
             return fallback
         raise CurveFileError(
-            f"{path}, line {line}: the header has no column with a default {what} name "
-            f"({', '.join(defaults)}; any case), and with {len(header)} columns "
-            f"({', '.join(repr(name) for name in header)}) there is no default by position: "
+            f"{table.at(0)}: the header has no column with a default {what} name "
+            f"({', '.join(defaults)}; any case), and with {len(header)} column{'s' * (len(header) != 1)} "
+            f"({_names(header)}) there is no default by position: "
             f"choose it by name or 0-based index with --{what}-column ({what}_column= in Python)"
         )
     if isinstance(column, int):
         if column < 0:
-            raise CurveFileError(f"{path}: {what} column index must be >= 0, got {column}")
+            raise ConfigError(f"{what}_column (--{what}-column): an index must be >= 0, got {column}")
         return column
     if header is None:
-        raise CurveFileError(f"{path}: {what} column {column!r} is a name, but the file has no header line")
+        raise CurveFileError(f"{table.path}: {what} column {column!r} is a name, but the file has no "
+                             "header line (a first line without numbers)")
     lowered = [name.lower() for name in header]
     if column.lower() not in lowered:
-        raise CurveFileError(
-            f"{path}, line {line}: no {what} column named {column!r} in the header "
-            f"(columns: {', '.join(header)})"
-        )
+        raise CurveFileError(f"{table.at(0)}: no {what} column named {column!r} in the header "
+                             f"(columns: {_names(header)})")
     return lowered.index(column.lower())
 
 
 def _label(header: list[str] | None, index: int, what: str) -> str:
-    """How an error message names a column: by its header name, else by its index."""
-    name = repr(header[index]) if header is not None and index < len(header) else str(index)
-    return f"{what} column {name}"
+    """How a message names a column: by its header name when short, else by its index."""
+    if header is not None and index < len(header) and header[index] and _showable(header[index]):
+        return f"{what} column {header[index]!r}"
+    return f"{what} column {index}"
 
 
-def _value(path: Path, line: int, fields: list[str], index: int, label: str) -> float:
-    if index >= len(fields):
+def _columns(table: _Table, header: list[str] | None, strain_column: int | str | None,
+             stress_column: int | str | None) -> list[tuple[int, str]]:
+    """(index, label) of the strain and the stress column."""
+    x_col = _column_index(table, strain_column, header, _STRAIN_NAMES, 0, "strain")
+    y_col = _column_index(table, stress_column, header, _STRESS_NAMES, 1, "stress")
+    if x_col == y_col:
+        where = table.at(0) if header is not None else str(table.path)
+        named = header is not None and x_col < len(header)
+        column = f"{_shown(header[x_col], 'name')} (index {x_col})" if named else f"{x_col}"
         raise CurveFileError(
-            f"{path}, line {line}: {len(fields)} field(s), but the {label} is field {index + 1}"
+            f"{where}: strain and stress would both be read from column {column}; they must be "
+            "different columns: give --strain-column and --stress-column (strain_column= and "
+            "stress_column= in Python)"
         )
-    text = fields[index]
-    try:
-        value = float(text)
-    except ValueError:
-        raise CurveFileError(f"{path}, line {line}: {label}: {text!r} is not a number") from None
-    if not math.isfinite(value):
-        raise CurveFileError(f"{path}, line {line}: {label}: {text!r} is not a finite number")
-    return value
+    return [(x_col, _label(header, x_col, "strain")), (y_col, _label(header, y_col, "stress"))]
 
 
-def _check_increasing(path: Path, lines: list[int], strain: np.ndarray) -> None:
+def _check_fields(table: _Table, data: list[int], columns: list[tuple[int, str]]) -> None:
+    """Every data line has the strain and the stress field."""
+    need = max(col for col, _ in columns)
+    short = next((k for k in data if len(table.rows[k]) <= need), None)
+    if short is None:
+        return
+    fields = table.rows[short]
+    col, label = next((col, label) for col, label in columns if col >= len(fields))
+    if table.separator is None:
+        raise CurveFileError(f"{table.cell(short, col)} ({label}): empty; expected a number")
+    raise CurveFileError(f"{table.at(short)}: {len(fields)} field(s) separated by "
+                         f"{_separator_name(table.separator)}, but the {label} is field {col + 1}")
+
+
+def _decimal(table: _Table, data: list[int], columns: list[tuple[int, str]], given: str | None) -> str:
+    """The decimal mark: given, else ',' when the fields have commas and no point (not in CSV)."""
+    if given is not None:
+        return given
+    if table.separator == ",":
+        return "."
+    texts = [table.rows[k][col] for k in data for col, _ in columns]
+    return "," if any("," in t for t in texts) and not any("." in t for t in texts) else "."
+
+
+def _why_not_a_value(text: str, value: float, decimal: str) -> str:
+    """Why a field is not a usable strain or stress (NaN ``value``: not a number)."""
+    shown = _shown(text)
+    word = text.lstrip("+-").lower()
+    if not text:
+        return "empty; expected a number such as 0.012 or 1.2e-2"
+    if math.isnan(value):
+        if word == "nan":
+            return f"{shown} is not a finite number (NaN)"
+        hint = ("; a decimal comma? every value must use the same decimal mark (decimal=',', "
+                "--decimal ,)") if decimal == "." and "," in text else ""
+        return f"{shown} is not a number (expected e.g. 0.012 or 1.2e-2{hint})"
+    if math.isinf(value) and word in ("inf", "infinity"):
+        return f"{shown} is not a finite number"
+    return (f"{shown} is out of range: a strain or a stress [MPa] has a magnitude of at most "
+            f"{MAX_MAGNITUDE:g}")
+
+
+def _numbers(table: _Table, data: list[int], columns: list[tuple[int, str]],
+             decimal: str) -> list[np.ndarray]:
+    """The columns' values on the data lines; the earliest bad field is an error."""
+    parsed, bad_fields = [], []
+    for col, label in columns:
+        texts = [table.rows[k][col] for k in data]
+        numbers = [t.replace(",", ".") for t in texts] if decimal == "," else texts
+        values = pd.to_numeric(pd.Series(numbers, dtype=object), errors="coerce").to_numpy(dtype=float)
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(~(np.abs(values) <= MAX_MAGNITUDE))
+        if bad.size:
+            i = int(bad[0])
+            bad_fields.append((i, col, label, texts[i], float(values[i])))
+        parsed.append(values)
+    if bad_fields:
+        i, col, label, text, value = min(bad_fields, key=lambda bad_field: bad_field[0])
+        why = _why_not_a_value(text, value, decimal)
+        raise CurveFileError(f"{table.cell(data[i], col)} ({label}): {why}")
+    return parsed
+
+
+def _check_increasing(table: _Table, data: list[int], strain: np.ndarray) -> None:
     step = np.diff(strain)
     if np.any(step <= 0.0):
         k = int(np.flatnonzero(step <= 0.0)[0])
         raise CurveFileError(
-            f"{path}, line {lines[k + 1]}: strain {strain[k + 1]:.6g} does not increase from "
-            f"{strain[k]:.6g} on line {lines[k]} (a curve must be a monotonic loading: cut "
-            "unloading parts and repeated points)"
+            f"{table.at(data[k + 1])}: strain {strain[k + 1]:.6g} does not increase from "
+            f"{strain[k]:.6g} on {'row' if table.separator is None else 'line'} "
+            f"{table.numbers[data[k]]} (a curve must be a monotonic loading: cut unloading parts "
+            "and repeated points)"
         )
+
+
+def _check_tensile(path: Path, strain: np.ndarray, stress: np.ndarray,
+                   columns: list[tuple[int, str]]) -> None:
+    """A tensile curve: the strain rises above 0 and the stress is positive somewhere."""
+    (_, x_label), (_, y_label) = columns
+    if strain[-1] <= 0.0:
+        raise CurveFileError(
+            f"{path}: the {x_label} never rises above 0 (it ends at {strain[-1]:.6g}); expected a "
+            "tensile curve, strain increasing from about 0 (the wrong column, or a compression test?)"
+        )
+    if not np.any(stress > 0.0):
+        raise CurveFileError(
+            f"{path}: no positive stress in the {y_label} (all {stress.size} values are <= 0); "
+            "expected a tensile curve, stress [MPa] positive in tension (the wrong column, or "
+            "compression counted positive?)"
+        )
+
+
+def _unit(name: str) -> str:
+    """The unit a header name gives (``Stress [MPa]``, ``stress (kPa)``, ``load_N``), lower case."""
+    match = _UNIT.search(name)
+    if match is None:
+        return ""
+    return (match.group(1) or match.group(2) or "").lower().replace(" ", "")
+
+
+def _unit_warnings(path: Path, header: list[str] | None, columns: list[tuple[int, str]],
+                   strain: np.ndarray, stress: np.ndarray, percent: bool) -> list[str]:
+    """Why the units of a curve as read (``strain`` in the file's units) look wrong."""
+    (x_col, x_label), (y_col, y_label) = columns
+    x_name = header[x_col] if header is not None and x_col < len(header) else ""
+    y_name = header[y_col] if header is not None and y_col < len(header) else ""
+    says_percent = "%" in x_name or "percent" in x_name.lower()
+    largest = float(strain[-1])
+    found = []
+    if not percent and (largest > 1.0 or says_percent):
+        why = (f"its largest strain is {largest:.4g}, i.e. {100 * largest:.4g} % (few mats stretch "
+               "beyond 100 % in a tensile test)" if largest > 1.0 else "the header names it in percent")
+        found.append(f"{path}: the {x_label} is read as a fraction (0.01 = 1 %), but {why}: if it "
+                     "is in percent, pass --percent-strain (percent_strain=True)")
+    if percent and largest <= 1.0 and not says_percent:
+        found.append(f"{path}: the {x_label} is read as percent (--percent-strain), so the curve ends "
+                     f"at {largest:.4g} % strain: if it holds fractions (0.01 = 1 %), leave "
+                     "--percent-strain out")
+    if _unit(x_name) in _LENGTH_UNITS:
+        found.append(f"{path}: the {x_label} is labelled in {_unit(x_name)}, a length: espin reads "
+                     "engineering strain (extension / gauge length)")
+    if _unit(y_name) in _OTHER_STRESS_UNITS:
+        found.append(f"{path}: the {y_label} is labelled in {_OTHER_STRESS_UNITS[_unit(y_name)]}, "
+                     "but espin reads stress in MPa: convert the column")
+    peak = float(np.max(np.abs(stress)))
+    if peak > _LARGE_STRESS_MPA:
+        found.append(f"{path}: stresses up to {peak:.4g} MPa in the {y_label}, over 10 GPa (no fiber "
+                     "mat is that strong): is it in Pa or kPa? espin reads MPa")
+    return found
 
 
 def read_curve(
@@ -226,13 +670,15 @@ def read_curve(
     percent_strain: bool = False,
     delimiter: str | None = None,
     skip_rows: int = 0,
+    decimal: str | None = None,
 ) -> Curve:
-    """Read a stress-strain curve from a CSV (or other delimited text) file.
+    """Read a stress-strain curve from a CSV (or other delimited text) file or an .xlsx workbook.
 
     Parameters
     ----------
     path
-        The file (format in the module docs).
+        The file (format, encodings and limits in the module docs); ``.xlsx`` / ``.xlsm``: the
+        first sheet of a workbook (needs ``pip install "espin[xlsx]"``).
     strain_column, stress_column
         0-based index or header name (any case) of the strain and stress [MPa] columns.
         Default: the header's ``strain`` column and its first of ``stress_MPa``,
@@ -242,10 +688,13 @@ def read_curve(
     percent_strain
         The strain column is in percent.
     delimiter
-        Field separator; default detected from the first line (tab, ``;``, ``,``, else
-        whitespace). ``" "`` means any run of whitespace.
+        Field separator of a text table, one character; default detected from the first line
+        (tab, ``;``, ``,``, else whitespace). ``" "`` means any run of whitespace.
     skip_rows
-        Lines to skip at the top of the file before the header or data (>= 0).
+        Lines (rows) to skip at the top of the file before the header or data (>= 0).
+    decimal
+        Decimal mark, ``"."`` or ``","``; default ``","`` when the separator is not ``,`` and
+        the strain and stress fields hold commas but no point, else ``"."``.
 
     Returns
     -------
@@ -255,38 +704,35 @@ def read_curve(
     Raises
     ------
     CurveFileError
-        If the file cannot be read or is empty, a column is missing or cannot be chosen by
-        default, strain and stress are the same column, a value is not a finite number, or
-        the strain does not increase; the message names the file and the line.
+        If the file is not a regular file, is over a limit, is binary or cannot be read, is
+        empty, a column is missing or cannot be chosen by default, strain and stress are the
+        same column, a value is not a number, not finite or out of range, the strain does not
+        increase or never exceeds 0, or no stress is positive; the message names the file and
+        the line (and field) and never shows more than 20 characters of the file.
+    ConfigError
+        If ``delimiter``, ``decimal``, ``skip_rows`` or a column index is not a valid value.
+
+    Warns
+    -----
+    CurveWarning
+        If the units look wrong (module docs): probably percent read as fractions or the
+        reverse, a length for the strain, a stress unit other than MPa, a stress above 10 GPa.
     """
     path = Path(path)
-    if skip_rows < 0:
-        raise CurveFileError(f"{path}: skip_rows must be >= 0, got {skip_rows}")
-    rows = _split(_data_lines(path, skip_rows), delimiter)
-    header_line, first = rows[0]
-    header = None
-    if not any(_is_number(field) for field in first):
-        header = first
-        rows = rows[1:]
-    x_col = _column_index(path, strain_column, header, header_line, _STRAIN_NAMES, 0, "strain")
-    y_col = _column_index(path, stress_column, header, header_line, _STRESS_NAMES, 1, "stress")
-    if x_col == y_col:
-        where = f"{path}, line {header_line}" if header is not None else str(path)
-        named = header is not None and x_col < len(header)
-        column = f"{header[x_col]!r} (index {x_col})" if named else f"{x_col}"
-        raise CurveFileError(
-            f"{where}: strain and stress would both be read from column {column}; they must be "
-            "different columns: give --strain-column and --stress-column (strain_column= and "
-            "stress_column= in Python)"
-        )
-    if len(rows) < 2:
-        raise CurveFileError(f"{path}: {len(rows)} data line(s); a curve needs at least 2")
-    x_label, y_label = _label(header, x_col, "strain"), _label(header, y_col, "stress")
-    lines = [line for line, _ in rows]
-    points = [(_value(path, k, fields, x_col, x_label), _value(path, k, fields, y_col, y_label))
-              for k, fields in rows]
-    strain, stress = np.array(points).T
-    _check_increasing(path, lines, strain)
+    _check_options(delimiter, decimal, skip_rows)
+    table = _read_table(path, delimiter, decimal, skip_rows)
+    header, data = _split_header(table)
+    columns = _columns(table, header, strain_column, stress_column)
+    if len(data) < 2:
+        raise CurveFileError(f"{path}: {len(data)} data line(s); a curve needs at least 2")
+    if len(data) > MAX_DATA_ROWS:
+        raise _too_many_points(path)
+    _check_fields(table, data, columns)
+    strain, stress = _numbers(table, data, columns, _decimal(table, data, columns, decimal))
+    _check_increasing(table, data, strain)
+    _check_tensile(path, strain, stress, columns)
+    for message in _unit_warnings(path, header, columns, strain, stress, percent_strain):
+        warnings.warn(message, CurveWarning, stacklevel=2)
     if percent_strain:
         strain = strain / 100.0
     return Curve(strain=strain, stress_MPa=stress, source=str(path))
@@ -295,6 +741,26 @@ def read_curve(
 # --------------------------------------------------------------------------------------------
 # Averaging
 # --------------------------------------------------------------------------------------------
+def _check_same_units(curves: Sequence[Curve]) -> None:
+    """Refuse specimens whose largest strains differ by UNIT_MISMATCH_RATIO or more."""
+    short = [c.source for c in curves if np.size(c.strain) < 2]
+    if short:
+        raise CurveFileError(f"{short[0]}: a curve needs at least 2 points to be averaged")
+    ends = [(float(np.max(c.strain)), c.source) for c in curves]
+    positive = [end for end in ends if end[0] > 0.0]
+    if len(positive) < 2:
+        return
+    (low, low_source), (high, high_source) = min(positive), max(positive)
+    if high >= UNIT_MISMATCH_RATIO * low:
+        raise CurveFileError(
+            f"the specimens' strain ranges differ by a factor of {high / low:.3g}: {high_source} "
+            f"ends at strain {high:.4g}, {low_source} at {low:.4g}. A factor near 100 means some "
+            "curves are in percent and others in fractions: read them all in the same units "
+            "(--percent-strain applies to every file); specimens of one mat differ by a few, so "
+            f"a factor of {UNIT_MISMATCH_RATIO:g} or more is refused (leave the short one out)"
+        )
+
+
 def _default_grid(curves: Sequence[Curve], n_points: int) -> np.ndarray:
     start = max(0.0, max(float(c.strain[0]) for c in curves))
     end = min(float(c.strain[-1]) for c in curves)
@@ -354,11 +820,14 @@ def average_curves(
     Raises
     ------
     CurveFileError
-        If there are no curves, the specimens share no strain range (default grid), or a grid
-        strain lies outside every specimen.
+        If there are no curves, a curve has fewer than 2 points, the specimens' largest strains
+        differ by a factor of ``UNIT_MISMATCH_RATIO`` (20) or more (percent mixed with
+        fractions?), the specimens share no strain range (default grid), or a grid strain lies
+        outside every specimen.
     """
     if not curves:
         raise CurveFileError("no curves to average")
+    _check_same_units(curves)
     if isinstance(grid, str):
         if grid != "measured":
             raise CurveFileError(f'grid must be strains or "measured", got {grid!r}')

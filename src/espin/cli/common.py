@@ -6,12 +6,15 @@ No command imports another command or the app: each imports from here.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Annotated, Any, NoReturn, Optional
 
 import typer
 
 __all__ = ["SourceArg", "SetOpt", "parse_set", "fail", "StrainColumnOpt", "StressColumnOpt",
-           "PercentStrainOpt", "DelimiterOpt", "SkipRowsOpt", "read_options"]
+           "PercentStrainOpt", "DelimiterOpt", "DecimalOpt", "SkipRowsOpt", "read_options",
+           "curve_warnings"]
 
 SourceArg = Annotated[
     Optional[str],
@@ -70,27 +73,61 @@ StressColumnOpt = Annotated[
                       "Default: the header's 'stress_MPa', 'stress [MPa]', 'stress (MPa)', 'stress' or "
                       "'mean_MPa' column; 1 without a header or with two columns."),
 ]
-PercentStrainOpt = Annotated[bool, typer.Option(help="The strain column is in percent.")]
-DelimiterOpt = Annotated[
-    Optional[str], typer.Option(help="Field separator (',', ';', tab, space). Default: detected.")
+PercentStrainOpt = Annotated[
+    bool, typer.Option(help="The strain column is in percent (a curve whose strain exceeds 1 without "
+                            "it is warned about).")
 ]
-SkipRowsOpt = Annotated[int, typer.Option(help="Lines to skip at the top of each file.")]
+DelimiterOpt = Annotated[
+    Optional[str], typer.Option(help="Field separator, one character (',', ';', tab, space). Default: "
+                                     "detected from the first line.")
+]
+DecimalOpt = Annotated[
+    Optional[str], typer.Option(help="Decimal mark, '.' or ','. Default: ',' when a file not separated "
+                                     "by commas has commas and no points in its numbers (0,01;1,5).")
+]
+SkipRowsOpt = Annotated[int, typer.Option(min=0, help="Lines (rows) to skip at the top of each file.")]
 
 
 def read_options(strain_column: str | None, stress_column: str | None, percent_strain: bool,
-                 delimiter: str | None, skip_rows: int) -> dict:
-    """The CSV options of the command line as keyword arguments of :func:`espin.analysis.experiments.read_curve`."""
+                 delimiter: str | None, skip_rows: int, decimal: str | None = None) -> dict:
+    """The curve-file options of the command line as keyword arguments of
+    :func:`espin.analysis.experiments.read_curve` (which checks their values)."""
     return {
         "strain_column": _column(strain_column),
         "stress_column": _column(stress_column),
         "percent_strain": percent_strain,
         "delimiter": _DELIMITER_NAMES.get(delimiter.lower(), delimiter) if delimiter else None,
         "skip_rows": skip_rows,
+        "decimal": decimal,
     }
 
 
+@contextmanager
+def curve_warnings() -> Iterator[None]:
+    """Show the curve readers' warnings (units that look wrong) as ``warning: message`` lines on
+    stderr, each time one is given; other warnings are shown as usual."""
+    import warnings
+
+    from espin.analysis.experiments import CurveWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", CurveWarning)
+        usual = warnings.showwarning
+
+        def show(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+                 file: Any = None, line: str | None = None) -> None:
+            if issubclass(category, CurveWarning):
+                typer.secho(f"warning: {message}", fg=typer.colors.YELLOW, err=True)
+            else:
+                usual(message, category, filename, lineno, file, line)
+
+        warnings.showwarning = show
+        yield
+
+
 def _column(text: str | None) -> int | str | None:
-    """A column option: a 0-based index when it is a number, else a header name."""
+    """A column option: a 0-based index when it is a (short) decimal number, else a header name."""
     if text is None:
         return None
-    return int(text) if text.strip().isdigit() else text
+    index = text.strip()
+    return int(index) if index.isdecimal() and len(index) < 10 else text

@@ -13,11 +13,13 @@ from typing import TYPE_CHECKING, Annotated, Optional
 import typer
 
 from espin.cli.common import (
+    DecimalOpt,
     DelimiterOpt,
     PercentStrainOpt,
     SkipRowsOpt,
     StrainColumnOpt,
     StressColumnOpt,
+    curve_warnings,
     fail,
     read_options,
 )
@@ -27,7 +29,6 @@ if TYPE_CHECKING:  # pragma: no cover
     from espin.analysis.properties import CurveProperties
 
 __all__ = ["register"]
-
 
 
 def _strain_range(text: str | None, percent: bool) -> tuple[float | None, float | None] | None:
@@ -189,12 +190,14 @@ def register(app: typer.Typer) -> None:
     def properties(
         curves: Annotated[
             list[Path],
-            typer.Argument(help="CSV files of stress-strain curves (specimens, or espin's curve.csv)."),
+            typer.Argument(help="CSV / text files or .xlsx workbooks of stress-strain curves (specimens, "
+                                "or espin's curve.csv)."),
         ],
         strain_column: StrainColumnOpt = None,
         stress_column: StressColumnOpt = None,
         percent_strain: PercentStrainOpt = False,
         delimiter: DelimiterOpt = None,
+        decimal: DecimalOpt = None,
         skip_rows: SkipRowsOpt = 0,
         strain_range: Annotated[
             Optional[str],
@@ -220,10 +223,12 @@ def register(app: typer.Typer) -> None:
         from espin.analysis.experiments import read_curve
         from espin.core.errors import EspinError
 
-        options = read_options(strain_column, stress_column, percent_strain, delimiter, skip_rows)
         try:
+            options = read_options(strain_column, stress_column, percent_strain, delimiter, skip_rows,
+                                   decimal)
             fit_range = _strain_range(strain_range, percent_strain)
-            analysis = _analyse([read_curve(path, **options) for path in curves], fit_range)
+            with curve_warnings():
+                analysis = _analyse([read_curve(path, **options) for path in curves], fit_range)
             written = [] if out is None else _write_outputs(analysis, out)
         except EspinError as err:
             fail(err)
