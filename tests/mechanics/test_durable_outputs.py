@@ -120,18 +120,25 @@ def test_a_run_refused_before_any_work_leaves_no_folder(tmp_path):
 
 
 def test_resumable_commands_reuse_only_their_own_folder(tmp_path):
-    folder = tmp_path / "study"
-    with OutputFolder.claim(folder, "sweep", "abc", ["results.csv"], resumable=True) as claimed:
-        (folder / "results.csv").write_text("x")
-    again = OutputFolder.claim(folder, "sweep", "abc", ["results.csv"], resumable=True)
-    assert again.run_id == claimed.run_id and (folder / "results.csv").exists()
+    folder = tmp_path / "fit"
+    with OutputFolder.claim(folder, "fit", "abc", ["fit.csv"], resume="same-inputs") as claimed:
+        (folder / "fit.csv").write_text("x")
+    again = OutputFolder.claim(folder, "fit", "abc", ["fit.csv"], resume="same-inputs")
+    assert again.run_id == claimed.run_id and (folder / "fit.csv").exists()
     again.finish()
-    with pytest.raises(ConfigError, match="another sweep run"):
-        OutputFolder.claim(folder, "sweep", "other", ["results.csv"], resumable=True)
-    with pytest.raises(ConfigError, match="another sweep run"):
-        OutputFolder.claim(folder, "simulate", "abc", ["results.csv"])
-    # a study folder written before manifests existed is adopted
-    os.remove(folder / MANIFEST)
-    adopted = OutputFolder.claim(folder, "sweep", "new", ["results.csv"], resumable=True)
-    assert (folder / "results.csv").exists() and json.loads((folder / MANIFEST).read_text())["config_hash"] == "new"
+    with pytest.raises(ConfigError, match="another fit run"):
+        OutputFolder.claim(folder, "fit", "other", ["fit.csv"], resume="same-inputs")
+    with pytest.raises(ConfigError, match="another fit run"):
+        OutputFolder.claim(folder, "sweep", "abc", ["fit.csv"], resume="same-command")
+    # a study resumes a folder of the same study whatever its base, and one written before
+    # manifests existed; its task files are keyed by their whole config
+    study = tmp_path / "study"
+    OutputFolder.claim(study, "sweep", "abc", ["results.csv"]).finish()
+    (study / "results.csv").write_text("x")
+    OutputFolder.claim(study, "sweep", "grown", ["results.csv"], resume="same-command").finish()
+    os.remove(study / MANIFEST)
+    adopted = OutputFolder.claim(study, "sweep", "new", ["results.csv"], resume="same-command")
+    assert (study / "results.csv").exists() and json.loads((study / MANIFEST).read_text())["config_hash"] == "new"
     adopted.finish()
+    with pytest.raises(ConfigError, match="another sweep run"):
+        OutputFolder.claim(study, "rve-size", "new", ["results.csv"], resume="same-command")

@@ -194,3 +194,54 @@ def test_figures_written(network, tmp_path, overrides):
     for path in (curve, start, end):
         assert path.read_bytes()[:8] == PNG
     assert sorted(p.name for p in tmp_path.iterdir()) == ["curve.png", "end.png", "start.png"]
+
+
+def _damage(f, name, value):
+    del f[name]
+    f[name] = value
+
+
+# (dataset, damage given the original array, text of the message)
+DAMAGED_RESULTS = [
+    ("steps/P_MPa", lambda a: np.where(np.arange(a.size).reshape(a.shape) == 5, np.nan, a), "not finite"),
+    ("steps/recruited_fraction", lambda a: a + 2.0, "steps/recruited_fraction"),
+    ("steps/yielded_fraction", lambda a: -a - 1.0, "steps/yielded_fraction"),
+    ("steps/iterations", lambda a: -a - 1, "steps/iterations"),
+    ("steps/iterations", lambda a: a.astype(float) + 0.5, "steps/iterations"),
+    ("steps/strain", lambda a: a[:-1], "steps/strain"),
+    ("steps/F", lambda a: a[:, :1], "steps/F"),
+    ("steps/time_s", lambda a: -a - 1.0, "steps/time_s"),
+    ("steps/residual_uN", lambda a: np.full(a.shape, np.inf), "steps/residual_uN"),
+    ("steps/stress_MPa", lambda a: np.array(["x"] * a.size, dtype="S1"), "steps/stress_MPa"),
+    ("final/plastic_stretch", lambda a: np.zeros_like(a), "final/plastic_stretch"),
+    ("final/recruited", lambda a: a[:-1], "final/recruited"),
+    ("final/positions_um", lambda a: a[:, :1], "final/positions_um"),
+]
+
+
+@pytest.mark.parametrize("name, damage, message", DAMAGED_RESULTS,
+                         ids=[f"{n}-{k}" for k, (n, _, _) in enumerate(DAMAGED_RESULTS)])
+def test_damaged_results_file_is_refused_naming_the_dataset(network, tmp_path, name, damage, message):
+    result, _ = fake_result(network)
+    path = write_results(result, tmp_path)["results_h5"]
+    with h5py.File(path, "a") as f:
+        _damage(f, name, damage(f[name][()]))
+    with pytest.raises(RVEFileError, match=message) as err:
+        load_results(path)
+    assert str(path) in str(err.value)
+
+
+def test_results_of_a_partial_or_mixed_folder_are_read_with_a_warning(network, tmp_path):
+    from espin.core.output_folder import OutputFolder
+    from espin.mechanics.results_file import PartialResultWarning
+
+    result, _ = fake_result(network)
+    claimed = OutputFolder.claim(tmp_path / "run", "simulate", "x", ["results.h5"])
+    write_results(result, claimed.path, run_id=claimed.run_id)
+    with pytest.warns(PartialResultWarning, match="running"):
+        assert load_results(claimed.path).status == "running"  # a folder is read as its results.h5
+    claimed.finish()
+    assert load_results(claimed.path / "results.h5").status == "complete"
+    write_results(result, claimed.path, run_id="another")
+    with pytest.warns(PartialResultWarning, match="mixed folder"):
+        assert load_results(claimed.path).status == "mixed"

@@ -12,7 +12,7 @@ from typing import Annotated, Any, NoReturn, Optional
 
 import typer
 
-__all__ = ["SourceArg", "SetOpt", "parse_set", "fail", "StrainColumnOpt", "StressColumnOpt",
+__all__ = ["SourceArg", "SetOpt", "OverwriteOpt", "AllowLargeOpt", "parse_set", "fail", "StrainColumnOpt", "StressColumnOpt",
            "PercentStrainOpt", "DelimiterOpt", "DecimalOpt", "SkipRowsOpt", "read_options",
            "curve_warnings"]
 
@@ -27,6 +27,18 @@ SetOpt = Annotated[
         help="Override any config key: --set section.key=VALUE (VALUE in TOML syntax, "
         "e.g. --set 'rve.orientation={von_mises={mean_deg=0, kappa=2}}'). Repeatable.",
     ),
+]
+
+
+OverwriteOpt = Annotated[
+    bool,
+    typer.Option("--overwrite", help="Replace the results of another run in the output folder "
+                 "(its files are removed first); without it such a folder is refused."),
+]
+AllowLargeOpt = Annotated[
+    bool,
+    typer.Option("--allow-large", help="Go on when the RVE is estimated to need more memory than "
+                 "is available (the estimate is printed in the refusal)."),
 ]
 
 

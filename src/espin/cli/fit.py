@@ -15,11 +15,14 @@ if TYPE_CHECKING:  # pragma: no cover
     from espin.analysis.calibration import FitResult
 
 from espin.cli.common import (
+    DecimalOpt,
     DelimiterOpt,
+    OverwriteOpt,
     PercentStrainOpt,
     SkipRowsOpt,
     StrainColumnOpt,
     StressColumnOpt,
+    curve_warnings,
     fail,
     parse_set,
     read_options,
@@ -104,6 +107,25 @@ def _parse_rates(items: list[str] | None) -> dict[float, list[Path]]:
             raise ConfigError(f"--curves-at-rate {item!r}: expected RATE=FILE[,FILE...], e.g. 5e-2=a.csv,b.csv")
         out[_number(rate, "--curves-at-rate rate")] = paths
     return out
+
+
+def _inputs_digest(config: Any, curves: Any, strain_rate: float | None, options: list[Any]) -> str:
+    """SHA-256 of what a fit starts from: the base config (and its files), the bytes of every
+    curve file, the strain rates and the options (a folder is reused only for the same fit)."""
+    import hashlib
+
+    from espin.core.config import config_digest
+
+    digest = hashlib.sha256(config_digest(config).encode())
+    by_rate = curves if isinstance(curves, dict) else {strain_rate: curves}
+    for rate, paths in sorted(by_rate.items(), key=lambda item: str(item[0])):
+        for path in paths:
+            digest.update(f"\n{rate!r} {path}: ".encode())
+            if Path(path).is_file():
+                with open(path, "rb") as fh:
+                    digest.update(hashlib.file_digest(fh, "sha256").digest())
+    digest.update(repr(options).encode())
+    return digest.hexdigest()
 
 
 def _curves(curves: list[Path], rate: float | None, other_rates: dict[float, list[Path]]) -> tuple[Any, float | None]:
@@ -252,6 +274,7 @@ def register(app: typer.Typer) -> None:
         tls_cert: Annotated[
             Optional[Path], typer.Option("--tls-cert", help="This client's certificate (PEM) for tls://.")
         ] = None,
+        overwrite: OverwriteOpt = False,
         tls_key: Annotated[
             Optional[Path], typer.Option("--tls-key", help="Its key (PEM), unless --tls-cert holds it.")
         ] = None,
@@ -269,6 +292,7 @@ def register(app: typer.Typer) -> None:
         stress_column: StressColumnOpt = None,
         percent_strain: PercentStrainOpt = False,
         delimiter: DelimiterOpt = None,
+        decimal: DecimalOpt = None,
         skip_rows: SkipRowsOpt = 0,
         quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or table.")] = False,
     ) -> None:
@@ -283,14 +307,16 @@ def register(app: typer.Typer) -> None:
         from rich.console import Console
 
         from espin.analysis.calibration import fit
+        from espin.analysis.calibration.result import FIT_OUTPUTS
         from espin.core.cluster import tls_security
         from espin.core.errors import EspinError
+        from espin.core.output_folder import OutputFolder
         from espin.geometry.rve import resolve_config
 
         console = Console(stderr=True, quiet=quiet, width=140)
         live = _live_warnings(console)
         logging.getLogger("espin.analysis.calibration").addHandler(live)
-        csv_options = read_options(strain_column, stress_column, percent_strain, delimiter, skip_rows)
+        csv_options = read_options(strain_column, stress_column, percent_strain, delimiter, skip_rows, decimal)
         try:
             security = tls_security(tls_ca_file, tls_cert, tls_key)
             overrides = parse_set(set_)
@@ -298,7 +324,11 @@ def register(app: typer.Typer) -> None:
             curve, strain_rate = _curves(curves, rate, _parse_rates(curves_at_rate))
             seed_list = None if seeds is None else _parse_seeds(seeds)
             grid = _parse_grid(average_grid)
-            with console.status("fitting") as status:
+            options = [params, bounds, fix, realizations, seed_list, step_strain, grid, large_strain, eta_points,
+                       eta_tolerance, csv_options]
+            digest = _inputs_digest(config, curve, strain_rate, options)
+            with OutputFolder.claim(out, "fit", digest, FIT_OUTPUTS, overwrite=overwrite, resume="same-inputs"), \
+                    curve_warnings(), console.status("fitting") as status:
 
                 def on_evaluation(record: dict) -> None:
                     status.update(f"evaluation {record['evaluation']} ({record['stage']}): "
@@ -312,7 +342,7 @@ def register(app: typer.Typer) -> None:
                     eta_tolerance=eta_tolerance, workers=workers, scheduler=scheduler, security=security,
                     read_options=csv_options, on_evaluation=on_evaluation,
                 )
-            written = result.write(out)
+                written = result.write_files(out)
         except EspinError as err:
             fail(err)
         finally:

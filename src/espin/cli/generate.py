@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from espin.cli.common import SetOpt, SourceArg, fail, parse_set
+from espin.cli.common import AllowLargeOpt, OverwriteOpt, SetOpt, SourceArg, fail, parse_set
 
 __all__ = ["register"]
 
@@ -31,16 +31,21 @@ def generate(
     set_: SetOpt = None,
     figures: Annotated[bool, typer.Option(help="Write PNG figures.")] = True,
     vtk: Annotated[bool, typer.Option(help="Write VTK files for ParaView.")] = True,
+    overwrite: OverwriteOpt = False,
+    allow_large: AllowLargeOpt = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or table.")] = False,
 ) -> None:
     """Generate a virtual mat (paper 3.1.1) and its network; write file, statistics, figures."""
     from rich.console import Console
     from rich.progress import Progress
 
+    from espin.core.config import config_digest
     from espin.core.errors import EspinError
+    from espin.core.output_folder import OutputFolder
     from espin.geometry.rve import generate as generate_rve
     from espin.geometry.rve import resolve_config
-    from espin.geometry.rve_folder import write_rve_folder
+    from espin.geometry.rve_folder import RVE_OUTPUTS, write_rve_files
+    from espin.geometry.size_estimate import check_size
 
     console = Console(stderr=True, quiet=quiet)
     options = {
@@ -55,6 +60,8 @@ def generate(
         config = resolve_config(source, **{k.replace(".", "__"): v for k, v in overrides.items()})
         name = Path(source).stem if source else "plla"
         folder = out if out is not None else Path(f"{name}_rve")
+        check_size(config, allow_large=allow_large)  # before the folder is claimed
+        claimed = OutputFolder.claim(folder, "generate", config_digest(config), RVE_OUTPUTS, overwrite=overwrite)
         with Progress(console=console, transient=True) as bar:
             task = bar.add_task("depositing layers", total=config.rve.layers)
 
@@ -66,9 +73,14 @@ def generate(
                 elif stage == "crosslinks":
                     bar.update(task, description="building the network")
 
-            rve = generate_rve(config, progress=progress)
-            bar.update(task, description="writing files")
-            result = write_rve_folder(rve, folder, figures=figures, vtk=vtk)
+            try:
+                rve = generate_rve(config, progress=progress, allow_large=allow_large)
+                bar.update(task, description="writing files")
+                result = write_rve_files(rve, folder, figures=figures, vtk=vtk, run_id=claimed.run_id)
+            except BaseException:
+                claimed.finish("failed")
+                raise
+            claimed.finish()
     except EspinError as err:
         fail(err)
     console.print(result.statistics.format_table(), highlight=False)

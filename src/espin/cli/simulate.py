@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from espin.cli.common import SetOpt, fail, parse_set
+from espin.cli.common import AllowLargeOpt, OverwriteOpt, SetOpt, fail, parse_set
 
 __all__ = ["register"]
 
@@ -39,6 +39,8 @@ def simulate(
         Optional[str], typer.Option(help="solver.linear: auto, superlu or pardiso.")
     ] = None,
     set_: SetOpt = None,
+    overwrite: OverwriteOpt = False,
+    allow_large: AllowLargeOpt = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or table.")] = False,
 ) -> None:
     """Pull on a virtual mat: generate or load the RVE, run the loading program, write results.
@@ -49,9 +51,8 @@ def simulate(
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from espin.core.errors import EspinError
-    from espin.geometry.rve import resolve_config
     from espin.mechanics.loading import load_program
-    from espin.mechanics.run import resolve_rve
+    from espin.mechanics.run import resolve_source
     from espin.mechanics.run import simulate as run_simulation
 
     console = Console(stderr=True, quiet=quiet)
@@ -69,11 +70,8 @@ def simulate(
         name = Path(source).stem if source else "plla"
         folder = out if out is not None else Path(f"{name}_test")
         # Validate everything (config, tables of the loading program) before any work.
-        if source and source.endswith((".h5", ".hdf5")):
-            target = resolve_rve(source, overrides)[0]
-            config = target.config
-        else:
-            target = config = resolve_config(source, **{k.replace(".", "__"): v for k, v in overrides.items()})
+        config, rve = resolve_source(source, overrides)
+        target = config if rve is None else rve
         program = load_program(config.loading)
         columns = (TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[info]}"),
                    TimeElapsedColumn())
@@ -89,7 +87,8 @@ def simulate(
                            info=f"strain {record.strain:.4f}  stress {value:.4g} MPa  "
                                 f"iterations {record.iterations}")
 
-            result = run_simulation(target, folder, on_step=on_step)
+            result = run_simulation(target, folder, on_step=on_step, overwrite=overwrite,
+                                    allow_large=allow_large)
     except EspinError as err:
         fail(err)
     stress = result.stress()

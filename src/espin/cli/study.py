@@ -7,7 +7,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from espin.cli.common import fail, parse_set
+from espin.cli.common import OverwriteOpt, fail, parse_set
 from espin.core.errors import EXIT_SOLVER
 
 __all__ = ["register", "parse_grid"]
@@ -169,11 +169,13 @@ def rve_size(
     tls_key: TlsKeyOpt = None,
     blas_threads: BlasThreadsOpt = 1,
     set_: SetOpt = None,
+    overwrite: OverwriteOpt = False,
     quiet: QuietOpt = False,
 ) -> None:
     """Mean, sd and RSD of modulus, yield stress, post-yield modulus versus L/D and N_l (Appendix A).
 
-    Reruns skip finished realizations (resume after a crash or a killed job).
+    Reruns skip finished realizations (resume after a crash or a killed job); a folder of
+    another run is refused unless --overwrite.
     """
     from espin.core.cluster import tls_security
     from espin.studies.sweeps import rve_size_study
@@ -187,7 +189,7 @@ def rve_size(
             base, size_ratios=sizes, layer_counts=layers, layers_for_sizes=layers_for_sizes,
             size_for_layers=size_for_layers, realizations=realizations, seed_start=seed_start,
             folder=out, workers=workers, scheduler=scheduler, blas_threads=blas_threads, security=security,
-            on_outcome=on_outcome, **_overrides(set_))), n_points * realizations
+            on_outcome=on_outcome, overwrite=overwrite, **_overrides(set_))), n_points * realizations
 
     _run_study(prepare, out, _MEANS + _RSDS, quiet)
 
@@ -212,12 +214,13 @@ def sweep(
     tls_key: TlsKeyOpt = None,
     blas_threads: BlasThreadsOpt = 1,
     set_: SetOpt = None,
+    overwrite: OverwriteOpt = False,
     quiet: QuietOpt = False,
 ) -> None:
     """Properties (modulus, yield stress, post-yield modulus) over any parameter grid, in parallel.
 
     Writes a tidy table (one row per realization), a summary per point and plots. Reruns skip
-    finished tasks.
+    finished tasks; a folder of another run is refused unless --overwrite.
     """
     import math
 
@@ -231,7 +234,7 @@ def sweep(
         return (lambda on_outcome: run_sweep(
             base, parsed, realizations=realizations, seed_start=seed_start, folder=out,
             table_format=table_format, workers=workers, scheduler=scheduler, blas_threads=blas_threads,
-            security=security, on_outcome=on_outcome, **_overrides(set_))), n_points * realizations
+            security=security, on_outcome=on_outcome, overwrite=overwrite, **_overrides(set_))), n_points * realizations
 
     _run_study(prepare, out, _MEANS + _SDS, quiet)
 
@@ -248,6 +251,7 @@ def dof(
     ] = 1,
     out: Annotated[Path, typer.Option("--out", "-o", help="Results folder.")] = Path("dof_study"),
     set_: SetOpt = None,
+    overwrite: OverwriteOpt = False,
     quiet: QuietOpt = False,
 ) -> None:
     """DOF of espin's model versus RVE size beside a beam finite-element model (paper Fig. 14).
@@ -257,7 +261,9 @@ def dof(
     from rich.console import Console
 
     from espin.core.atomic import atomic_write
+    from espin.core.config import config_digest
     from espin.core.errors import EspinError
+    from espin.core.output_folder import OutputFolder
     from espin.geometry.rve import resolve_config
     from espin.studies.dof import dof_fit_table, dof_study, plot_dof_study
     from espin.studies.sweeps import realization_seeds
@@ -266,12 +272,14 @@ def dof(
         sizes = _numbers("--size-ratios", size_ratios, float)
         layer_list = _numbers("--layers", layers, int)
         config = resolve_config(base, **_overrides(set_))
-        table = dof_study(sizes, layer_list, base=config, seeds=realization_seeds(config, realizations, seed_start),
-                          elements_per_segment=elements_per_segment)
-        fits = dof_fit_table(table)
-        files = [atomic_write(out / "dof.csv", lambda tmp: table.to_csv(tmp, index=False)),
-                 plot_dof_study(table, out / "dof.png"),
-                 atomic_write(out / "dof_fit.csv", lambda tmp: fits.to_csv(tmp, index=False))]
+        seeds = realization_seeds(config, realizations, seed_start)
+        with OutputFolder.claim(out, "dof", config_digest(config), ("dof.csv", "dof.png", "dof_fit.csv"),
+                                overwrite=overwrite):
+            table = dof_study(sizes, layer_list, base=config, seeds=seeds, elements_per_segment=elements_per_segment)
+            fits = dof_fit_table(table)
+            files = [atomic_write(out / "dof.csv", lambda tmp: table.to_csv(tmp, index=False)),
+                     plot_dof_study(table, out / "dof.png"),
+                     atomic_write(out / "dof_fit.csv", lambda tmp: fits.to_csv(tmp, index=False))]
     except EspinError as err:
         fail(err)
     if not quiet:

@@ -1,8 +1,8 @@
 """The header every espin HDF5 file carries, and how files are opened and their content checked.
 
 Root attributes: ``schema``, ``schema_version``, the resolved config as ``config_toml``, the
-``seed``, the versions of espin, numpy, scipy, h5py and Python, the ``units`` and the
-creation time.
+``seed``, the versions of espin, numpy, scipy, h5py and Python, the ``units``, the
+creation time and, for a file written into a run's folder, the ``run_id`` of its ``run.json``.
 
 Schema versions are whole numbers from 1, stored as an integer attribute. A reader accepts
 exactly the version it was written for: a ``schema_version`` that is not an integer (a float,
@@ -58,13 +58,16 @@ def provenance() -> dict[str, str]:
     }
 
 
-def write_header(f: h5py.File, schema: str, version: int, config: Config) -> None:
-    """Write the root attributes of an espin file of ``schema``."""
+def write_header(f: h5py.File, schema: str, version: int, config: Config, run_id: str | None = None) -> None:
+    """Write the root attributes of an espin file of ``schema``; ``run_id``, the run that
+    wrote it (its folder's ``run.json``), when it has one."""
     f.attrs.update(provenance())
     f.attrs["schema"] = schema
     f.attrs["schema_version"] = version
     f.attrs["config_toml"] = config_to_toml(config)
     f.attrs["seed"] = config.rve.seed
+    if run_id is not None:
+        f.attrs["run_id"] = run_id
 
 
 def file_error(path: str | Path, where: str, problem: str, expected: str) -> RVEFileError:

@@ -15,9 +15,12 @@ killed or is still going). The policy, the same for every command:
   ``overwrite`` (``--overwrite``): then the manifest is rewritten first, and every file the
   command writes (stale ``vtk/step_*.vtu`` included) and the temporary files of interrupted
   writes are removed; other files are left alone;
-- a resumable command (``study``, ``fit``) reuses a folder whose manifest has the same
-  command and config hash, or that has no manifest (written before manifests existed; its
-  task files are keyed by their whole config), and keeps what is there.
+- a resumable command reuses a folder of its own, keeping what is there: ``fit`` one whose
+  manifest has the same inputs (config, curves, options: the same fit, written again); a
+  study (``sweep``, ``rve-size``) one of the same kind of study, or one without a manifest
+  (written before manifests existed), since each of its task files is keyed by the task's
+  whole config and files: a grown grid reuses the finished tasks, other settings' tasks are
+  kept but not used.
 
 A run that fails before writing anything but the manifest leaves no folder behind.
 """
@@ -30,6 +33,7 @@ import uuid
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import Literal
 
 from espin.core.atomic import atomic_write_bytes
 from espin.core.errors import ConfigError
@@ -114,7 +118,8 @@ class OutputFolder:
 
     @classmethod
     def claim(cls, path: str | Path, command: str, digest: str, outputs: Sequence[str], *,
-              overwrite: bool = False, resumable: bool = False) -> OutputFolder:
+              overwrite: bool = False, resume: Literal["same-inputs", "same-command"] | None = None
+              ) -> OutputFolder:
         """Check ``path`` against the policy and write a ``running`` manifest there.
 
         Parameters
@@ -130,9 +135,10 @@ class OutputFolder:
             Glob patterns, relative to the folder, of every file the command writes.
         overwrite
             Replace another run's results (removing ``outputs``) instead of refusing.
-        resumable
+        resume
             Reuse, keeping its files, a folder whose manifest has the same command and
-            config hash.
+            ``digest`` (``"same-inputs"``), or the same command, or no manifest
+            (``"same-command"``); None: never.
 
         Raises
         ------
@@ -144,10 +150,13 @@ class OutputFolder:
             raise ConfigError(f"output folder {path} exists and is not a folder")
         previous = read_manifest(path) if path.is_dir() else None
         found = _existing(path, outputs)
-        same = previous is not None and (previous.command, previous.config_hash) == (command, digest)
-        if resumable and (same or (previous is None and found)):
+        if resume == "same-inputs":
+            reuse = previous is not None and (previous.command, previous.config_hash) == (command, digest)
+        else:
+            reuse = resume == "same-command" and (previous.command == command if previous else bool(found))
+        if reuse:
             manifest = previous or RunManifest(uuid.uuid4().hex, command, digest, __version__, "running", _utc_now())
-            folder = cls(path, replace(manifest, status="running", finished_utc=None))
+            folder = cls(path, replace(manifest, config_hash=digest, status="running", finished_utc=None))
             folder._write()
             return folder
         if (found or previous is not None) and not overwrite:

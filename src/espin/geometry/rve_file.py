@@ -61,7 +61,7 @@ _NETWORK = (
 )
 
 
-def save_rve(rve: RVE, path: str | Path) -> Path:
+def save_rve(rve: RVE, path: str | Path, run_id: str | None = None) -> Path:
     """Write an RVE to an HDF5 file, atomically (a temporary file renamed on success).
 
     Parameters
@@ -70,6 +70,8 @@ def save_rve(rve: RVE, path: str | Path) -> Path:
         The RVE.
     path
         Destination ``.h5`` file.
+    run_id
+        The run writing it (stored as the ``run_id`` attribute), if any.
 
     Returns
     -------
@@ -79,7 +81,7 @@ def save_rve(rve: RVE, path: str | Path) -> Path:
 
     def write(tmp: Path) -> None:
         with h5py.File(tmp, "w") as f:
-            write_header(f, SCHEMA, SCHEMA_VERSION, rve.config)
+            write_header(f, SCHEMA, SCHEMA_VERSION, rve.config, run_id)
             g = f.create_group("mat")
             for name in _MAT:
                 g.create_dataset(name, data=getattr(rve.mat, name))

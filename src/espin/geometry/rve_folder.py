@@ -59,7 +59,7 @@ def write_rve_folder(
     """
     claimed = OutputFolder.claim(folder, "generate", config_digest(rve.config), RVE_OUTPUTS, overwrite=overwrite)
     try:
-        written = write_rve_files(rve, folder, figures=figures, vtk=vtk)
+        written = write_rve_files(rve, folder, figures=figures, vtk=vtk, run_id=claimed.run_id)
     except BaseException:
         claimed.finish("failed")
         raise
@@ -68,20 +68,22 @@ def write_rve_folder(
 
 
 def write_rve_files(
-    rve: RVE, folder: str | Path, *, figures: bool | None = None, vtk: bool | None = None
+    rve: RVE, folder: str | Path, *, figures: bool | None = None, vtk: bool | None = None,
+    run_id: str | None = None,
 ) -> RVEFolder:
     """Write ``rve.h5``, ``config.toml``, ``statistics.json``, ``statistics.txt``, and
     optionally ``mat.png``, ``statistics.png``, ``fibers.vtu``, ``network.vtu`` into a folder
     the caller has claimed (:class:`espin.core.output_folder.OutputFolder`).
 
-    Parameters are those of :func:`write_rve_folder`.
+    Parameters are those of :func:`write_rve_folder`, and ``run_id``, the claiming run's id,
+    stored in ``rve.h5``.
     """
     folder = Path(folder)
     figures = rve.config.output.figures if figures is None else figures
     vtk = rve.config.output.vtk if vtk is None else vtk
     stats = network_statistics(rve.mat, rve.network, rve.config)
     files = {
-        "rve": save_rve(rve, folder / "rve.h5"),
+        "rve": save_rve(rve, folder / "rve.h5", run_id),
         "config": write_config(rve.config, folder / "config.toml"),
         "statistics_json": atomic_write_bytes(
             folder / "statistics.json", json.dumps(stats.summary(), indent=2).encode()

@@ -37,7 +37,6 @@ import numpy as np
 
 from espin.core.atomic import atomic_write, atomic_write_bytes
 from espin.core.config import Config
-from espin.core.errors import RVEFileError
 from espin.core.header import open_checked, read_config, write_header
 from espin.geometry.network import Network
 from espin.geometry.vtk import write_network_vtu
@@ -45,7 +44,8 @@ from espin.mechanics.driver import SimulationResult, StepRecord, result_from_rec
 from espin.mechanics.fiber_law import yielded
 from espin.mechanics.loading import LoadProgram, load_program
 
-__all__ = ["SimulationWriter", "write_results", "load_results", "ResultsFile", "SCHEMA", "SCHEMA_VERSION"]
+__all__ = ["SimulationWriter", "write_results", "load_results", "ResultsFile", "PartialResultWarning", "SCHEMA",
+           "SCHEMA_VERSION"]
 
 SCHEMA = "espin.results"
 SCHEMA_VERSION = 1
@@ -99,15 +99,18 @@ class SimulationWriter:
         The loading program (its frame gives the curve's stress); default from ``config``.
     vtk
         Write the VTK files.
+    run_id
+        The run writing the folder, stored in ``results.h5``.
     """
 
     def __init__(self, folder: str | Path, network: Network, config: Config,
-                 program: LoadProgram | None = None, vtk: bool = True) -> None:
+                 program: LoadProgram | None = None, vtk: bool = True, run_id: str | None = None) -> None:
         self.folder = Path(folder)
         self.network = network
         self.config = config
         self.program = program if program is not None else load_program(config.loading)
         self.vtk = vtk
+        self.run_id = run_id
         self._threshold = config.output.yield_threshold
         self._steps: list[tuple[float, str]] = []  # (time [s], path relative to folder)
         self._records: list[StepRecord] = []
@@ -126,7 +129,8 @@ class SimulationWriter:
         if self.vtk:
             self._write_vtk(record)
         if time.monotonic() - self._saved >= RESULTS_INTERVAL_S:
-            write_results(result_from_records(self.config, self.program, self._records), self.folder, curve=False)
+            write_results(result_from_records(self.config, self.program, self._records), self.folder, curve=False,
+                          run_id=self.run_id)
             self._saved = time.monotonic()
 
     def _append_curve_row(self, record: StepRecord) -> None:
@@ -185,7 +189,8 @@ def _curve_columns(result: SimulationResult, first_step: int = 0) -> tuple[list[
     return names, columns, formats
 
 
-def write_results(result: SimulationResult, folder: str | Path, *, curve: bool = True) -> dict[str, Path]:
+def write_results(result: SimulationResult, folder: str | Path, *, curve: bool = True,
+                  run_id: str | None = None) -> dict[str, Path]:
     """Write ``curve.csv`` and ``results.h5`` (layouts in the module docs), atomically.
 
     Parameters
@@ -196,6 +201,8 @@ def write_results(result: SimulationResult, folder: str | Path, *, curve: bool =
         Output folder (created if needed).
     curve
         Write ``curve.csv`` too (False: only ``results.h5``).
+    run_id
+        The run writing the folder, stored in ``results.h5``.
 
     Returns
     -------
@@ -213,7 +220,7 @@ def write_results(result: SimulationResult, folder: str | Path, *, curve: bool =
 
     def write(tmp: Path) -> None:
         with h5py.File(tmp, "w") as f:
-            write_header(f, SCHEMA, SCHEMA_VERSION, result.config)
+            write_header(f, SCHEMA, SCHEMA_VERSION, result.config, run_id)
             g = f.create_group("steps")
             for attr, (name, units) in _STEPS.items():
                 g.create_dataset(name, data=getattr(result, attr)).attrs["units"] = units
@@ -244,11 +251,15 @@ class ResultsFile:
     seed : int
         The RVE's random seed.
     provenance : dict[str, str]
-        Versions, units and creation time.
+        Versions, units, creation time and the ``run_id`` of the run that wrote it.
     steps : dict[str, numpy.ndarray]
         The datasets of ``/steps`` by name (``time_s``, ``P_MPa``, ...; module docs).
     final : dict[str, numpy.ndarray]
         The datasets of ``/final`` by name (``stress_MPa``, ``positions_um``, ...).
+    status : str or None
+        The status of its folder's run (``run.json``): ``complete``, ``running`` (a partial
+        result: the run was killed or is still going), ``failed``, ``mixed`` (the folder's
+        manifest names another run) or ``unknown`` (unreadable manifest); None without one.
     """
 
     config: Config
@@ -256,25 +267,99 @@ class ResultsFile:
     provenance: dict[str, str]
     steps: dict[str, np.ndarray]
     final: dict[str, np.ndarray]
+    status: str | None = None
+
+
+class PartialResultWarning(UserWarning):
+    """A results file holds less than a complete run, or belongs to another run than its folder."""
+
+
+_TENSOR = (None, 2, 2)
+# /steps dataset -> (kind, shape, meaning, checks)
+_STEP_CHECKS: dict[str, tuple[str, tuple, str, dict]] = {
+    "strain": ("float", (None,), "the load parameter of each step", {}),
+    "F": ("float", _TENSOR, "the deformation gradient of each step", {}),
+    "P_MPa": ("float", _TENSOR, "the nominal stress of each step [MPa]", {}),
+    "P_paper_MPa": ("float", _TENSOR, "the paper's Eq. 17 stress of each step [MPa]", {}),
+    "cauchy_MPa": ("float", _TENSOR, "the Cauchy stress of each step [MPa]", {}),
+    "recruited_fraction": ("float", (None,), "the recruited fiber fraction of each step", {"low": 0, "high": 1}),
+    "yielded_fraction": ("float", (None,), "the yielded fiber fraction of each step", {"low": 0, "high": 1}),
+    "iterations": ("int", (None,), "Newton iterations per step", {"low": 0}),
+    "factorizations": ("int", (None,), "factorizations per step", {"low": 0}),
+    "substeps": ("int", (None,), "time steps per step", {"low": 0}),
+    "residual_uN": ("float", (None,), "the final residual of each step [uN]", {"low": 0}),
+    "stress_MPa": ("float", (None,), "the curve's stress of each step [MPa]", {}),
+}
 
 
 def load_results(path: str | Path) -> ResultsFile:
-    """Read a file written by :func:`write_results`.
+    """Read a file written by :func:`write_results` (or the ``results.h5`` of a results folder).
+
+    Every dataset is checked (type, shape, finite values, fractions in [0, 1], counts >= 0,
+    one row per step throughout) before it is used. A file whose folder's ``run.json`` says
+    the run is not complete, or names another run, is read with a
+    :class:`PartialResultWarning`.
 
     Raises
     ------
     RVEFileError
-        If the file is missing, unreadable, not an espin results file, of a newer schema, or
-        incomplete.
+        If the file is missing, unreadable, not an espin results file, of another schema
+        version, incomplete, or holds values outside these rules (naming the dataset).
     """
+    import warnings
+
+    from espin.core.header import file_error, read_dataset
+
     path = Path(path)
+    if path.is_dir():
+        path = path / "results.h5"
     with open_checked(path, SCHEMA, SCHEMA_VERSION, "results") as f:
-        try:
-            config = read_config(f, path)
-            steps = {name: f["steps"][name][()] for name in [*(n for n, _ in _STEPS.values()), "stress_MPa"]}
-            final = {name: f["final"][name][()] for name, _ in _FINAL.values()}
-            seed = int(f.attrs["seed"])
-        except KeyError as err:
-            raise RVEFileError(f"{path} is incomplete: missing {err}") from None
+        config = read_config(f, path)
+        time_s = read_dataset(f, "steps/time_s", kind="float", shape=(None,), low=0.0,
+                              meaning="the time of each step [s]")
+        n = len(time_s)
+        steps = {"time_s": time_s}
+        for name, (kind, shape, meaning, checks) in _STEP_CHECKS.items():
+            steps[name] = read_dataset(f, f"steps/{name}", kind=kind, shape=(n, *shape[1:]),
+                                       meaning=meaning, **checks)
+        stress = read_dataset(f, "final/stress_MPa", kind="float", shape=(None,),
+                              meaning="the final stress of each element [MPa]")
+        m = len(stress)
+        final = {
+            "stress_MPa": stress,
+            "plastic_stretch": read_dataset(f, "final/plastic_stretch", kind="float", shape=(m,), positive=True,
+                                            meaning="the final plastic stretch of each element"),
+            "recruited": read_dataset(f, "final/recruited", kind="bool", shape=(m,),
+                                      meaning="whether each element is recruited"),
+            "positions_um": read_dataset(f, "final/positions_um", kind="float", shape=(None, 2),
+                                         meaning="the final node positions [um]"),
+        }
+        if n == 0:
+            raise file_error(path, "dataset steps/time_s", "is empty", "at least the undeformed step")
         info = {k: str(v) for k, v in f.attrs.items() if k not in ("schema", "schema_version", "config_toml", "seed")}
-    return ResultsFile(config=config, seed=seed, provenance=info, steps=steps, final=final)
+    status, problem = _folder_status(path, info.get("run_id"))
+    if problem:
+        warnings.warn(f"{path}: {problem}", PartialResultWarning, stacklevel=2)
+    return ResultsFile(config=config, seed=config.rve.seed, provenance=info, steps=steps, final=final,
+                       status=status)
+
+
+def _folder_status(path: Path, run_id: str | None) -> tuple[str | None, str | None]:
+    """The status of the run of the file's folder (None without ``run.json``; ``mixed`` when
+    it names another run), and why the file may not be a complete result (or None)."""
+    from espin.core.errors import ConfigError
+    from espin.core.output_folder import read_manifest
+
+    try:
+        manifest = read_manifest(path.parent)
+    except ConfigError:
+        return "unknown", "its folder's run.json is unreadable, so the file may be partial"
+    if manifest is None:
+        return None, None
+    if run_id is not None and manifest.run_id != run_id:
+        return "mixed", (f"written by run {run_id}, but its folder's run.json names run {manifest.run_id}: "
+                         "a mixed folder")
+    if manifest.partial:
+        return manifest.status, (f"a partial result: its folder's run.json says the run is {manifest.status} "
+                                 "(killed, failed or still going)")
+    return manifest.status, None

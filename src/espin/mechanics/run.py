@@ -125,17 +125,19 @@ def _run(config: Config, rve: RVE | None, program: LoadProgram, claimed: OutputF
          on_step: Callable[[StepRecord], None] | None, threads: int | None, allow_large: bool) -> SimulationResult:
     """Generate the RVE if needed, run the program, write the claimed folder."""
     folder = None if claimed is None else claimed.path
+    run_id = None if claimed is None else claimed.run_id
     callbacks = [c for c in (on_step,) if c is not None]
     if rve is None:
         rve = generate(config, allow_large=allow_large)
         if folder is not None:
-            write_rve_files(rve, folder)
+            write_rve_files(rve, folder, run_id=run_id)
     elif folder is not None:
         write_config(config, folder / "config.toml")
     if folder is not None:
         from espin.mechanics.results_file import SimulationWriter
 
-        callbacks.append(SimulationWriter(folder, rve.network, config, program, vtk=config.output.vtk))
+        callbacks.append(SimulationWriter(folder, rve.network, config, program, vtk=config.output.vtk,
+                                          run_id=run_id))
 
     def step_done(record: StepRecord) -> None:
         for callback in callbacks:
@@ -153,13 +155,13 @@ def _run(config: Config, rve: RVE | None, program: LoadProgram, claimed: OutputF
             if failure.partial is not None:
                 from espin.mechanics.results_file import write_results
 
-                write_results(failure.partial, folder)  # the steps that converged are kept
+                write_results(failure.partial, folder, run_id=run_id)  # the steps that converged are kept
                 log.info("wrote the %d converged steps to %s", len(failure.partial.time) - 1, folder)
         raise
     if folder is not None:
         from espin.mechanics.results_file import write_results
 
-        write_results(result, folder)
+        write_results(result, folder, run_id=run_id)
         if config.output.figures:
             from espin.mechanics.figures import plot_curve, plot_deformed
 

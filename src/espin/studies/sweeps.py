@@ -226,7 +226,7 @@ def _claimed(folder: str | Path | None, command: str, base: Config,
     if folder is None:
         return contextlib.nullcontext()
     return OutputFolder.claim(folder, command, config_digest(base), STUDY_OUTPUTS, overwrite=overwrite,
-                              resumable=True)
+                              resume="same-command")
 
 
 def _grid_values(key: str, values: Any) -> list[Any]:

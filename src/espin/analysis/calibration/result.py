@@ -216,7 +216,7 @@ class FitResult:
         from espin.core.output_folder import OutputFolder
 
         with OutputFolder.claim(folder, "fit", config_digest(self.config), FIT_OUTPUTS, overwrite=overwrite,
-                                resumable=True):
+                                resume="same-inputs"):
             return self.write_files(folder)
 
     def write_files(self, folder: str | Path) -> dict[str, Path]:
