@@ -68,7 +68,6 @@ import csv
 import io
 import math
 import re
-import stat
 import warnings
 import zipfile
 from collections.abc import Sequence
@@ -81,6 +80,17 @@ from numpy.typing import ArrayLike
 
 from espin.core.atomic import atomic_write_bytes
 from espin.core.errors import ConfigError, InputError
+from espin.core.textfiles import (
+    TextFormat,
+    check_file,
+    decode,
+    read_bytes,
+    showable,
+    shown,
+    shown_names,
+    text_lines,
+    too_large,
+)
 
 __all__ = ["CurveFileError", "CurveWarning", "Curve", "AveragedCurve", "read_curve", "average_curves",
            "MAX_FILE_BYTES", "MAX_DATA_ROWS", "MAX_LINE_CHARS", "MAX_MAGNITUDE", "UNIT_MISMATCH_RATIO"]
@@ -103,9 +113,6 @@ MAX_MAGNITUDE = 1e12
 UNIT_MISMATCH_RATIO = 20.0
 """Averaging refuses specimens whose largest strains differ by this factor or more."""
 
-_SHOWN_CHARS = 20
-"""Longest field of a file an error message shows (quoted); longer ones are named by length."""
-
 _LARGE_STRESS_MPA = 1e4
 """A stress above this [MPa] (10 GPa) is warned about as probably in Pa or kPa."""
 
@@ -114,7 +121,6 @@ _STRESS_NAMES = ("stress_MPa", "stress [MPa]", "stress (MPa)", "stress", "mean_M
 _WORKBOOK_SUFFIXES = (".xlsx", ".xlsm")
 _EXPECTED = ("expected a text table (CSV: one point per line, strain and stress [MPa] as numbers; "
              "UTF-8, UTF-16 with byte-order mark or Latin-1) or an .xlsx workbook")
-_CONTROL = re.compile(r"[\x00-\x08\x0b\x0e-\x1f\x7f]")
 _DECIMAL_COMMA = re.compile(r"[+-]?(\d+,\d*|,\d+)([eE][+-]?\d+)?")
 _UNIT = re.compile(r"[\[(]\s*([^\])]*?)\s*[\])]|_([^_\s]+)$")
 _LENGTH_UNITS = ("mm", "m", "cm", "um", "µm", "μm", "in")
@@ -219,23 +225,14 @@ def _column_letters(index: int) -> str:
     return letters
 
 
-def _showable(text: str) -> bool:
-    return len(text) <= _SHOWN_CHARS and text.isprintable()
-
-
-def _shown(text: str, noun: str = "field") -> str:
-    """A field of the file as a message may show it: quoted when short and printable, else
-    only its length (a message never echoes a file's contents)."""
-    return repr(text) if _showable(text) else f"a {len(text)}-character {noun}"
-
-
-def _too_large(path: Path, size: str) -> CurveFileError:
-    mib, rest = divmod(MAX_FILE_BYTES, 2**20)
-    limit = f"{mib} MiB" if not rest else f"{MAX_FILE_BYTES:,} bytes"
-    return CurveFileError(
-        f"{path}: {size}, over the limit of {limit} for a curve file (a "
-        "tensile test of 10^5 points takes a few MB): is this the curve? thin it out (keep "
-        "every k-th line) or cut it"
+def _format() -> TextFormat:
+    """What a curve file is, with the module's limits as they are now."""
+    return TextFormat(
+        what="curve file", expected=_EXPECTED, max_bytes=MAX_FILE_BYTES, max_line_chars=MAX_LINE_CHARS,
+        error=CurveFileError,
+        size_hint=("a tensile test of 10^5 points takes a few MB; is this the curve? thin it out "
+                   "(keep every k-th line) or cut it"),
+        line_hint="one point, a few numbers, per line; is this the curve file?",
     )
 
 
@@ -267,80 +264,23 @@ def _check_options(delimiter: str | None, decimal: str | None, skip_rows: int) -
         raise ConfigError(f"decimal and delimiter are both {decimal!r}; they must differ")
 
 
-def _check_file(path: Path) -> None:
-    """Refuse what is not a regular file of at most MAX_FILE_BYTES, before reading it."""
-    try:
-        info = path.stat()
-    except (OSError, ValueError) as err:  # ValueError: a NUL in the path
-        reason = getattr(err, "strerror", None) or err
-        raise CurveFileError(f"{path}: cannot read the file ({reason})") from None
-    if stat.S_ISDIR(info.st_mode):
-        raise CurveFileError(f"{path}: a directory, not a curve file; {_EXPECTED}")
-    if not stat.S_ISREG(info.st_mode):
-        raise CurveFileError(f"{path}: not a regular file (a device, pipe or socket); {_EXPECTED}")
-    if info.st_size > MAX_FILE_BYTES:
-        raise _too_large(path, f"{info.st_size:,} bytes")
-
-
-def _read_bytes(path: Path) -> bytes:
-    """The file's bytes; one that grew past MAX_FILE_BYTES since it was checked is refused."""
-    try:
-        with path.open("rb") as stream:
-            data = stream.read(MAX_FILE_BYTES + 1)
-    except OSError as err:
-        raise CurveFileError(f"{path}: cannot read the file ({err.strerror or err})") from None
-    if len(data) > MAX_FILE_BYTES:
-        raise _too_large(path, f"more than {MAX_FILE_BYTES:,} bytes")
-    return data
-
-
-def _decode(path: Path, data: bytes) -> str:
-    """The text of a curve file (encodings in the module docs), newlines as ``\\n``."""
+def _refuse_workbooks(path: Path, data: bytes) -> None:
+    """Refuse a workbook's bytes in a file not named .xlsx (the fix: rename it, or save as CSV)."""
     if data.startswith(b"PK\x03\x04"):
         raise CurveFileError(f"{path}: a zip archive (an Excel workbook?): name it .xlsx to read "
                              "its first sheet, or save the sheet as CSV")
     if data.startswith(b"\xd0\xcf\x11\xe0"):
         raise CurveFileError(f"{path}: an old-format Excel (.xls) or other OLE2 file, which espin "
                              "does not read: save the sheet as .xlsx or CSV")
-    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
-        try:
-            text = data.decode("utf-16")
-        except UnicodeDecodeError:
-            raise CurveFileError(f"{path}: starts with a UTF-16 byte-order mark but is not UTF-16; "
-                                 f"{_EXPECTED}") from None
-    elif b"\x00" in data:
-        raise CurveFileError(f"{path}: not a text file (it holds NUL bytes: an image or other binary "
-                             f"file, or UTF-16 without a byte-order mark?); {_EXPECTED}")
-    else:
-        try:
-            text = data.decode("utf-8-sig")
-        except UnicodeDecodeError:
-            text = data.decode("latin-1")  # never fails: an instrument's 8-bit export
-    text = text.replace("\r\n", "\n").replace("\r", "\n")
-    control = _CONTROL.search(text)
-    if control:
-        line = text.count("\n", 0, control.start()) + 1
-        code = ord(control.group())
-        raise CurveFileError(f"{path}, line {line}: a control character (code {code:#04x}), so not a "
-                             f"text table; {_EXPECTED}")
-    return text
 
 
-def _text_lines(path: Path, text: str, skip_rows: int) -> tuple[list[int], list[str]]:
+def _text_lines(path: Path, fmt: TextFormat, skip_rows: int) -> tuple[list[int], list[str]]:
     """Numbers (1-based) and text of the lines after ``skip_rows`` that are not blank or comments."""
+    data = read_bytes(path, fmt)
+    _refuse_workbooks(path, data)
     numbers: list[int] = []
     lines: list[str] = []
-    for number, line in enumerate(io.StringIO(text), start=1):
-        stripped = line.strip()
-        if number <= skip_rows or not stripped or stripped.startswith("#"):
-            continue
-        line = line.rstrip("\n")
-        if len(line) > MAX_LINE_CHARS:
-            raise CurveFileError(
-                f"{path}, line {number}: {len(line):,} characters, over the limit of "
-                f"{MAX_LINE_CHARS} for a line of a curve table (one point, a few numbers, per "
-                "line): is this the curve file?"
-            )
+    for number, line in text_lines(path, decode(path, data, fmt), fmt, skip_rows=skip_rows):
         if len(lines) > MAX_DATA_ROWS:  # a header and MAX_DATA_ROWS points already
             raise _too_many_points(path)
         numbers.append(number)
@@ -384,13 +324,14 @@ def _fields(path: Path, numbers: list[int], lines: list[str], separator: str) ->
     return rows
 
 
-def _read_text(path: Path, skip_rows: int, delimiter: str | None, decimal: str | None) -> _Table:
-    numbers, lines = _text_lines(path, _decode(path, _read_bytes(path)), skip_rows)
+def _read_text(path: Path, fmt: TextFormat, skip_rows: int, delimiter: str | None,
+               decimal: str | None) -> _Table:
+    numbers, lines = _text_lines(path, fmt, skip_rows)
     separator = delimiter or _separator(lines[0], decimal)
     return _Table(path, numbers, _fields(path, numbers, lines, separator), separator)
 
 
-def _check_unpacked_size(path: Path) -> None:
+def _check_unpacked_size(path: Path, fmt: TextFormat) -> None:
     """Refuse a workbook whose contents unpack to more than MAX_FILE_BYTES (a zip bomb)."""
     try:
         with zipfile.ZipFile(path) as archive:
@@ -399,7 +340,7 @@ def _check_unpacked_size(path: Path) -> None:
         raise CurveFileError(f"{path}: not a readable .xlsx workbook (not a zip archive); expected an "
                              "Excel workbook with the curve on its first sheet") from None
     if unpacked > MAX_FILE_BYTES:
-        raise _too_large(path, f"{unpacked:,} bytes unpacked")
+        raise too_large(path, fmt, f"{unpacked:,} bytes unpacked")
 
 
 def _excel_frame(path: Path) -> pd.DataFrame:
@@ -423,8 +364,8 @@ def _cell(value: object) -> str:
     return str(value).strip()
 
 
-def _read_workbook(path: Path, skip_rows: int) -> _Table:
-    _check_unpacked_size(path)
+def _read_workbook(path: Path, fmt: TextFormat, skip_rows: int) -> _Table:
+    _check_unpacked_size(path, fmt)
     numbers: list[int] = []
     rows: list[list[str]] = []
     for number, values in enumerate(_excel_frame(path).itertuples(index=False, name=None), start=1):
@@ -444,10 +385,11 @@ def _read_workbook(path: Path, skip_rows: int) -> _Table:
 
 def _read_table(path: Path, delimiter: str | None, decimal: str | None, skip_rows: int) -> _Table:
     """The kept lines of a text table or the kept rows of a workbook's first sheet."""
-    _check_file(path)
+    fmt = _format()
+    check_file(path, fmt)
     if path.suffix.lower() in _WORKBOOK_SUFFIXES:
-        return _read_workbook(path, skip_rows)
-    return _read_text(path, skip_rows, delimiter, decimal)
+        return _read_workbook(path, fmt, skip_rows)
+    return _read_text(path, fmt, skip_rows, delimiter, decimal)
 
 
 # --------------------------------------------------------------------------------------------
@@ -469,12 +411,6 @@ def _split_header(table: _Table) -> tuple[list[str] | None, list[int]]:
     return table.rows[0], list(range(1, len(table.rows)))
 
 
-def _names(header: list[str]) -> str:
-    """A header's column names as a message lists them (long ones by length, at most 12)."""
-    shown = ", ".join(_shown(name, "name") for name in header[:12])
-    return shown + (f", ... ({len(header)} in all)" if len(header) > 12 else "")
-
-
 def _column_index(table: _Table, column: int | str | None, header: list[str] | None,
                   defaults: tuple[str, ...], fallback: int, what: str) -> int:
     """0-based index of a column given by index, by name, or by default (module docs)."""
@@ -490,7 +426,7 @@ def _column_index(table: _Table, column: int | str | None, header: list[str] | N
         raise CurveFileError(
             f"{table.at(0)}: the header has no column with a default {what} name "
             f"({', '.join(defaults)}; any case), and with {len(header)} column{'s' * (len(header) != 1)} "
-            f"({_names(header)}) there is no default by position: "
+            f"({shown_names(header)}) there is no default by position: "
             f"choose it by name or 0-based index with --{what}-column ({what}_column= in Python)"
         )
     if isinstance(column, int):
@@ -503,13 +439,13 @@ def _column_index(table: _Table, column: int | str | None, header: list[str] | N
     lowered = [name.lower() for name in header]
     if column.lower() not in lowered:
         raise CurveFileError(f"{table.at(0)}: no {what} column named {column!r} in the header "
-                             f"(columns: {_names(header)})")
+                             f"(columns: {shown_names(header)})")
     return lowered.index(column.lower())
 
 
 def _label(header: list[str] | None, index: int, what: str) -> str:
     """How a message names a column: by its header name when short, else by its index."""
-    if header is not None and index < len(header) and header[index] and _showable(header[index]):
+    if header is not None and index < len(header) and header[index] and showable(header[index]):
         return f"{what} column {header[index]!r}"
     return f"{what} column {index}"
 
@@ -522,7 +458,7 @@ def _columns(table: _Table, header: list[str] | None, strain_column: int | str |
     if x_col == y_col:
         where = table.at(0) if header is not None else str(table.path)
         named = header is not None and x_col < len(header)
-        column = f"{_shown(header[x_col], 'name')} (index {x_col})" if named else f"{x_col}"
+        column = f"{shown(header[x_col], 'name')} (index {x_col})" if named else f"{x_col}"
         raise CurveFileError(
             f"{where}: strain and stress would both be read from column {column}; they must be "
             "different columns: give --strain-column and --stress-column (strain_column= and "
@@ -557,19 +493,19 @@ def _decimal(table: _Table, data: list[int], columns: list[tuple[int, str]], giv
 
 def _why_not_a_value(text: str, value: float, decimal: str) -> str:
     """Why a field is not a usable strain or stress (NaN ``value``: not a number)."""
-    shown = _shown(text)
+    quoted = shown(text)
     word = text.lstrip("+-").lower()
     if not text:
         return "empty; expected a number such as 0.012 or 1.2e-2"
     if math.isnan(value):
         if word == "nan":
-            return f"{shown} is not a finite number (NaN)"
+            return f"{quoted} is not a finite number (NaN)"
         hint = ("; a decimal comma? every value must use the same decimal mark (decimal=',', "
                 "--decimal ,)") if decimal == "." and "," in text else ""
-        return f"{shown} is not a number (expected e.g. 0.012 or 1.2e-2{hint})"
+        return f"{quoted} is not a number (expected e.g. 0.012 or 1.2e-2{hint})"
     if math.isinf(value) and word in ("inf", "infinity"):
-        return f"{shown} is not a finite number"
-    return (f"{shown} is out of range: a strain or a stress [MPa] has a magnitude of at most "
+        return f"{quoted} is not a finite number"
+    return (f"{quoted} is out of range: a strain or a stress [MPa] has a magnitude of at most "
             f"{MAX_MAGNITUDE:g}")
 
 
