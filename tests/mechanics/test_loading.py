@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from espin.core.config import load_config
-from espin.core.errors import ConfigError
+from espin.core.errors import ConfigError, InputError
 from espin.mechanics.loading import load_program
 
 
@@ -81,18 +81,18 @@ def test_path_table(tmp_path):
 @pytest.mark.parametrize(
     "content, message",
     [
-        ("time_s,F11,F12,F21,F22\n0,1,0,0,1\n1,x,0,0,1\n", "line 3: not numeric"),
-        ("time_s,F11,F12,F21,F22\n0,1,0,0,1\n", "at least two data rows"),
+        ("time_s,F11,F12,F21,F22\n0,1,0,0,1\n1,x,0,0,1\n", r"line 3, column 2 \(F11\): not a number"),
+        ("time_s,F11,F12,F21,F22\n0,1,0,0,1\n", "1 data row\\(s\\); a table needs at least 2"),
         ("time_s,F11\n0,1\n1,2\n", "lacks column"),
-        ("time_s,F11,F12,F21,F22\n0,1,0,0,1\n0,1,0,0,1\n", "increase strictly"),
-        ("time_s,F11,F12,F21,F22\n0,1,0,0,1\n1,1,0,0,nan\n", "line 3: NaN"),
-        ("time_s,F11,F12,F21,F22\n0,1,0,0,1\n1,-1,0,0,1\n", "det F > 0"),
+        ("time_s,F11,F12,F21,F22\n0,1,0,0,1\n0,1,0,0,1\n", "line 3, column 1 .*increase strictly"),
+        ("time_s,F11,F12,F21,F22\n0,1,0,0,1\n1,1,0,0,nan\n", r"line 3, column 5 \(F22\): NaN"),
+        ("time_s,F11,F12,F21,F22\n0,1,0,0,1\n1,-1,0,0,1\n", "line 3: det F = -1; every F must have det F > 0"),
     ],
 )
 def test_bad_tables_name_the_key_and_line(tmp_path, content, message):
     csv = tmp_path / "path.csv"
     csv.write_text(content)
-    with pytest.raises(ConfigError, match=message) as err:
+    with pytest.raises(InputError, match=message) as err:
         _program(test="path", path_csv=str(csv))
     assert "loading.path_csv" in str(err.value)
 

@@ -10,12 +10,33 @@ the conjugate stress components P : G_k = 0 as extra equations.
 The load parameter s is the engineering strain F'11 - 1 for ``uniaxial``, lambda - 1 for
 ``equibiaxial`` (F = lambda I) and ``pure_shear`` (F' = diag(lambda, 1 / lambda)), the
 shear gamma for ``simple_shear`` (F' = [[1, gamma], [0, 1]]), and the time for ``path``.
+
+Tables
+------
+``loading.path_csv`` (columns ``time_s, F11, F12, F21, F22``; time in s) and
+``loading.lateral.transverse_csv`` (columns ``axial_strain, transverse_strain``, engineering
+strains) are CSV text: a header line naming the columns (in any order; other columns are
+ignored), then one row of numbers per line, ``.`` as the decimal mark. Blank lines, empty rows
+(``,,,``) and lines starting with ``#`` are ignored. Text may be UTF-8 (with or without a
+byte-order mark), UTF-16 with a byte-order mark, or Latin-1. Every value must be finite and of
+magnitude at most :data:`MAX_TABLE_MAGNITUDE`; the first column (time, axial strain) must
+increase strictly from row to row; a table needs at least 2 rows and at most
+:data:`MAX_TABLE_ROWS`, a file at most :data:`MAX_TABLE_BYTES`, a line at most
+:data:`MAX_TABLE_LINE_CHARS`; directories, devices and pipes are refused. Every F of a path
+must have det F > 0.
+
+A file that does not exist is a bad config value (:class:`~espin.core.errors.ConfigError`,
+as for every file a config references); a file that exists but cannot be used as a table is
+bad input data (:class:`~espin.core.errors.InputError`), its message naming the config key,
+the file, the line and column and the columns expected, and never echoing the file's contents
+(at most a header name of 20 printable characters).
 """
 
 from __future__ import annotations
 
 import csv
 import math
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,8 +50,26 @@ from espin.core.config import (
     TransverseCSVLateral,
 )
 from espin.core.errors import ConfigError
+from espin.core.textfiles import TextFormat, read_text, shown_names, text_lines
 
-__all__ = ["LoadProgram", "load_program", "read_table"]
+__all__ = ["LoadProgram", "load_program", "read_table", "MAX_TABLE_BYTES", "MAX_TABLE_ROWS",
+           "MAX_TABLE_LINE_CHARS", "MAX_TABLE_MAGNITUDE"]
+
+MAX_TABLE_BYTES = 16 * 2**20
+"""Largest loading table read [bytes]: 16 MiB. 10^5 rows of five numbers take a few MB."""
+
+MAX_TABLE_ROWS = 100_000
+"""Most rows in a loading table: a path of 10^5 steps (one per row) would run for days."""
+
+MAX_TABLE_LINE_CHARS = 4096
+"""Longest line of a loading table [characters]; a row is a few numbers."""
+
+MAX_TABLE_MAGNITUDE = 1e12
+"""Largest magnitude of a value in a loading table (time [s], F, strain); beyond it a value is
+no load."""
+
+_PATH_COLUMNS = ("time_s", "F11", "F12", "F21", "F22")
+_TRANSVERSE_COLUMNS = ("axial_strain", "transverse_strain")
 
 _E12 = np.array([[0.0, 1.0], [0.0, 0.0]])
 _E22 = np.array([[0.0, 0.0], [0.0, 1.0]])
@@ -41,40 +80,165 @@ def _rotation(direction_deg: float) -> np.ndarray:
     return np.array([[c, -s], [s, c]])
 
 
-def read_table(path: Path, columns: list[str], key: str) -> np.ndarray:
-    """Read named numeric columns of a CSV file (header line required).
+def _missing(path: Path) -> bool:
+    """Whether nothing exists at ``path`` (other failures to look are the reader's to report)."""
+    try:
+        path.stat()
+    except FileNotFoundError:
+        return True
+    except (OSError, ValueError):  # no permission, a NUL in the path: reported by the reader
+        pass
+    return False
+
+
+def _table_format(key: str, columns: Sequence[str]) -> TextFormat:
+    """What a loading table named by config ``key`` with ``columns`` is, for its checks."""
+    return TextFormat(
+        what="loading table", max_bytes=MAX_TABLE_BYTES, max_line_chars=MAX_TABLE_LINE_CHARS, key=key,
+        expected=(f"expected a CSV table: a header line naming the columns {', '.join(columns)}, then "
+                  "one row of numbers per line (UTF-8, UTF-16 with byte-order mark or Latin-1 text)"),
+        size_hint="10^5 rows of five numbers take a few MB; is this the table?",
+        line_hint="a row is a few numbers; is this the table?",
+    )
+
+
+def _fields(path: Path, fmt: TextFormat, number: int, line: str) -> list[str]:
+    """The comma-separated fields of one line, stripped (quotes allowed within the line)."""
+    try:
+        return [field.strip() for field in next(csv.reader([line], strict=True))]
+    except csv.Error:
+        raise fmt.fail(path, f"not a line of CSV (a misplaced '\"'); {fmt.expected}", number) from None
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _header(path: Path, fmt: TextFormat, lines: Iterator[tuple[int, str]],
+            columns: Sequence[str]) -> list[int]:
+    """0-based index of each of ``columns`` in the header, the first kept line."""
+    number, line = next(lines, (None, ""))
+    if number is None:
+        raise fmt.fail(path, f"no header and no data (empty, or only blank and # lines); {fmt.expected}")
+    names = _fields(path, fmt, number, line)
+    missing = [name for name in columns if name not in names]
+    if missing:
+        found = ("it holds numbers, not column names" if all(map(_is_number, names))
+                 else f"its columns are {shown_names(names)}")
+        raise fmt.fail(path, f"the header lacks column(s) {', '.join(missing)} ({found}); {fmt.expected}",
+                       number)
+    repeated = next((name for name in columns if names.count(name) > 1), None)
+    if repeated is not None:
+        raise fmt.fail(path, f"the header names column {repeated} {names.count(repeated)} times; "
+                             "which one to read is unclear", number)
+    return [names.index(name) for name in columns]
+
+
+def _value(path: Path, fmt: TextFormat, number: int, fields: list[str], index: int, name: str) -> float:
+    """The number in field ``index`` (0-based) of a data line, column ``name``."""
+    if index >= len(fields):
+        raise fmt.fail(path, f"{len(fields)} field(s), but the header puts {name} in column {index + 1}; "
+                             f"{fmt.expected}", number)
+    column = f"column {index + 1} ({name})"
+    text = fields[index]
+    if not text:
+        raise fmt.fail(path, "empty; expected a number such as 0.05 or 5e-2", number, column)
+    try:
+        value = float(text)
+    except ValueError:
+        raise fmt.fail(path, "not a number; expected a number such as 0.05 or 5e-2 ('.' as the "
+                             "decimal mark)", number, column) from None
+    if not abs(value) <= MAX_TABLE_MAGNITUDE:
+        kind = "NaN" if math.isnan(value) else "infinite" if math.isinf(value) else f"{value:.3g}"
+        raise fmt.fail(path, f"{kind}; expected a finite number of magnitude at most "
+                             f"{MAX_TABLE_MAGNITUDE:g}", number, column)
+    return value
+
+
+def _rows(path: Path, fmt: TextFormat, lines: Iterator[tuple[int, str]], index: list[int],
+          columns: Sequence[str]) -> tuple[list[int], list[list[float]]]:
+    """Line numbers and values of the data rows (empty rows such as ``,,,`` skipped)."""
+    numbers: list[int] = []
+    rows: list[list[float]] = []
+    for number, line in lines:
+        fields = _fields(path, fmt, number, line)
+        if not any(fields):
+            continue
+        if len(rows) == MAX_TABLE_ROWS:
+            raise fmt.fail(path, f"more than {MAX_TABLE_ROWS:,} data rows, the limit for a {fmt.what} "
+                                 "(a path has one step per row): thin it out", number)
+        rows.append([_value(path, fmt, number, fields, i, name) for i, name in zip(index, columns)])
+        numbers.append(number)
+    return numbers, rows
+
+
+def _check_increasing(path: Path, fmt: TextFormat, numbers: list[int], values: np.ndarray, index: int,
+                      name: str) -> None:
+    """The first column increases strictly from row to row."""
+    falls = np.flatnonzero(np.diff(values) <= 0.0)
+    if falls.size:
+        k = int(falls[0])
+        raise fmt.fail(path, f"{values[k + 1]:.6g} does not increase from {values[k]:.6g} on line "
+                             f"{numbers[k]}; {name} must increase strictly (cut repeated or "
+                             "decreasing rows)", numbers[k + 1], f"column {index + 1} ({name})")
+
+
+def read_table(path: Path, columns: Sequence[str], key: str) -> tuple[np.ndarray, np.ndarray]:
+    """Read named numeric columns of a loading table (format in the module docs).
+
+    Parameters
+    ----------
+    path
+        The CSV file.
+    columns
+        Names of the columns to read, in the header; the first (time [s], axial strain) must
+        increase strictly.
+    key
+        The config key naming the file, for messages (``loading.path_csv``).
+
+    Returns
+    -------
+    values : (n, len(columns)) float64
+        The columns' values, n >= 2 rows, in the units of the columns.
+    lines : (n,) int64
+        The 1-based line of the file each row comes from.
 
     Raises
     ------
     ConfigError
-        Naming the config ``key``, the file, and the offending line.
+        If ``path`` does not exist (naming ``key`` and the path).
+    InputError
+        If the file is not a regular file, is over a limit, is not text, or its header lacks a
+        column, a value is missing, not a number, not finite or out of range, the first column
+        does not increase, or it has fewer than 2 rows: naming ``key``, the file, the line and
+        column and the columns expected, never echoing its contents.
     """
-    try:
-        with open(path, newline="") as fh:
-            rows = list(csv.reader(fh))
-    except OSError as err:
-        raise ConfigError(f"{key}: cannot read {path}: {err}") from None
-    if not rows:
-        raise ConfigError(f"{key}: {path} is empty")
-    header = [h.strip() for h in rows[0]]
-    missing = [c for c in columns if c not in header]
-    if missing:
-        raise ConfigError(f"{key}: {path} lacks column(s) {missing}; it has {header}")
-    index = [header.index(c) for c in columns]
-    out = []
-    for number, row in enumerate(rows[1:], start=2):
-        if not any(cell.strip() for cell in row):
-            continue
-        try:
-            values = [float(row[i]) for i in index]
-        except (ValueError, IndexError):
-            raise ConfigError(f"{key}: {path} line {number}: not numeric: {row}") from None
-        if not all(math.isfinite(v) for v in values):
-            raise ConfigError(f"{key}: {path} line {number}: NaN or infinite value")
-        out.append(values)
-    if len(out) < 2:
-        raise ConfigError(f"{key}: {path} needs at least two data rows")
-    return np.array(out)
+    if _missing(path):
+        raise ConfigError(f"{key}: the file it references does not exist: {path}")
+    fmt = _table_format(key, columns)
+    lines = text_lines(path, read_text(path, fmt), fmt)
+    index = _header(path, fmt, lines, columns)
+    numbers, rows = _rows(path, fmt, lines, index, columns)
+    if len(rows) < 2:
+        raise fmt.fail(path, f"{len(rows)} data row(s); a table needs at least 2; {fmt.expected}")
+    values = np.array(rows, dtype=float)
+    _check_increasing(path, fmt, numbers, values[:, 0], index[0], columns[0])
+    return values, np.array(numbers, dtype=np.int64)
+
+
+def _check_path_determinants(path: Path, F: np.ndarray, lines: np.ndarray) -> None:
+    """Every F of a path table has det F > 0 (the error names the first row that has not)."""
+    det = np.linalg.det(F)
+    bad = np.flatnonzero(~(det > 0.0))
+    if bad.size:
+        k = int(bad[0])
+        fmt = _table_format("loading.path_csv", _PATH_COLUMNS)
+        raise fmt.fail(path, f"det F = {det[k]:.3g}; every F must have det F > 0 (no material is "
+                             "turned inside out)", int(lines[k]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -163,12 +327,8 @@ def load_program(loading: LoadingConfig) -> LoadProgram:
     """
     R = _rotation(loading.direction_deg)
     if loading.test == "path":
-        table = read_table(loading.path_csv, ["time_s", "F11", "F12", "F21", "F22"], "loading.path_csv")
-        if np.any(np.diff(table[:, 0]) <= 0):
-            raise ConfigError("loading.path_csv: time_s must increase strictly")
-        F = table[:, 1:].reshape(-1, 2, 2)
-        if np.any(np.linalg.det(F) <= 0):
-            raise ConfigError("loading.path_csv: every F must have det F > 0")
+        table, lines = read_table(loading.path_csv, _PATH_COLUMNS, "loading.path_csv")
+        _check_path_determinants(loading.path_csv, table[:, 1:].reshape(-1, 2, 2), lines)
         n = len(table) - 1
         return LoadProgram(
             time=table[:, 0] - table[0, 0], strain=table[:, 0] - table[0, 0],
@@ -197,10 +357,8 @@ def load_program(loading: LoadingConfig) -> LoadProgram:
         elif isinstance(loading.lateral, PoissonLateral):
             lateral = ("poisson", loading.lateral.poisson_ratio)
         elif isinstance(loading.lateral, TransverseCSVLateral):
-            table = read_table(loading.lateral.transverse_csv, ["axial_strain", "transverse_strain"],
-                               "loading.lateral.transverse_csv")
-            if np.any(np.diff(table[:, 0]) <= 0):
-                raise ConfigError("loading.lateral.transverse_csv: axial_strain must increase strictly")
+            table, _ = read_table(loading.lateral.transverse_csv, _TRANSVERSE_COLUMNS,
+                                  "loading.lateral.transverse_csv")
             lateral = ("csv", table)
     strains_arr = np.array(strains)
     if loading.test in ("equibiaxial", "pure_shear", "uniaxial") and strains_arr.min() <= -1.0:
