@@ -31,7 +31,7 @@ from pydantic import (
     model_validator,
 )
 
-from espin.core.errors import ConfigError
+from espin.core.errors import ConfigError, InputError
 
 __all__ = [
     "Config",
@@ -626,6 +626,8 @@ def config_digest(config: Config, cache: dict[Path, str] | None = None) -> str:
     ConfigError
         If a referenced file is missing or unreadable (naming the key and the path, never the
         file's contents).
+    InputError
+        If it is not a regular file (a folder, a pipe, a device).
     """
     cache = {} if cache is None else cache
     text = config_to_toml(config)
@@ -637,7 +639,10 @@ def config_digest(config: Config, cache: dict[Path, str] | None = None) -> str:
 
 
 def _file_digest(name: str, path: Path) -> str:
-    """SHA-256 of a referenced file's bytes."""
+    """SHA-256 of a referenced file's bytes (only a regular file is opened: a pipe or a
+    device would block or never end)."""
+    if path.exists() and not path.is_file():
+        raise InputError(f"{name}: {path} is not a regular file (a CSV table is expected)")
     try:
         with open(path, "rb") as fh:
             return hashlib.file_digest(fh, "sha256").hexdigest()
