@@ -13,10 +13,11 @@ per unit area for isotropic fibers) and between adjacent layers (2 rho^2 / pi); 
 fibers cross the most for a given length, so this is an upper bound for aligned mats. Each
 cross-link becomes a node of two DOF (merging makes a few fewer).
 
-Memory is the peak resident size of a tensile test, measured (``benchmarks/bench_memory.py``)
-at 3.9-4.1 kB per DOF above about 110 MiB for Python and the libraries (PARDISO, 4.7k to 241k
-DOF), plus the deposition's arrays per segment. The estimate is meant to be within 2x of the
-measured peak, erring high.
+Memory is the peak resident size of ``espin simulate`` (default program, figures and VTK
+written), measured with ``benchmarks/bench_memory.py``: about 200 MiB for Python, the
+libraries and the figures, then 3.9-4.1 kB per DOF (PARDISO, 4.7k to 241k DOF), plus the
+deposition's arrays per segment. The estimate is 1.1-1.4 times the measured peak on that
+benchmark's mats (docs/performance.md): within 2x, erring high.
 """
 
 from __future__ import annotations
@@ -29,8 +30,8 @@ from espin.core.errors import ConfigError
 
 __all__ = ["SizeEstimate", "estimate_size", "check_size", "available_memory", "MIN_FIBERS_PER_LAYER"]
 
-BASE_BYTES = 128 * 2**20
-"""Python, numpy, scipy, the solver and espin imported [bytes]."""
+BASE_BYTES = 200 * 2**20
+"""Python, numpy, scipy, matplotlib, the solver and espin imported [bytes]."""
 BYTES_PER_DOF = 4.5e3
 """Peak memory per degree of freedom of a tensile test [bytes] (measured 3.9-4.1 kB)."""
 BYTES_PER_SEGMENT = 2.0e3
