@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -40,3 +42,20 @@ def small_rve():
     import espin.geometry.rve
 
     return espin.geometry.rve.generate("plla", rve__size_ratio=40, rve__layers=3)
+
+
+def write_case_file(path: Path, contents: object) -> Path:
+    """A bad-input case's file at ``path``: ``contents`` is text, bytes, a writer called with
+    the path, a fixed path such as ``/dev/zero`` (the case is skipped where it does not
+    exist), or None (nothing written)."""
+    if isinstance(contents, Path):
+        if not contents.exists():
+            pytest.skip(f"no {contents} on this platform")
+        return contents
+    if isinstance(contents, str):
+        path.write_text(contents, encoding="utf-8")
+    elif isinstance(contents, bytes):
+        path.write_bytes(contents)
+    elif contents is not None:
+        contents(path)
+    return path

@@ -11,10 +11,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import write_case_file
 from typer.testing import CliRunner
 
 from espin.analysis import experiments
-from espin.analysis.experiments import Curve, CurveFileError, CurveWarning, average_curves, read_curve
+from espin.analysis.experiments import (
+    Curve,
+    CurveFileError,
+    CurveWarning,
+    average_curves,
+    read_curve,
+)
 from espin.core.errors import ConfigError, InputError
 
 PNG = b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00\x00\x10"
@@ -100,27 +107,12 @@ BAD = [
 ]
 
 
-def _write(path: Path, contents: object) -> Path:
-    """The case's file at ``path`` (``contents``: text, bytes, a writer, a fixed path, or None)."""
-    if isinstance(contents, Path):
-        if not contents.exists():
-            pytest.skip(f"no {contents} on this platform")
-        return contents
-    if isinstance(contents, str):
-        path.write_text(contents, encoding="utf-8")
-    elif isinstance(contents, bytes):
-        path.write_bytes(contents)
-    elif contents is not None:
-        contents(path)
-    return path
-
-
 @pytest.mark.parametrize(("contents", "options", "limits", "error", "message"),
                          [case[1:] for case in BAD], ids=[case[0] for case in BAD])
 def test_bad_curve_is_a_clear_error(tmp_path, monkeypatch, contents, options, limits, error, message):
     for name, value in limits.items():
         monkeypatch.setattr(experiments, name, value)
-    path = _write(tmp_path / "specimen_7.csv", contents)
+    path = write_case_file(tmp_path / "specimen_7.csv", contents)
     with pytest.raises(error, match=message) as info:
         read_curve(path, **options)
     text = str(info.value)

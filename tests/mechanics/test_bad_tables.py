@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import write_case_file
 from typer.testing import CliRunner
 
 from espin.core.config import load_config
@@ -101,20 +102,6 @@ BAD: list[tuple[str, Maker, dict, str]] = [
 ]
 
 
-def _write(path: Path, contents: object) -> Path:
-    if isinstance(contents, Path):
-        if not contents.exists():
-            pytest.skip(f"no {contents} on this platform")
-        return contents
-    if isinstance(contents, str):
-        path.write_text(contents, encoding="utf-8")
-    elif isinstance(contents, bytes):
-        path.write_bytes(contents)
-    else:
-        contents(path)
-    return path
-
-
 @pytest.mark.parametrize("key", list(TABLES))
 @pytest.mark.parametrize(("make", "limits", "message"), [case[1:] for case in BAD], ids=[case[0] for case in BAD])
 def test_bad_table_is_a_clear_input_error(tmp_path, monkeypatch, key, make, limits, message):
@@ -122,7 +109,7 @@ def test_bad_table_is_a_clear_input_error(tmp_path, monkeypatch, key, make, limi
         monkeypatch.setattr(loading, name, value)
     columns, rows, _ = TABLES[key]
     contents = make(columns, rows)
-    path = _write(tmp_path / "table.csv", contents)
+    path = write_case_file(tmp_path / "table.csv", contents)
     with pytest.raises(InputError, match=message) as info:
         _program(key, path)
     text = str(info.value)

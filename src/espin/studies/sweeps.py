@@ -102,7 +102,8 @@ def rve_size_study(
         one (:func:`espin.core.cluster.tls_security`).
     overwrite
         Replace another run's results in ``folder`` instead of refusing; a folder of the
-        same study (same base config) is resumed without it.
+        same kind of study is resumed without it (finished tasks, keyed by their whole
+        config, are reused).
 
     Returns
     -------
@@ -180,7 +181,8 @@ def sweep(
         one (:func:`espin.core.cluster.tls_security`).
     overwrite
         Replace another run's results in ``folder`` instead of refusing; a folder of the
-        same study (same base config) is resumed without it.
+        same kind of study is resumed without it (finished tasks, keyed by their whole
+        config, are reused).
 
     Returns
     -------
