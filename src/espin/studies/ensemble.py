@@ -17,20 +17,18 @@ left behind; two runs in one folder at the same time are not supported.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import logging
 import math
 import re
 import time
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
-from pydantic import BaseModel
 
 from espin.core.atomic import atomic_write, atomic_write_bytes
 from espin.core.config import Config, config_digest
