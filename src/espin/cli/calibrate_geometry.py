@@ -7,13 +7,39 @@ inside the command, so ``espin --help`` stays fast.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import typer
 
 from espin.cli.common import fail
 
+if TYPE_CHECKING:  # pragma: no cover
+    from espin.core.config import Config
+
 __all__ = ["register"]
+
+
+def _inputs_digest(base: Config, measured: Path | None, options: list[Any]) -> str:
+    """SHA-256 of what a calibration starts from: the base config (and its files), the bytes of
+    the measured files (a measure folder's fibers.csv and measurement.toml, or the table) and the
+    typed-in targets and options."""
+    import hashlib
+
+    from espin.core.config import config_digest
+
+    digest = hashlib.sha256(config_digest(base).encode())
+    if measured is None:
+        files = []
+    elif measured.is_dir():
+        files = [measured / "fibers.csv", measured / "measurement.toml"]
+    else:
+        files = [measured]
+    for path in files:
+        digest.update(f"\n{path}: ".encode())
+        with open(path, "rb") as fh:
+            digest.update(hashlib.file_digest(fh, "sha256").digest())
+    digest.update(repr(options).encode())
+    return digest.hexdigest()
 
 
 def calibrate_geometry_command(
@@ -72,8 +98,15 @@ def calibrate_geometry_command(
                                                 "calibrated config, with the report beside it as "
                                                 "<name>.calibration.json; any other path is a "
                                                 "folder (created if needed) that gets config.toml, "
-                                                "calibration.json and calibration.txt.")
+                                                "calibration.json, calibration.txt and run.json. "
+                                                "Existing files are refused without --overwrite.")
     ] = Path("calibrated.toml"),
+    overwrite: Annotated[
+        bool,
+        typer.Option("--overwrite", help="Replace the files of another run: an existing -o .toml and "
+                     "its .calibration.json, or another run's results in the -o folder (removed "
+                     "first); without it they are refused."),
+    ] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or table.")] = False,
 ) -> None:
     """Find deposition parameters whose mat, measured in the same window, matches measured
@@ -82,8 +115,10 @@ def calibrate_geometry_command(
     from rich.console import Console
 
     from espin.core.errors import ConfigError, EspinError
+    from espin.geometry.rve import resolve_config
     from espin.geometry.targets import GeometryTargets, MeasurementError
     from espin.imaging.geometry_calibration import MECHANICS_NOTE, calibrate_geometry
+    from espin.imaging.geometry_calibration.result import claim_output
 
     console = Console(stderr=True, quiet=quiet)
     try:
@@ -102,14 +137,18 @@ def calibrate_geometry_command(
             targets = measured_targets.with_typed(**typed) if measured_targets else GeometryTargets(**typed)
         except MeasurementError as err:
             raise ConfigError(str(err)) from None
-        with console.status("calibrating the deposition") as status:
+        base_config = resolve_config(base)
+        options = [typed, fit, segment_ratio, max_deviation_deg, window_um, correct_orientation, seeds]
+        digest = _inputs_digest(base_config, measured, options)
+        with claim_output(out, digest, overwrite=overwrite), \
+                console.status("calibrating the deposition") as status:
             result = calibrate_geometry(
-                targets, base, fit=fit, segment_ratio=segment_ratio,
+                targets, base_config, fit=fit, segment_ratio=segment_ratio,
                 max_deviation_deg=max_deviation_deg, window_um=window_um,
                 correct_orientation=correct_orientation, seeds=seeds,
                 progress=lambda message: status.update(f"calibrating: {message}"),
             )
-        files = result.write(out)
+            files = result.write_files(out)
     except EspinError as err:
         fail(err)
     console.print(result.format_table(), highlight=False, soft_wrap=True)

@@ -11,7 +11,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from espin.cli.common import fail
+from espin.cli.common import OverwriteOpt, fail
 
 __all__ = ["register"]
 
@@ -53,30 +53,35 @@ def measure(
         Optional[Path], typer.Option("--out", "-o", help="Output folder. Default: <image>_measure.")
     ] = None,
     figures: Annotated[bool, typer.Option(help="Write histograms.png and overlay.png.")] = True,
+    overwrite: OverwriteOpt = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No table.")] = False,
 ) -> None:
     """Measure fiber diameters, orientation and tortuosity on an SEM image.
 
     Writes fibers.csv (one row per traced fiber), measurement.toml (scale, field of view,
-    counts, fitted distributions), histograms.png and overlay.png.
+    counts, fitted distributions), histograms.png and overlay.png, and run.json.
     """
     from rich.console import Console
     from rich.table import Table
 
     from espin.core.errors import EspinError
+    from espin.core.output_folder import OutputFolder
+    from espin.imaging.measurement import MEASURE_OUTPUTS, measurement_digest
     from espin.imaging.measurement import measure as measure_image
 
     console = Console(stderr=True, quiet=quiet)
     folder = out if out is not None else Path(f"{image.stem}_measure")
+    options = {
+        "um_per_px": um_per_px, "scale_bar_um": scale_bar_um, "scale_bar_rows": scale_bar_rows,
+        "crop_rows": crop_rows, "crop_bottom_px": crop_bottom_px, "width_px": width_px,
+        "max_bend_deg": max_bend_deg, "min_length_diameters": min_length_diameters,
+    }
     try:
-        with console.status(f"measuring {image.name}"):
-            result = measure_image(
-                image, um_per_px=um_per_px, scale_bar_um=scale_bar_um,
-                scale_bar_rows=scale_bar_rows, crop_rows=crop_rows,
-                crop_bottom_px=crop_bottom_px, width_px=width_px, max_bend_deg=max_bend_deg,
-                min_length_diameters=min_length_diameters,
-            )
-            files = result.write(folder, figures=figures)
+        digest = measurement_digest(image, **options)  # checks the options and the file first
+        with OutputFolder.claim(folder, "measure", digest, MEASURE_OUTPUTS, overwrite=overwrite), \
+                console.status(f"measuring {image.name}"):
+            result = measure_image(image, **options)
+            files = result.write_files(folder, figures=figures)
     except EspinError as err:
         fail(err)
     table = Table(title=f"{image.name}", show_header=False)

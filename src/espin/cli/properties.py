@@ -6,15 +6,17 @@ command, so ``espin --help`` stays fast.
 
 from __future__ import annotations
 
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Optional
+from typing import TYPE_CHECKING, Annotated, Any, Optional
 
 import typer
 
 from espin.cli.common import (
     DecimalOpt,
     DelimiterOpt,
+    OverwriteOpt,
     PercentStrainOpt,
     SkipRowsOpt,
     StrainColumnOpt,
@@ -29,6 +31,9 @@ if TYPE_CHECKING:  # pragma: no cover
     from espin.analysis.properties import CurveProperties
 
 __all__ = ["register"]
+
+PROPERTIES_OUTPUTS = ("properties.csv", "average_curve.csv", "properties.png")
+"""The files the command writes into its ``--out`` folder."""
 
 
 def _strain_range(text: str | None, percent: bool) -> tuple[float | None, float | None] | None:
@@ -183,6 +188,33 @@ def _write_outputs(analysis: _Analysis, folder: Path) -> list[Path]:
     return written
 
 
+def _inputs_digest(paths: list[Path], options: list[Any]) -> str:
+    """SHA-256 of what the command starts from: the bytes of every curve file, in order, and the
+    options."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for path in paths:
+        digest.update(f"\n{path}: ".encode())
+        with open(path, "rb") as fh:
+            digest.update(hashlib.file_digest(fh, "sha256").digest())
+    digest.update(repr(options).encode())
+    return digest.hexdigest()
+
+
+def _claim(out: Path | None, paths: list[Path], options: list[Any], overwrite: bool) -> AbstractContextManager:
+    """The ``--out`` folder claimed for this run (:mod:`espin.core.output_folder`); nothing
+    without ``--out``."""
+    from contextlib import nullcontext
+
+    from espin.core.output_folder import OutputFolder
+
+    if out is None:
+        return nullcontext()
+    return OutputFolder.claim(out, "properties", _inputs_digest(paths, options), PROPERTIES_OUTPUTS,
+                              overwrite=overwrite)
+
+
 def register(app: typer.Typer) -> None:
     """Add the ``properties`` command to ``app``."""
 
@@ -209,8 +241,10 @@ def register(app: typer.Typer) -> None:
         out: Annotated[
             Optional[Path],
             typer.Option("--out", "-o", help="Folder for properties.csv, the averaged curve "
-                                             "(average_curve.csv, 2+ curves) and properties.png."),
+                                             "(average_curve.csv, 2+ curves), properties.png "
+                                             "and run.json."),
         ] = None,
+        overwrite: OverwriteOpt = False,
     ) -> None:
         """Elastic modulus, yield and post-yield modulus of curves by a bilinear fit (docs/model.md section 7).
 
@@ -228,8 +262,10 @@ def register(app: typer.Typer) -> None:
                                    decimal)
             fit_range = _strain_range(strain_range, percent_strain)
             with curve_warnings():
-                analysis = _analyse([read_curve(path, **options) for path in curves], fit_range)
-            written = [] if out is None else _write_outputs(analysis, out)
+                read = [read_curve(path, **options) for path in curves]
+                with _claim(out, curves, [options, fit_range], overwrite):  # after the inputs are read
+                    analysis = _analyse(read, fit_range)
+                    written = [] if out is None else _write_outputs(analysis, out)
         except EspinError as err:
             fail(err)
         table = Table(*_HEADER, title="bilinear fit: E = initial slope, yield = intersection of the lines")

@@ -11,6 +11,7 @@ end-to-end length, orientation of the end-to-end line) -> fitted distributions
 
 from __future__ import annotations
 
+import hashlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from espin.core.errors import ConfigError, SEMError
+from espin.core.output_folder import OutputFolder
 from espin.geometry.fibers_csv import FIBER_COLUMNS, write_fibers_csv
 from espin.imaging.distributions import FittedDistributions, fit_distributions
 from espin.imaging.image import as_grey, parse_rows, read_image, row_slice
@@ -29,10 +31,12 @@ from espin.imaging.segment import MIN_WIDTH_PX, segment_fibers
 from espin.imaging.trace import trace_fibers
 from espin.imaging.widths import WidthSamples, fiber_diameters, local_widths
 
-__all__ = ["SEMMeasurement", "measure", "SCHEMA"]
+__all__ = ["SEMMeasurement", "measure", "measurement_digest", "SCHEMA", "MEASURE_OUTPUTS"]
 
 SCHEMA = "espin.sem.measurement/1"
 """Schema of ``measurement.toml``."""
+MEASURE_OUTPUTS = ("fibers.csv", "measurement.toml", "histograms.png", "overlay.png")
+"""The files a measurement writes into its folder (glob patterns relative to it)."""
 
 Rows = tuple[int, int] | str
 
@@ -81,6 +85,8 @@ class SEMMeasurement:
         Its length as given.
     source : str
         The image file (or ``"array"``).
+    inputs_digest : str
+        :func:`measurement_digest` of the image and the options (recorded in ``run.json``).
     """
 
     fibers: pd.DataFrame
@@ -100,6 +106,7 @@ class SEMMeasurement:
     scale_bar: ScaleBar | None
     scale_bar_um: float | None
     source: str
+    inputs_digest: str
 
     def summary(self) -> dict[str, Any]:
         """The summary written to ``measurement.toml`` (units in the key names)."""
@@ -169,27 +176,41 @@ class SEMMeasurement:
                            "fibers across the image: espin calibrate-geometry)"),
         ]
 
-    def write(self, folder: str | Path, figures: bool = True) -> dict[str, Path]:
-        """Write ``fibers.csv``, ``measurement.toml`` and (optionally) the figures.
+    def write(self, folder: str | Path, figures: bool = True, *, overwrite: bool = False) -> dict[str, Path]:
+        """Write ``fibers.csv``, ``measurement.toml`` and (optionally) the figures, with the
+        folder's ``run.json`` manifest (:mod:`espin.core.output_folder`).
 
         Parameters
         ----------
         folder : str or Path
-            Output folder (created).
+            Output folder (created if needed).
         figures : bool
             Also write ``histograms.png`` and ``overlay.png``.
+        overwrite : bool
+            Replace another run's results in ``folder`` (its :data:`MEASURE_OUTPUTS` are
+            removed first) instead of refusing.
 
         Returns
         -------
         dict[str, Path]
             The files written, by kind.
+
+        Raises
+        ------
+        ConfigError
+            If ``folder`` holds another run's results and ``overwrite`` is False.
         """
+        with OutputFolder.claim(folder, "measure", self.inputs_digest, MEASURE_OUTPUTS, overwrite=overwrite):
+            return self.write_files(folder, figures)
+
+    def write_files(self, folder: str | Path, figures: bool = True) -> dict[str, Path]:
+        """Write the files of :meth:`write` into a folder the caller has claimed
+        (:class:`espin.core.output_folder.OutputFolder`)."""
         import tomli_w
 
         from espin.core.atomic import atomic_write_bytes
 
         folder = Path(folder)
-        folder.mkdir(parents=True, exist_ok=True)
         files = {"fibers": write_fibers_csv(self.fibers, folder / "fibers.csv"),
                  "summary": atomic_write_bytes(folder / "measurement.toml",
                                                tomli_w.dumps(_toml_ready(self.summary())).encode())}
@@ -250,8 +271,11 @@ def measure(
     SEMError
         The image is unreadable, the scale bar is not in the given rows, or there are no fibers.
     """
-    _check_options(um_per_px, scale_bar_um, scale_bar_rows, crop_rows, crop_bottom_px, width_px,
-                   max_bend_deg, min_length_diameters)
+    digest = measurement_digest(
+        image, um_per_px=um_per_px, scale_bar_um=scale_bar_um, scale_bar_rows=scale_bar_rows,
+        crop_rows=crop_rows, crop_bottom_px=crop_bottom_px, width_px=width_px,
+        max_bend_deg=max_bend_deg, min_length_diameters=min_length_diameters,
+    )
     bar_rows = parse_rows(scale_bar_rows, "scale_bar_rows") if scale_bar_rows is not None else None
     keep_rows = parse_rows(crop_rows, "crop_rows") if crop_rows is not None else None
     if isinstance(image, (str, Path)):
@@ -282,12 +306,55 @@ def measure(
     scale = float(um_per_px) if bar is None else float(scale_bar_um) / bar.length_px
     analysed = grey[crop_rows_slice]
     return _measure_grey(analysed, scale, width_px, max_bend_deg, min_length_diameters, bar,
-                         scale_bar_um, source, (crop_rows_slice.start, crop_rows_slice.stop))
+                         scale_bar_um, source, (crop_rows_slice.start, crop_rows_slice.stop), digest)
+
+
+def measurement_digest(image: str | Path | np.ndarray, **options: Any) -> str:
+    """SHA-256 (hex) of what a measurement starts from: the image file's bytes (or the array's
+    shape, type and values) and the options of :func:`measure`, which are checked first.
+
+    Parameters
+    ----------
+    image
+        The image file or array given to :func:`measure`.
+    **options
+        Every option of :func:`measure` (``um_per_px`` ... ``min_length_diameters``).
+
+    Raises
+    ------
+    ConfigError
+        An option is missing, contradictory or out of range.
+    SEMError
+        The image file does not exist or cannot be read.
+    """
+    _check_options(**options)
+    if isinstance(image, (str, Path)):
+        digest = hashlib.sha256(_file_digest(Path(image)))
+    else:
+        array = np.asarray(image)
+        digest = hashlib.sha256(f"{array.shape} {array.dtype}".encode())
+        digest.update(array.tobytes())
+    digest.update(repr(sorted(options.items())).encode())
+    return digest.hexdigest()
+
+
+def _file_digest(path: Path) -> bytes:
+    """SHA-256 of an image file's bytes, read in chunks."""
+    try:
+        with open(path, "rb") as fh:
+            return hashlib.file_digest(fh, "sha256").digest()
+    except FileNotFoundError:
+        raise SEMError(f"image {str(path)!r}: no such file") from None
+    except IsADirectoryError:
+        raise SEMError(f"image {str(path)!r} is a directory; expected an image file") from None
+    except OSError as err:
+        raise SEMError(f"image {str(path)!r} cannot be read: {err.strerror}") from None
 
 
 def _measure_grey(grey: np.ndarray, um_per_px: float, width_px: float | None,
                   max_bend_deg: float, min_length_diameters: float, bar: ScaleBar | None,
-                  scale_bar_um: float | None, source: str, rows: tuple[int, int]) -> SEMMeasurement:
+                  scale_bar_um: float | None, source: str, rows: tuple[int, int],
+                  inputs_digest: str) -> SEMMeasurement:
     seg = segment_fibers(grey, width_px)
     traced = trace_fibers(seg.mask, seg.width_px, max_bend_deg)
     crossings = np.concatenate([traced.junctions, traced.shared])
@@ -328,11 +395,12 @@ def _measure_grey(grey: np.ndarray, um_per_px: float, width_px: float | None,
         min_chord_um=min_chord_px * um_per_px, typical_width_px=typical, image=grey, rows=rows,
         paths_px=[paths[i] for i in kept], width_samples=samples, junctions_px=traced.junctions,
         scale_bar=bar, scale_bar_um=None if bar is None else float(scale_bar_um), source=source,
+        inputs_digest=inputs_digest,
     )
 
 
 def _check_options(um_per_px: float | None, scale_bar_um: float | None, scale_bar_rows: Any,
-                   crop_rows_: Any, crop_bottom_px: int | None, width_px: float | None,
+                   crop_rows: Any, crop_bottom_px: int | None, width_px: float | None,
                    max_bend_deg: float, min_length_diameters: float) -> None:
     """Every option error, before any work (ConfigError naming the parameter)."""
     if um_per_px is not None and not (_finite(um_per_px) and um_per_px > 0):
@@ -351,8 +419,8 @@ def _check_options(um_per_px: float | None, scale_bar_um: float | None, scale_ba
             raise ConfigError("scale_bar_um needs scale_bar_rows (START:STOP, the image rows "
                               "that hold the bar)")
         parse_rows(scale_bar_rows, "scale_bar_rows")
-    if crop_rows_ is not None:
-        parse_rows(crop_rows_, "crop_rows")
+    if crop_rows is not None:
+        parse_rows(crop_rows, "crop_rows")
         if crop_bottom_px is not None:
             raise ConfigError("give crop_rows or crop_bottom_px, not both")
     if crop_bottom_px is not None and (int(crop_bottom_px) != crop_bottom_px or crop_bottom_px < 0):

@@ -4,20 +4,23 @@ from __future__ import annotations
 
 import json
 import math
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import tomli_w
 
-from espin.core.config import Config
+from espin.core.config import Config, config_digest
 from espin.core.errors import ConfigError, RVEFileError
+from espin.core.output_folder import OutputFolder
 from espin.geometry.targets import GeometryTargets
 from espin.imaging.geometry_calibration.matching import DistributionMatch
 from espin.imaging.geometry_calibration.options import _written_data
 from espin.imaging.geometry_calibration.search import ValleyPoint
 
-__all__ = ["SCHEMA", "SCHEMA_VERSION", "MECHANICS_NOTE", "GeometryCalibration"]
+__all__ = ["SCHEMA", "SCHEMA_VERSION", "MECHANICS_NOTE", "CALIBRATION_OUTPUTS", "GeometryCalibration",
+           "output_files", "claim_output"]
 
 SCHEMA = "espin.geometry_calibration"
 SCHEMA_VERSION = 1
@@ -25,6 +28,8 @@ MECHANICS_NOTE = (
     "New deposition parameters change the network and so the mechanics: fit the fiber "
     "parameters again (espin fit) before using stresses of the calibrated mat."
 )
+CALIBRATION_OUTPUTS = ("config.toml", "calibration.json", "calibration.txt")
+"""The files a calibration writes into a folder."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,15 +140,18 @@ class GeometryCalibration:
         lines.append(f"note: {MECHANICS_NOTE}")
         return "\n".join(lines)
 
-    def write(self, path: str | Path) -> dict[str, Path]:
-        """Write the calibrated config and the report.
+    def write(self, path: str | Path, *, overwrite: bool = False) -> dict[str, Path]:
+        """Write the calibrated config and the report, never over another run's files.
 
         Parameters
         ----------
         path
             A ``.toml`` file: the config there and the report beside it as
             ``<stem>.calibration.json``. Any other path is a folder (created if needed):
-            ``config.toml``, ``calibration.json`` and ``calibration.txt`` in it.
+            ``config.toml``, ``calibration.json`` and ``calibration.txt`` in it, with its
+            ``run.json`` manifest (:mod:`espin.core.output_folder`).
+        overwrite
+            Replace existing files (another run's results in a folder) instead of refusing.
 
         Returns
         -------
@@ -153,29 +161,28 @@ class GeometryCalibration:
         Raises
         ------
         ConfigError
-            If the path is an existing file that is not a ``.toml`` (it would be a folder).
+            If the path is an existing file that is not a ``.toml`` (it would be a folder), or
+            holds results already and ``overwrite`` is False (:func:`claim_output`).
         RVEFileError
             If a file cannot be written.
         """
+        with claim_output(path, config_digest(self.config), overwrite=overwrite):
+            return self.write_files(path)
+
+    def write_files(self, path: str | Path) -> dict[str, Path]:
+        """Write the files of :meth:`write` where the caller has claimed (:func:`claim_output`).
+
+        Each file is written atomically; a ``.toml`` file's earlier report is removed before
+        the new config is written, so the two never disagree.
+        """
         from espin.core.atomic import atomic_write_bytes
 
-        path = Path(path)
-        if path.suffix == ".toml":
-            if path.is_dir():
-                raise ConfigError(f"{path} is a folder: give a .toml file or a folder name without .toml")
-            files = {"config": path, "report": path.with_name(f"{path.stem}.calibration.json")}
-        else:
-            if path.exists() and not path.is_dir():
-                raise ConfigError(
-                    f"{path} is an existing file: a path without .toml is a folder "
-                    "(config.toml, calibration.json, calibration.txt); give a .toml file or a folder"
-                )
-            files = {"config": path / "config.toml", "report": path / "calibration.json",
-                     "table": path / "calibration.txt"}
+        files = output_files(path)
         header = "".join(f"# {line}\n" for line in self._header_lines())
         text = header + tomli_w.dumps(_written_data(self.config))
         report = json.dumps(self.report, indent=2, allow_nan=False) + "\n"
         try:
+            files["report"].unlink(missing_ok=True)
             atomic_write_bytes(files["config"], text.encode("utf-8"))
             atomic_write_bytes(files["report"], report.encode("utf-8"))
             if "table" in files:
@@ -194,6 +201,64 @@ class GeometryCalibration:
         lines += ["New deposition parameters change the mechanics: fit the fiber parameters",
                   "again (espin fit) before using stresses of this mat."]
         return lines
+
+
+def output_files(path: str | Path) -> dict[str, Path]:
+    """The files a calibration writes at ``path``, by kind: ``config`` and ``report`` (a
+    ``.toml`` file and ``<stem>.calibration.json`` beside it), and ``table`` (a folder).
+
+    Raises
+    ------
+    ConfigError
+        If a ``.toml`` path is a folder, or another path an existing file.
+    """
+    path = Path(path)
+    if path.suffix == ".toml":
+        if path.is_dir():
+            raise ConfigError(f"{path} is a folder: give a .toml file or a folder name without .toml")
+        return {"config": path, "report": path.with_name(f"{path.stem}.calibration.json")}
+    if path.exists() and not path.is_dir():
+        raise ConfigError(
+            f"{path} is an existing file: a path without .toml is a folder "
+            "(config.toml, calibration.json, calibration.txt); give a .toml file or a folder"
+        )
+    return {"config": path / "config.toml", "report": path / "calibration.json",
+            "table": path / "calibration.txt"}
+
+
+def claim_output(path: str | Path, digest: str, *, overwrite: bool = False) -> AbstractContextManager:
+    """Check where a calibration will be written, before the work.
+
+    A folder is claimed by an :class:`~espin.core.output_folder.OutputFolder` (the folder
+    policy and its ``run.json``; returned, finished when the ``with`` block ends). A ``.toml``
+    file has no folder to claim: it is refused if it or its report exists, unless
+    ``overwrite``.
+
+    Parameters
+    ----------
+    path
+        As in :meth:`GeometryCalibration.write`.
+    digest
+        What identifies the run's inputs (recorded in ``run.json``).
+    overwrite
+        Replace the files of another run instead of refusing.
+
+    Raises
+    ------
+    ConfigError
+        If the path is of the wrong kind (:func:`output_files`) or holds results and
+        ``overwrite`` is False.
+    """
+    files = output_files(path)
+    if "table" in files:
+        return OutputFolder.claim(path, "calibrate-geometry", digest, CALIBRATION_OUTPUTS, overwrite=overwrite)
+    existing = [str(f) for f in files.values() if f.exists()]
+    if existing and not overwrite:
+        one = len(existing) == 1
+        raise ConfigError(f"{' and '.join(existing)} already exist{'s' if one else ''}; pass --overwrite "
+                          f"(overwrite=True in Python) to replace {'it' if one else 'them'}, or choose "
+                          "another -o path")
+    return nullcontext()
 
 
 def _finite_or_none(d: dict[str, Any]) -> dict[str, Any]:
