@@ -20,26 +20,19 @@ __all__ = ["register"]
 
 
 def _inputs_digest(base: Config, measured: Path | None, options: list[Any]) -> str:
-    """SHA-256 of what a calibration starts from: the base config (and its files), the bytes of
-    the measured files (a measure folder's fibers.csv and measurement.toml, or the table) and the
-    typed-in targets and options."""
-    import hashlib
-
+    """What a calibration starts from: the base config (and its files), the measured files (a
+    measure folder's fibers.csv and measurement.toml, or the table) and the typed-in targets
+    and options."""
     from espin.core.config import config_digest
+    from espin.core.output_folder import inputs_digest
 
-    digest = hashlib.sha256(config_digest(base).encode())
     if measured is None:
         files = []
     elif measured.is_dir():
         files = [measured / "fibers.csv", measured / "measurement.toml"]
     else:
         files = [measured]
-    for path in files:
-        digest.update(f"\n{path}: ".encode())
-        with open(path, "rb") as fh:
-            digest.update(hashlib.file_digest(fh, "sha256").digest())
-    digest.update(repr(options).encode())
-    return digest.hexdigest()
+    return inputs_digest(files, config_digest(base), options)
 
 
 def calibrate_geometry_command(
@@ -117,7 +110,7 @@ def calibrate_geometry_command(
     from espin.core.errors import ConfigError, EspinError
     from espin.geometry.rve import resolve_config
     from espin.geometry.targets import GeometryTargets, MeasurementError
-    from espin.imaging.geometry_calibration import MECHANICS_NOTE, calibrate_geometry
+    from espin.imaging.geometry_calibration import MECHANICS_NOTE, MIN_PORTIONS, calibrate_geometry, check_options
     from espin.imaging.geometry_calibration.result import claim_output
 
     console = Console(stderr=True, quiet=quiet)
@@ -138,6 +131,7 @@ def calibrate_geometry_command(
         except MeasurementError as err:
             raise ConfigError(str(err)) from None
         base_config = resolve_config(base)
+        check_options(fit, segment_ratio, max_deviation_deg, seeds, MIN_PORTIONS, window_um)  # before the claim
         options = [typed, fit, segment_ratio, max_deviation_deg, window_um, correct_orientation, seeds]
         digest = _inputs_digest(base_config, measured, options)
         with claim_output(out, digest, overwrite=overwrite), \

@@ -110,22 +110,15 @@ def _parse_rates(items: list[str] | None) -> dict[float, list[Path]]:
 
 
 def _inputs_digest(config: Any, curves: Any, strain_rate: float | None, options: list[Any]) -> str:
-    """SHA-256 of what a fit starts from: the base config (and its files), the bytes of every
-    curve file, the strain rates and the options (a folder is reused only for the same fit)."""
-    import hashlib
-
+    """What a fit starts from: the base config (and its files), every curve file, the strain
+    rates and the options (a folder is reused only for the same fit)."""
     from espin.core.config import config_digest
+    from espin.core.output_folder import inputs_digest
 
-    digest = hashlib.sha256(config_digest(config).encode())
     by_rate = curves if isinstance(curves, dict) else {strain_rate: curves}
-    for rate, paths in sorted(by_rate.items(), key=lambda item: str(item[0])):
-        for path in paths:
-            digest.update(f"\n{rate!r} {path}: ".encode())
-            if Path(path).is_file():
-                with open(path, "rb") as fh:
-                    digest.update(hashlib.file_digest(fh, "sha256").digest())
-    digest.update(repr(options).encode())
-    return digest.hexdigest()
+    rates = sorted(by_rate.items(), key=lambda item: str(item[0]))
+    files = [path for _, paths in rates for path in paths]
+    return inputs_digest(files, config_digest(config), [(rate, len(paths)) for rate, paths in rates], options)
 
 
 def _curves(curves: list[Path], rate: float | None, other_rates: dict[float, list[Path]]) -> tuple[Any, float | None]:

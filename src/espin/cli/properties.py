@@ -188,30 +188,16 @@ def _write_outputs(analysis: _Analysis, folder: Path) -> list[Path]:
     return written
 
 
-def _inputs_digest(paths: list[Path], options: list[Any]) -> str:
-    """SHA-256 of what the command starts from: the bytes of every curve file, in order, and the
-    options."""
-    import hashlib
-
-    digest = hashlib.sha256()
-    for path in paths:
-        digest.update(f"\n{path}: ".encode())
-        with open(path, "rb") as fh:
-            digest.update(hashlib.file_digest(fh, "sha256").digest())
-    digest.update(repr(options).encode())
-    return digest.hexdigest()
-
-
 def _claim(out: Path | None, paths: list[Path], options: list[Any], overwrite: bool) -> AbstractContextManager:
     """The ``--out`` folder claimed for this run (:mod:`espin.core.output_folder`); nothing
     without ``--out``."""
     from contextlib import nullcontext
 
-    from espin.core.output_folder import OutputFolder
+    from espin.core.output_folder import OutputFolder, inputs_digest
 
     if out is None:
         return nullcontext()
-    return OutputFolder.claim(out, "properties", _inputs_digest(paths, options), PROPERTIES_OUTPUTS,
+    return OutputFolder.claim(out, "properties", inputs_digest(paths, options), PROPERTIES_OUTPUTS,
                               overwrite=overwrite)
 
 

@@ -28,9 +28,10 @@ A run that fails before writing anything but the manifest leaves no folder behin
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import json
 import uuid
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Literal
@@ -39,7 +40,7 @@ from espin.core.atomic import atomic_write_bytes
 from espin.core.errors import ConfigError
 from espin.core.version import __version__
 
-__all__ = ["MANIFEST", "RunManifest", "OutputFolder", "read_manifest"]
+__all__ = ["MANIFEST", "RunManifest", "OutputFolder", "read_manifest", "inputs_digest"]
 
 MANIFEST = "run.json"
 """Name of the manifest file in every output folder."""
@@ -78,6 +79,22 @@ class RunManifest:
     def partial(self) -> bool:
         """Whether the folder holds less than a complete result."""
         return self.status != "complete"
+
+
+def inputs_digest(files: Iterable[str | Path], *parts: object) -> str:
+    """SHA-256 of what a command starts from: the bytes of ``files`` (in order, each labelled by
+    its path; one that is not a regular file counts by its path alone, since its reader will
+    refuse it, and a pipe is never opened) and the ``repr`` of ``parts`` (config digests,
+    options).
+    """
+    digest = hashlib.sha256()
+    for path in files:
+        digest.update(f"\n{path}: ".encode())
+        if Path(path).is_file():
+            with open(path, "rb") as fh:
+                digest.update(hashlib.file_digest(fh, "sha256").digest())
+    digest.update(repr(parts).encode())
+    return digest.hexdigest()
 
 
 def read_manifest(folder: str | Path) -> RunManifest | None:

@@ -83,8 +83,9 @@ from espin.imaging.geometry_calibration.matching import (
     _tortuosity_target,
 )
 from espin.imaging.geometry_calibration.options import (
+    MIN_PORTIONS,
     _base_rve_data,
-    _check_options,
+    check_options,
     _diameter_keys,
     _fitted,
     _resolve_base,
@@ -116,6 +117,8 @@ from espin.imaging.geometry_calibration.virtual import (
 
 __all__ = [
     "MECHANICS_NOTE",
+    "MIN_PORTIONS",
+    "check_options",
     "DistributionMatch",
     "ValleyPoint",
     "VirtualMeasurement",
@@ -165,7 +168,7 @@ def calibrate_geometry(
     correct_orientation: bool = True,
     seeds: int = 8,
     seed: int = 0,
-    min_portions: int = 1000,
+    min_portions: int = MIN_PORTIONS,
     progress: Callable[[str], None] | None = None,
 ) -> GeometryCalibration:
     """Find deposition parameters whose mat, measured in the same window, matches the targets.
@@ -215,7 +218,7 @@ def calibrate_geometry(
         ConfigError or MeasurementError for bad options or targets, before any work.
     """
     started = time.perf_counter()
-    _check_options(fit, segment_ratio, max_deviation_deg, seeds, min_portions, window_um)
+    check_options(fit, segment_ratio, max_deviation_deg, seeds, min_portions, window_um)
     if isinstance(targets_or_path, GeometryTargets):
         targets = targets_or_path
     elif hasattr(targets_or_path, "fibers") and hasattr(targets_or_path, "field_of_view_um"):

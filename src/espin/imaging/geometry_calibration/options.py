@@ -25,8 +25,19 @@ def _base_rve_data(base: Config) -> dict[str, Any]:
     return base.rve.model_dump(mode="json", exclude_none=True, exclude_unset=True)
 
 
-def _check_options(fit: str, segment_ratio: float | None, max_deviation_deg: float | None,
-                   seeds: int, min_portions: int, window_um: float | None) -> None:
+MIN_PORTIONS = 1000
+"""Default least number of traced fiber portions the virtual mats of one evaluation give."""
+
+
+def check_options(fit: str, segment_ratio: float | None, max_deviation_deg: float | None,
+                  seeds: int, min_portions: int, window_um: float | None) -> None:
+    """Refuse, before any work, search options out of range or in contradiction.
+
+    Raises
+    ------
+    ConfigError
+        Naming the option and its allowed values.
+    """
     if fit not in ("deviation", "segment", "both"):
         raise ConfigError(f"fit must be deviation, segment or both, got {fit!r}")
     if fit in ("deviation", "both") and max_deviation_deg is not None:
