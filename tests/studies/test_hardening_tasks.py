@@ -12,7 +12,7 @@ import time
 import pytest
 
 from espin.core.config import config_to_toml
-from espin.core.errors import ConfigError
+from espin.core.errors import ConfigError, InputError
 from espin.geometry.rve import resolve_config
 from espin.studies.ensemble import PROPERTIES, plan_tasks, run_ensemble
 from espin.studies.sweeps import sweep
@@ -76,17 +76,18 @@ def test_an_edited_referenced_file_runs_its_tasks_again(tmp_path, monkeypatch):
     assert [r["run"] for r in again.records] == ["second", "second"]
 
 
-@pytest.mark.parametrize("kind", ["missing", "directory"])
-def test_an_unusable_referenced_file_is_an_error_before_any_work(tmp_path, kind):
+@pytest.mark.parametrize("kind, error_type", [("missing", ConfigError), ("directory", InputError)])
+def test_an_unusable_referenced_file_is_an_error_before_any_work(tmp_path, kind, error_type):
+    """A missing file is a bad config value, a folder where a table should be bad input."""
     csv = tmp_path / "lateral.csv"
     if kind == "directory":
         csv.mkdir()
     base = lateral_base(csv)
-    with pytest.raises(ConfigError, match=LATERAL) as error:
+    with pytest.raises(error_type, match=LATERAL) as error:
         plan_tasks(base, [{}], [1])
     assert str(csv) in str(error.value)
     folder = tmp_path / "study"
-    with pytest.raises(ConfigError, match=LATERAL):
+    with pytest.raises(error_type, match=LATERAL):
         sweep(base, realizations=1, folder=folder, workers=1)
     assert not folder.exists()  # nothing written: no plan, no config
 
