@@ -144,3 +144,39 @@ def test_any_values_validate_or_raise_config_error(values):
         return
     numbers = [v for v in config.model_dump().values() for v in v.values() if isinstance(v, float)]
     assert all(math.isfinite(v) for v in numbers)
+
+
+def test_a_deeply_nested_config_is_refused(tmp_path):
+    path = tmp_path / "deep.toml"
+    path.write_text("[rve]\norientation = " + "[" * 3000 + "]" * 3000 + "\n")
+    with pytest.raises(ConfigError, match="too deeply"):
+        load_config(path)
+
+
+def test_a_file_name_too_long_is_a_clear_error(tmp_path):
+    with pytest.raises(ConfigError, match="config file"):
+        load_config(tmp_path / ("x" * 300 + ".toml"))
+
+
+def test_an_override_replaces_the_keys_it_is_an_alternative_to(tmp_path):
+    """A resolved file (espin config > file) holds size_ratio and the loading shorthand:
+    --set rve.size_um or --set loading.program replace them instead of clashing."""
+    from espin.core.config import write_config
+
+    path = write_config(load_config("plla"), tmp_path / "resolved.toml")
+    config = load_config(path, {"rve.size_um": 30.0, "loading.program": [{"to_strain": 0.03, "steps": 2}]})
+    assert config.rve.side_um == 30.0 and config.loading.segments[0].to_strain == 0.03
+    back = load_config(write_config(config, tmp_path / "back.toml"), {"loading.max_strain": 0.1})
+    assert back.loading.program is None and back.loading.max_strain == 0.1
+    with pytest.raises(ConfigError, match="not both"):
+        load_config(path, {"rve.size_um": 30.0, "rve.size_ratio": 50.0})
+
+
+def test_tables_are_found_beside_the_config_file(tmp_path, monkeypatch):
+    folder = tmp_path / "mat"
+    folder.mkdir()
+    (folder / "lateral.csv").write_text("axial_strain,transverse_strain\n0,0\n0.3,-0.1\n")
+    (folder / "mat.toml").write_text('[loading]\nlateral = {transverse_csv = "lateral.csv"}\n')
+    monkeypatch.chdir(tmp_path)
+    config = load_config("mat/mat.toml")
+    assert config.loading.lateral.transverse_csv.resolve() == folder / "lateral.csv"

@@ -35,7 +35,7 @@ def test_plla_preset_is_tables_2_and_3():
 @pytest.mark.parametrize(
     "overrides, fragments",
     [
-        ({"rve.diameter_um": -1}, ["rve.diameter_um", "greater than 0"]),
+        ({"rve.diameter_um": -1}, ["rve.diameter_um", "greater than or equal to 0.001"]),
         ({"rve.volume_fraction": 1.5}, ["rve.volume_fraction", "less than 1"]),
         ({"rve.max_deviation_deg": 90}, ["rve.max_deviation_deg", "less than 90"]),
         ({"rve.layers": 0}, ["rve.layers", "greater than or equal to 1"]),

@@ -3,6 +3,7 @@ the dataset, attribute or config key at fault (and exit code 3 on the command li
 
 from __future__ import annotations
 
+import os
 import re
 import shutil
 
@@ -112,6 +113,21 @@ def group_for_dataset(name):
     def damage(f):
         del f[name]
         f.create_group(name)
+
+    return damage
+
+
+def _soft_link_loop(f):
+    """Two soft links pointing at each other, one in place of a dataset."""
+    f["network/element_nodes"] = h5py.SoftLink("/network/loop")
+    f["network/loop"] = h5py.SoftLink("/network/element_nodes")
+
+
+def _huge_dataset(name):
+    """A dataset whose header declares 2^50 x 2 float64 (16 PiB), with no data written."""
+
+    def damage(f):
+        f.create_dataset(name, shape=(2**50, 2), dtype="f8", chunks=(1024, 2))
 
     return damage
 
@@ -376,6 +392,11 @@ CASES = {
         ["attribute n_inner of network", "below"],
     ),
     "n_inner_float": (set_attr("network", "n_inner", 3.0), ["attribute n_inner of network", "3.0"]),
+    "n_inner_zero": (set_attr("network", "n_inner", 0), ["attribute n_inner of network", "below"]),
+    "soft_link_loop": (both(delete("network/element_nodes"), _soft_link_loop),
+                       ["dataset network/element_nodes", "cannot be reached"]),
+    "huge_declared_shape": (both(delete("network/node_position"), _huge_dataset("network/node_position")),
+                            ["dataset network/node_position", "declares"]),
     "n_merged_negative": (
         set_attr("network", "n_merged", -2),
         ["attribute n_merged of network", "below"],
@@ -424,6 +445,12 @@ def _missing(path, saved):
     pass
 
 
+def _fifo(path, saved):
+    if not hasattr(os, "mkfifo"):
+        pytest.skip("no named pipes on this platform")
+    os.mkfifo(path)
+
+
 @pytest.mark.parametrize(
     ("make", "fragment"),
     [
@@ -432,8 +459,9 @@ def _missing(path, saved):
         (_directory, "directory"),
         (_truncated, "truncated"),
         (_missing, "no such file"),
+        (_fifo, "not a regular file"),
     ],
-    ids=["not_hdf5", "empty", "directory", "truncated", "missing"],
+    ids=["not_hdf5", "empty", "directory", "truncated", "missing", "fifo"],
 )
 def test_unreadable_file_is_a_clear_error(saved, tmp_path, make, fragment):
     path = tmp_path / "rve.h5"

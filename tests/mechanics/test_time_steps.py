@@ -75,10 +75,25 @@ def test_adaptive_fiber_meets_the_accuracy_uniform_steps_miss(law):
 
 
 def test_time_rtol_is_validated():
-    for bad in (0.0, 1.0, "on"):
+    for bad in (0.0, 1e-300, 1.0, "on"):
         with pytest.raises(ConfigError, match="time_rtol"):
             load_config("plla", {"solver.time_rtol": bad})
     assert load_config("plla", {"solver.time_rtol": "off"}).solver.time_rtol == "off"
+
+
+def test_a_flow_too_fast_to_follow_fails_with_advice_instead_of_running_on(small_rve, monkeypatch):
+    """A large a_p with a tiny b_p asks for ever smaller time steps: the run stops at the
+    limit of time steps per reported step, naming the keys to check."""
+    import espin.mechanics.driver as driver
+    from espin.mechanics.driver import SimulationFailed
+
+    monkeypatch.setattr(driver, "MAX_TIME_STEPS_PER_REPORT", 50)
+    config = apply_overrides(small_rve.config, {"fiber.flow_rate_per_s": 1e3, "fiber.flow_resistance_MPa": 1e-6,
+                                                "loading.max_strain": 0.02, "loading.steps": 2})
+    with pytest.raises(SimulationFailed, match="more than 50 time steps") as failure:
+        run_program(small_rve.network, config, make_linear_solver("auto"))
+    assert failure.value.kind == "stiff" and "fiber.flow_resistance_MPa" in str(failure.value)
+    assert failure.value.exit_code == 4
 
 
 def _P11(network, config, steps, **overrides):

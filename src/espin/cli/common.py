@@ -57,6 +57,8 @@ def parse_set(items: list[str] | None) -> dict[str, Any]:
             value = tomllib.loads(f"v = {text}")["v"]
         except tomllib.TOMLDecodeError:
             value = text  # a bare word such as lines or uniform
+        except RecursionError:
+            raise ConfigError(f"--set {key.strip()[:60]}: the value nests too deeply to be a config value") from None
         out[key.strip()] = value
     return out
 

@@ -162,8 +162,8 @@ Orientation = Annotated[
 class RVEConfig(_Section):
     """Geometry of the virtual mat (paper Table 2, docs/model.md sections 0-2)."""
 
-    diameter_um: Annotated[float, Field(gt=0.0, le=1000.0)] = 0.45
-    """Mean fiber diameter D [um], in (0, 1000]. Also the layer thickness."""
+    diameter_um: Annotated[float, Field(ge=1e-3, le=1000.0)] = 0.45
+    """Mean fiber diameter D [um], in [0.001, 1000]. Also the layer thickness."""
     diameter_sd_um: Annotated[float, Field(ge=0.0)] = 0.0
     """Standard deviation of the (truncated) normal diameter distribution [um], in
     [0, diameter_um] (a coefficient of variation up to 1; measured mats: 0.1-0.6)."""
@@ -171,10 +171,11 @@ class RVEConfig(_Section):
     """Truncation of the diameter distribution [um], > 0 and < diameter_um; default 0.1 D."""
     volume_fraction: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.19
     """Target volume fraction eta of each layer, in (0, 1)."""
-    size_ratio: Annotated[float, Field(gt=0.0)] | None = None
-    """Layer side over D (L_tilde), > segment_ratio. Give this or size_um (default 200)."""
-    size_um: Annotated[float, Field(gt=0.0)] | None = None
-    """Layer side L [um]; alternative to size_ratio."""
+    size_ratio: Annotated[float, Field(gt=0.0, le=1e5)] | None = None
+    """Layer side over D (L_tilde), > segment_ratio and <= 1e5. Give this or size_um (default
+    200)."""
+    size_um: Annotated[float, Field(gt=0.0, le=1e6)] | None = None
+    """Layer side L [um], <= 1e6 (1 m); alternative to size_ratio."""
     segment_ratio: Annotated[float, Field(gt=0.0)] | None = None
     """Segment length over D (ls_tilde), > 0. Give this or segment_um (default 5)."""
     segment_um: Annotated[float, Field(gt=0.0)] | None = None
@@ -259,8 +260,8 @@ class FiberConfig(_Section):
     """Modulus of a wrinkled fiber, and in compression, E_b [MPa], in (0, 1e6]."""
     flow_rate_per_s: Annotated[float, Field(ge=0.0, le=MAX_RATE_PER_S)] = 1e-8
     """Plastic flow rate coefficient a_p [1/s], in [0, 1e3] (0 = elastic)."""
-    flow_resistance_MPa: Annotated[float, Field(gt=0.0, le=MAX_MODULUS_MPA)] = 5.0
-    """Initial resistance to flow b_p [MPa], in (0, 1e6]."""
+    flow_resistance_MPa: Annotated[float, Field(ge=1e-6, le=MAX_MODULUS_MPA)] = 5.0
+    """Initial resistance to flow b_p [MPa], in [1e-6, 1e6]."""
     hardening_exponent: Annotated[float, Field(ge=0.0, le=100.0)] = 0.5
     """Post-yield hardening exponent c_p, in [0, 100]."""
 
@@ -399,9 +400,9 @@ class SolverConfig(_Section):
     or 500 under mixed control (lateral free), where buckling chains need hundreds."""
     max_cuts: Annotated[int, Field(ge=0, le=60)] = 12
     """Times a load step may be halved before the solve fails, in [0, 60]."""
-    time_rtol: Annotated[float, Field(gt=0.0, lt=1.0)] | Literal["off"] = 1e-3
+    time_rtol: Annotated[float, Field(ge=1e-8, lt=1.0)] | Literal["off"] = 1e-3
     """Local error of the plastic update per time step, relative to the fiber stresses, in
-    (0, 1): load steps are split into as many time steps as it takes (docs/model.md
+    [1e-8, 1): load steps are split into as many time steps as it takes (docs/model.md
     section 4). "off": one time step per load step, halved only when Newton fails."""
 
 
@@ -493,7 +494,11 @@ def _preset_dict(name: str) -> dict[str, Any]:
 
 
 def _read_toml(path: Path) -> dict[str, Any]:
-    if not path.exists():
+    try:
+        exists = path.exists()
+    except OSError as err:
+        raise ConfigError(f"config file {str(path)[:80]}...: {err.strerror}") from None
+    if not exists:
         raise ConfigError(f"config file not found: {path}")
     if not path.is_file():
         raise ConfigError(f"config file {path} is not a regular file (a TOML file is expected)")
@@ -511,6 +516,31 @@ def _read_toml(path: Path) -> dict[str, Any]:
                           "file is expected") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"config file {path} is not valid TOML: {err}") from None
+    except RecursionError:
+        raise ConfigError(f"config file {path} nests arrays or tables too deeply to be a config") from None
+
+
+_ALTERNATIVES = (
+    ("rve", {"size_ratio"}, {"size_um"}),
+    ("rve", {"segment_ratio"}, {"segment_um"}),
+    ("loading", {"program"}, {"max_strain", "strain_rate_per_s", "steps"}),
+)
+"""Keys that are given instead of each other: (section, one group, the other group)."""
+
+
+def _drop_alternatives(data: dict[str, Any], overrides: dict[str, Any]) -> None:
+    """Remove from ``data`` the keys that an override is given instead of (a resolved file
+    holds ``size_ratio``; ``--set rve.size_um=...`` replaces it, as ``--set loading.program``
+    replaces the shorthand ``max_strain`` / ``steps`` / ``strain_rate_per_s``)."""
+    for section, one, other in _ALTERNATIVES:
+        table = data.get(section)
+        if not isinstance(table, dict):
+            continue
+        given = {d.split(".")[1] for d in overrides if d.count(".") >= 1 and d.split(".")[0] == section}
+        for chosen, replaced in ((one, other), (other, one)):
+            if given & chosen:
+                for key in replaced - given:
+                    table.pop(key, None)
 
 
 def _apply_dotted(data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
@@ -518,9 +548,11 @@ def _apply_dotted(data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, 
 
     A value replaces what is at its full path; deeper paths reach inside tables, e.g.
     ``rve.orientation.von_mises.kappa`` (a non-table on the way, such as ``"uniform"``, is
-    replaced by a table).
+    replaced by a table); and the keys it is given instead of (``size_um`` for
+    ``size_ratio``, the loading shorthand for ``program``, and back) are removed.
     """
     out = copy.deepcopy(data)
+    _drop_alternatives(out, overrides)
     for dotted, value in overrides.items():
         parts = dotted.split(".")
         if len(parts) < 2 or parts[0] not in Config.model_fields or not all(parts):
@@ -535,6 +567,29 @@ def _apply_dotted(data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, 
             node = node[part]
         node[parts[-1]] = value
     return out
+
+
+def _exists(path: Path) -> bool:
+    try:
+        return path.exists()
+    except OSError:  # e.g. a name too long for the file system
+        return False
+
+
+def _beside(data: dict[str, Any], folder: Path) -> dict[str, Any]:
+    """``data`` with the relative table paths of its ``loading`` section made relative to
+    ``folder`` (the config file's), so a config and its tables can move together."""
+    loading = data.get("loading")
+    if not isinstance(loading, dict):
+        return data
+    loading = dict(loading)
+    if isinstance(loading.get("path_csv"), str) and not Path(loading["path_csv"]).is_absolute():
+        loading["path_csv"] = str(folder / loading["path_csv"])
+    lateral = loading.get("lateral")
+    if isinstance(lateral, dict) and isinstance(lateral.get("transverse_csv"), str) \
+            and not Path(lateral["transverse_csv"]).is_absolute():
+        loading["lateral"] = {**lateral, "transverse_csv": str(folder / lateral["transverse_csv"])}
+    return {**data, "loading": loading}
 
 
 def load_config(source: str | Path | None = None, overrides: dict[str, Any] | None = None) -> Config:
@@ -561,11 +616,11 @@ def load_config(source: str | Path | None = None, overrides: dict[str, Any] | No
         label = f"(preset {source})"
     else:
         path = Path(source)
-        if not path.suffix and not path.exists():
+        if not path.suffix and not _exists(path):
             raise ConfigError(
-                f"{source!r} is neither a preset ({', '.join(PRESETS)}) nor an existing file"
+                f"{str(source)[:80]!r} is neither a preset ({', '.join(PRESETS)}) nor an existing file"
             )
-        data = _read_toml(path)
+        data = _beside(_read_toml(path), path.parent)
         label = f"({path})"
     if overrides:
         data = _apply_dotted(data, overrides)

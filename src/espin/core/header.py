@@ -118,6 +118,9 @@ def _open(path: Path, what: str) -> h5py.File:
     expected = f"an HDF5 {what} file written by espin"
     if path.is_dir():
         raise file_error(path, "", f"cannot open {what} file: it is a directory", expected)
+    if path.exists() and not path.is_file():
+        raise file_error(path, "", f"cannot open {what} file: not a regular file (a pipe or a device)",
+                         expected)
     if path.is_file() and path.stat().st_size == 0:
         raise file_error(path, "", f"cannot open {what} file: it is empty", expected)
     try:
@@ -201,6 +204,11 @@ def read_config(f: h5py.File, path: Path) -> Config:
     return config
 
 
+MAX_DATASET_BYTES = 16 * 2**30
+"""Largest dataset read [bytes]: a 16 GiB array is about 500 million elements, far beyond any
+mat the memory estimate admits; a header declaring more is damaged or crafted."""
+
+
 def read_dataset(
     f: h5py.File,
     name: str,
@@ -251,7 +259,10 @@ def read_dataset(
     """
     path = f.filename
     expected = _expected(meaning, kind, shape, low, high, positive, finite)
-    ds = f.get(name)
+    try:
+        ds = f.get(name)
+    except (RuntimeError, KeyError, OSError, ValueError) as err:  # e.g. a loop of soft links
+        raise file_error(path, f"dataset {name}", f"cannot be reached ({err})", expected) from None
     if not isinstance(ds, h5py.Dataset):
         problem = "is missing (an incomplete file)" if ds is None else "is not a dataset"
         raise file_error(path, f"dataset {name}", problem, expected)
@@ -259,6 +270,9 @@ def read_dataset(
         raise file_error(path, f"dataset {name}", f"holds {_dtype_text(ds.dtype)}", expected)
     if not _shape_matches(ds.shape, shape):
         raise file_error(path, f"dataset {name}", f"has shape {ds.shape}", expected)
+    if ds.size * ds.dtype.itemsize > MAX_DATASET_BYTES:
+        raise file_error(path, f"dataset {name}", f"declares {ds.size * ds.dtype.itemsize:,} bytes, more than "
+                         f"the {MAX_DATASET_BYTES:,} an espin file holds", expected)
     try:
         raw = np.asarray(ds[()])
     except (OSError, RuntimeError, ValueError, TypeError) as err:

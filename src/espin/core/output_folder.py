@@ -32,7 +32,7 @@ import hashlib
 import json
 import uuid
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -65,6 +65,9 @@ class RunManifest:
         ``running``, ``complete`` or ``failed``.
     started_utc, finished_utc : str
         ISO 8601 times; ``finished_utc`` is None while running.
+    outputs : list of str
+        Glob patterns (relative to the folder) of the files the run writes: what an
+        ``--overwrite`` by a later run removes.
     """
 
     run_id: str
@@ -74,6 +77,7 @@ class RunManifest:
     status: str
     started_utc: str
     finished_utc: str | None = None
+    outputs: list[str] = field(default_factory=list)
 
     @property
     def partial(self) -> bool:
@@ -106,11 +110,14 @@ def read_manifest(folder: str | Path) -> RunManifest | None:
         If ``run.json`` exists but is not a manifest espin wrote.
     """
     path = Path(folder) / MANIFEST
-    if not path.is_file():
+    if not path.exists():
         return None
     try:
         data = json.loads(path.read_text("utf-8"))
-        return RunManifest(**{key: data[key] for key in RunManifest.__dataclass_fields__ if key in data})
+        manifest = RunManifest(**{key: data[key] for key in RunManifest.__dataclass_fields__ if key in data})
+        if not all(isinstance(getattr(manifest, key), str) for key in ("run_id", "command", "status")):
+            raise TypeError
+        return manifest
     except (OSError, UnicodeDecodeError, ValueError, TypeError):
         raise ConfigError(f"{path} is not an espin run manifest (JSON with run_id, command, "
                           "config_hash, status ...)") from None
@@ -135,8 +142,8 @@ class OutputFolder:
 
     @classmethod
     def claim(cls, path: str | Path, command: str, digest: str, outputs: Sequence[str], *,
-              overwrite: bool = False, resume: Literal["same-inputs", "same-command"] | None = None
-              ) -> OutputFolder:
+              overwrite: bool = False, resume: Literal["same-inputs", "same-command"] | None = None,
+              inputs: Sequence[str | Path] = ()) -> OutputFolder:
         """Check ``path`` against the policy and write a ``running`` manifest there.
 
         Parameters
@@ -151,29 +158,39 @@ class OutputFolder:
         outputs
             Glob patterns, relative to the folder, of every file the command writes.
         overwrite
-            Replace another run's results (removing ``outputs``) instead of refusing.
+            Replace another run's results instead of refusing: remove ``outputs`` and the
+            outputs the earlier run's manifest lists.
         resume
             Reuse, keeping its files, a folder whose manifest has the same command and
             ``digest`` (``"same-inputs"``), or the same command, or no manifest
             (``"same-command"``); None: never.
+        inputs
+            Files the run reads: refused inside the folder, which a later overwrite would
+            clear (and whose run they belong to).
 
         Raises
         ------
         ConfigError
-            If the folder belongs to another run and ``overwrite`` is False, or is not a folder.
+            If the folder belongs to another run and ``overwrite`` is False, is not a folder,
+            holds one of ``inputs``, or cannot be created.
         """
         path = Path(path)
         if path.exists() and not path.is_dir():
             raise ConfigError(f"output folder {path} exists and is not a folder")
+        for name in inputs:
+            if Path(name).resolve().parent == path.resolve():
+                raise ConfigError(f"output folder {path} holds the input {Path(name).name} of this run: "
+                                  "choose another folder (--out)")
         previous = read_manifest(path) if path.is_dir() else None
-        found = _existing(path, outputs)
+        found = _existing(path, [*outputs, *(previous.outputs if previous else [])])
         if resume == "same-inputs":
             reuse = previous is not None and (previous.command, previous.config_hash) == (command, digest)
         else:
             reuse = resume == "same-command" and (previous.command == command if previous else bool(found))
         if reuse:
             manifest = previous or RunManifest(uuid.uuid4().hex, command, digest, __version__, "running", _utc_now())
-            folder = cls(path, replace(manifest, config_hash=digest, status="running", finished_utc=None))
+            folder = cls(path, replace(manifest, config_hash=digest, status="running", finished_utc=None,
+                                       outputs=list(outputs)))
             folder._write()
             return folder
         if (found or previous is not None) and not overwrite:
@@ -185,12 +202,17 @@ class OutputFolder:
                 f"output folder {path} already holds {owner}{': ' + shown if shown else ''}; "
                 "pass --overwrite (overwrite=True in Python) to replace them, or choose another folder"
             )
-        folder = cls(path, RunManifest(uuid.uuid4().hex, command, digest, __version__, "running", _utc_now()),
-                     created=not path.exists())
-        path.mkdir(parents=True, exist_ok=True)
+        folder = cls(path, RunManifest(uuid.uuid4().hex, command, digest, __version__, "running", _utc_now(),
+                                       outputs=list(outputs)), created=not path.exists())
+        try:
+            path.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise ConfigError(f"cannot create the output folder {path}: {err.strerror or err}") from None
         folder._write()  # first, so that a kill while clearing leaves a folder marked partial
         for name in [*found, *(p.relative_to(path).as_posix() for p in path.rglob(_TEMPORARY))]:
             (path / name).unlink(missing_ok=True)
+            if (path / name).parent != path and not any((path / name).parent.iterdir()):
+                (path / name).parent.rmdir()  # e.g. an emptied vtk/
         return folder
 
     def __enter__(self) -> OutputFolder:
@@ -213,7 +235,10 @@ class OutputFolder:
         self._write()
 
     def _write(self) -> None:
-        atomic_write_bytes(self.path / MANIFEST, json.dumps(asdict(self.manifest), indent=1).encode("utf-8"))
+        try:
+            atomic_write_bytes(self.path / MANIFEST, json.dumps(asdict(self.manifest), indent=1).encode("utf-8"))
+        except OSError as err:
+            raise ConfigError(f"cannot write the output folder {self.path}: {err.strerror or err}") from None
 
 
 def _existing(path: Path, outputs: Sequence[str]) -> list[str]:

@@ -47,12 +47,16 @@ class RVE:
         Fiber intersections in the same or adjacent layers.
     network : Network
         Nodes and elements for the mechanics.
+    path : Path or None
+        The file it was loaded from (:func:`espin.geometry.rve_file.load_rve`); None for a
+        generated RVE.
     """
 
     config: Config
     mat: FiberMat
     crosslinks: Crosslinks
     network: Network
+    path: Path | None = None
 
 
 def resolve_config(config: Config | str | Path | None = None, **overrides: Any) -> Config:

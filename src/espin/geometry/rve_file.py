@@ -136,7 +136,7 @@ def load_rve(path: str | Path) -> RVE:
         crosslinks = _read_crosslinks(f, mat)
         network = _read_network(f, mat)
     _check_config(path, config, mat, network)
-    return RVE(config=config, mat=mat, crosslinks=crosslinks, network=network)
+    return RVE(config=config, mat=mat, crosslinks=crosslinks, network=network, path=path)
 
 
 def _read_positions(f: h5py.File, name: str, size: float, meaning: str) -> np.ndarray:
@@ -219,8 +219,8 @@ def _read_network(f: h5py.File, mat: FiberMat) -> Network:
     n_e = len(elements)
     network = Network(
         node_position=nodes,
-        n_inner=read_attr(f, "network", "n_inner", kind="int", low=0, high=len(nodes),
-                          meaning="number of inner nodes, at most n_nodes"),
+        n_inner=read_attr(f, "network", "n_inner", kind="int", low=1, high=len(nodes),
+                          meaning="number of inner nodes (the free ones: at least 1), at most n_nodes"),
         element_nodes=elements,
         element_contour_length=read_dataset(
             f, "network/element_contour_length", kind="float", shape=(n_e,), positive=True,

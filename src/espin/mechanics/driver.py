@@ -261,7 +261,14 @@ def run_program(
         cuts = 0
         if k > 1 and program.segment[k - 1] != program.segment[k - 2]:
             previous = None  # a new segment (e.g. unloading): do not extrapolate across it
+        attempts = 0
         while state.time < t_end:
+            attempts += 1
+            if attempts > MAX_TIME_STEPS_PER_REPORT:
+                stiff = StepFailed(f"the plastic flow needed more than {MAX_TIME_STEPS_PER_REPORT:,} time "
+                                   f"steps to reach the reported step (the last {step:.3g} s long)", [],
+                                   kind="stiff", iterations=0)
+                raise fail(k, state.time, stiff, cuts) from None
             remaining = t_end - state.time
             h = split(remaining, step)
             t_next = t_end if h == remaining else state.time + h
@@ -298,6 +305,9 @@ def run_program(
     return result_from_records(config, program, records)
 
 
+MAX_TIME_STEPS_PER_REPORT = 10_000
+"""Time steps (accepted, rejected or cut) a reported step may take before the run fails."""
+
 _WHY = {
     "stalled": "the residual stalled",
     "uphill": "no step along the Newton direction lowered the potential (the tangent points uphill)",
@@ -311,6 +321,8 @@ _TRY = {
     "uphill": "more load steps (loading.steps)",
     "inadmissible": "more load steps (loading.steps)",
     "singular": "a mat that holds together: a larger rve.volume_fraction or more rve.layers",
+    "stiff": "a larger solver.time_rtol, or check fiber.flow_rate_per_s and fiber.flow_resistance_MPa "
+             "(a large a_p with a small b_p makes the flow too fast to follow)",
 }
 _TRY_MIXED = ("lateral = \"fixed\" or {poisson_ratio = ...} (a free lateral stress is the hardest "
               "case, docs/mechanics.md), or more load steps (loading.steps)")
@@ -360,7 +372,7 @@ class SimulationFailed(SolverError):
         """The one-line message."""
         where = "the initial state" if self.step == 0 else f"step {self.step} of {self.n_steps}"
         cuts = f" after {self.cuts} cuts" if self.cuts else ""
-        why = _WHY[self.kind]
+        why = self.reason if self.kind == "stiff" else _WHY[self.kind]
         if self.kind == "stalled" and self.history:
             n = self.iterations
             why += (f" ({n} iteration{'s' * (n != 1)}; residual {self.history[-1]:.3g} uN at the end, "

@@ -128,10 +128,11 @@ class StepFailed(Exception):
         self.iterations = max(len(history) - 1, 0) if iterations is None else iterations
 
 
-FAILURE_KINDS = ("stalled", "uphill", "inadmissible", "singular")
+FAILURE_KINDS = ("stalled", "uphill", "inadmissible", "singular", "stiff")
 """Why a step failed: the residual stalled within the iteration limit; no step along the
 Newton direction lowered the potential (the tangent points uphill); an iterate left the
-admissible states (non-finite, or the RVE inverted); the tangent could not be factorized or the
+admissible states (non-finite, or the RVE inverted); the plastic flow asked for more time
+steps than a reported step may take (the driver's limit); the tangent could not be factorized or the
 fiber law not solved."""
 
 

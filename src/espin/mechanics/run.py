@@ -48,7 +48,7 @@ def resolve_source(source: RVE | Config | str | Path | None, overrides: dict[str
                 "new RVE instead (only fiber, loading, solver and output keys apply)"
             )
         config = apply_overrides(source.config, overrides) if overrides else source.config
-        return config, RVE(config, source.mat, source.crosslinks, source.network)
+        return config, RVE(config, source.mat, source.crosslinks, source.network, source.path)
     return resolve_config(source, **{k.replace(".", "__"): v for k, v in overrides.items()}), None
 
 
@@ -109,7 +109,8 @@ def simulate(
     claimed = None
     if out is not None:
         outputs = SIMULATION_OUTPUTS + (RVE_OUTPUTS if rve is None else ())
-        claimed = OutputFolder.claim(out, "simulate", config_digest(config), outputs, overwrite=overwrite)
+        claimed = OutputFolder.claim(out, "simulate", config_digest(config), outputs, overwrite=overwrite,
+                                     inputs=[rve.path] if rve is not None and rve.path is not None else [])
     try:
         result = _run(config, rve, program, claimed, on_step, threads, allow_large)
     except BaseException:
