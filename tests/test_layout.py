@@ -7,6 +7,7 @@ included) and keep the top level small.
 
 from __future__ import annotations
 
+import logging
 import re
 import tomllib
 from pathlib import Path
@@ -31,7 +32,14 @@ def graph() -> grimp.ImportGraph:
 
 
 def test_import_contracts_are_kept(capsys):
-    code = lint_imports(config_filename=str(ROOT / "pyproject.toml"), no_cache=True, no_logo=True)
+    # import-linter configures logging and disables the loggers that exist: give them back.
+    loggers = [lg for lg in logging.root.manager.loggerDict.values() if isinstance(lg, logging.Logger)]
+    disabled = [lg.disabled for lg in loggers]
+    try:
+        code = lint_imports(config_filename=str(ROOT / "pyproject.toml"), no_cache=True, no_logo=True)
+    finally:
+        for logger, was in zip(loggers, disabled):
+            logger.disabled = was
     assert code == 0, capsys.readouterr().out
 
 

@@ -157,3 +157,26 @@ def test_stale_temporaries_of_interrupted_writes_are_removed(tmp_path):
     run_ensemble(tasks, tmp_path, workers=1, task_function=record_task)
     assert not any(path.exists() for path in stale)
     assert fresh.exists() and all(path.exists() for path in foreign)
+
+
+@pytest.mark.parametrize("options, message", [
+    ({"workers": 0}, "workers"),
+    ({"blas_threads": 0}, "blas_threads"),
+    ({"grid": {"rve.size_ratio": [30.0, 1e5]}}, "memory"),
+    ({"grid": {"rve.volume_fraction": [0.19, 0.001]}}, "fibers"),
+    ({"grid": {"rve.layers": list(range(1, 101))}, "realizations": 1001}, "tasks"),
+])
+def test_a_study_refused_before_any_work_leaves_no_folder(tmp_path, options, message):
+    """Pool options, mats too large or too sparse at any point, and too many tasks are
+    refused before the folder is claimed."""
+    options = {"grid": None, "realizations": 1, **options}
+    with pytest.raises(ConfigError, match=message):
+        sweep("plla", folder=tmp_path / "study", **options, **TINY)
+    assert not (tmp_path / "study").exists()
+
+
+def test_a_grid_of_too_many_values_is_refused():
+    from espin.cli.study import parse_grid
+
+    with pytest.raises(ConfigError, match="count must be in"):
+        parse_grid(["rve.volume_fraction=0.1:0.3:1000000000"])

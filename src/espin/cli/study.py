@@ -68,8 +68,8 @@ def parse_grid(items: list[str] | None) -> dict[str, list[Any]]:
                 start, stop, count = float(parts[0]), float(parts[1]), int(parts[2])
             except ValueError:
                 raise ConfigError(f"--grid {item!r}: start:stop:count needs two numbers and an integer") from None
-            if count < 1:
-                raise ConfigError(f"--grid {key}: count must be >= 1 (got {count})")
+            if not 1 <= count <= 10_000:
+                raise ConfigError(f"--grid {key}: count must be in [1, 10000] (got {count})")
             grid[key] = [float(v) for v in np.linspace(start, stop, count)]
             continue
         values = []

@@ -36,7 +36,7 @@ from espin.core.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["TaskOutcome", "TaskPool", "parallel_map", "default_workers", "check_scheduler"]
+__all__ = ["TaskOutcome", "TaskPool", "parallel_map", "default_workers", "check_pool", "check_scheduler"]
 
 
 @dataclass(frozen=True)
@@ -155,6 +155,21 @@ _ADDRESS = re.compile(r"^(?P<scheme>tcp|tls)://(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za
 _ADDRESS_FORMS = "'local', tcp://host:port or tls://host:port"
 
 
+def check_pool(workers: int | None, scheduler: Any, blas_threads: int | None, security: Any = None) -> None:
+    """Refuse, before any work, task-pool options :class:`TaskPool` would refuse.
+
+    Raises
+    ------
+    ConfigError
+        For workers or blas_threads < 1, or a scheduler :func:`check_scheduler` refuses.
+    """
+    if workers is not None and workers < 1:
+        raise ConfigError(f"workers: must be >= 1 (got {workers})")
+    if blas_threads is not None and blas_threads < 1:
+        raise ConfigError(f"blas_threads: must be >= 1 or None (got {blas_threads})")
+    check_scheduler(scheduler, security)
+
+
 def check_scheduler(scheduler: Any, security: Any = None) -> None:
     """Check a ``scheduler`` (and its ``security``) before any work; connect to nothing.
 
@@ -251,11 +266,7 @@ class TaskPool:
 
     def __init__(self, workers: int | None = None, scheduler: Any = None, blas_threads: int | None = 1,
                  security: Any = None):
-        if workers is not None and workers < 1:
-            raise ConfigError(f"workers: must be >= 1 (got {workers})")
-        if blas_threads is not None and blas_threads < 1:
-            raise ConfigError(f"blas_threads: must be >= 1 or None (got {blas_threads})")
-        check_scheduler(scheduler, security)
+        check_pool(workers, scheduler, blas_threads, security)
         _warn_if_unencrypted(scheduler)
         self.workers = workers if workers is not None else default_workers()
         self.scheduler = scheduler

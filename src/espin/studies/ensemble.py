@@ -33,7 +33,8 @@ import pandas as pd
 from espin.core.atomic import atomic_write, atomic_write_bytes
 from espin.core.config import Config, config_digest
 from espin.core.errors import ConfigError
-from espin.core.parallel import TaskOutcome, TaskPool, check_scheduler
+from espin.core.parallel import TaskOutcome, TaskPool, check_pool
+from espin.geometry.size_estimate import check_size
 
 __all__ = ["TensileTask", "plan_tasks", "run_tensile", "run_ensemble", "Ensemble", "PROPERTIES"]
 
@@ -66,6 +67,10 @@ class TensileTask:
     config: Config
 
 
+MAX_TASKS = 100_000
+"""Most tasks one study plans (each is a whole tensile test)."""
+
+
 def plan_tasks(base: Config, points: Sequence[Mapping[str, Any]], seeds: Sequence[int]) -> list[TensileTask]:
     """Every (point, seed) task, each config validated before any work starts.
 
@@ -82,8 +87,10 @@ def plan_tasks(base: Config, points: Sequence[Mapping[str, Any]], seeds: Sequenc
     Raises
     ------
     ConfigError
-        Naming the point whose values are invalid, or the config key and path of a referenced
-        file that is missing or unreadable.
+        Naming the point whose values are invalid or whose mat is too sparse or too large for
+        the memory available (:func:`espin.geometry.size_estimate.check_size`), the config key
+        and path of a referenced file that is missing or unreadable, or a study of more than
+        :data:`MAX_TASKS` tasks.
     """
     from espin.core.config import apply_overrides
 
@@ -91,6 +98,9 @@ def plan_tasks(base: Config, points: Sequence[Mapping[str, Any]], seeds: Sequenc
         raise ConfigError("realizations: at least one seed is needed")
     if len(set(seeds)) != len(seeds):
         raise ConfigError(f"seeds: must be distinct (got {list(seeds)})")
+    if len(points) * len(seeds) > MAX_TASKS:
+        raise ConfigError(f"grid and realizations: {len(points):,} points x {len(seeds):,} seeds = "
+                          f"{len(points) * len(seeds):,} tasks, more than {MAX_TASKS:,}; split the study")
     tasks: list[TensileTask] = []
     digests: dict[Path, str] = {}
     for point in points:
@@ -99,6 +109,8 @@ def plan_tasks(base: Config, points: Sequence[Mapping[str, Any]], seeds: Sequenc
         for seed in seeds:
             try:
                 config = apply_overrides(base, {**point, "rve.seed": int(seed)})
+                if seed == seeds[0]:  # the mat's size does not depend on its seed
+                    check_size(config)
             except ConfigError as err:
                 raise ConfigError(f"parameter point {dict(point)}: {err}") from None
             key = config_digest(config, digests)[:16]
@@ -273,7 +285,7 @@ def run_ensemble(
     ConfigError
         For an invalid ``scheduler`` or ``security``.
     """
-    check_scheduler(scheduler, security)
+    check_pool(workers, scheduler, blas_threads, security)
     folder = Path(folder) if folder is not None else None
     names = sorted({name for task in tasks for name in task.parameters})
     if folder is not None:

@@ -21,7 +21,7 @@ from espin.core.atomic import atomic_write, atomic_write_bytes
 from espin.core.config import Config, config_digest, write_config
 from espin.core.errors import ConfigError
 from espin.core.output_folder import OutputFolder
-from espin.core.parallel import TaskOutcome, check_scheduler
+from espin.core.parallel import TaskOutcome, check_pool
 from espin.geometry.rve import resolve_config
 from espin.studies.ensemble import Ensemble, TensileTask, plan_tasks, run_ensemble
 
@@ -113,7 +113,7 @@ def rve_size_study(
     if fixed:
         raise ConfigError(f"{', '.join(fixed)}: set by the study's sizes (size_ratios, layer_counts, "
                           "layers_for_sizes, size_for_layers), not as an override")
-    check_scheduler(scheduler, security)
+    check_pool(workers, scheduler, blas_threads, security)
     base = resolve_config(base, **overrides)
     if not size_ratios and not layer_counts:
         raise ConfigError("size_ratios, layer_counts: give at least one RVE size")
@@ -188,7 +188,7 @@ def sweep(
     -------
     StudyResult
     """
-    check_scheduler(scheduler, security)
+    check_pool(workers, scheduler, blas_threads, security)
     base = resolve_config(base, **overrides)
     if table_format not in ("csv", "parquet"):
         raise ConfigError(f"table_format: 'csv' or 'parquet' (got {table_format!r})")
