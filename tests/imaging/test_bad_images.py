@@ -225,3 +225,39 @@ def test_measure_on_a_bad_image_exits_3_without_traceback(tmp_path, case):
     assert "Traceback" not in result.output and name in result.output
     assert fragments[0] in result.output
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("dtype", ["int32", "uint32", "int64"])
+def test_wide_integer_image_of_8_bit_values_is_scaled_by_its_maximum(tmp_path, dtype):
+    """Image software widens 8-bit data to 32 bits; divided by 2^32 it looked blank."""
+    values = np.arange(256, dtype=np.uint8).reshape(16, 16)
+    path = tmp_path / "wide.tif"
+    tifffile.imwrite(path, values.astype(dtype))
+    assert np.allclose(read_image(path), values / 255.0)
+
+
+@pytest.mark.parametrize("special", ["fifo", "/dev/zero"])
+def test_pipes_and_devices_are_refused_without_reading(tmp_path, special):
+    import os
+
+    if special == "fifo":
+        if not hasattr(os, "mkfifo"):
+            pytest.skip("no named pipes on this platform")
+        path = tmp_path / "image.tif"
+        os.mkfifo(path)
+    else:
+        path = special
+        if not os.path.exists(path):
+            pytest.skip(f"no {path} on this platform")
+    with pytest.raises(SEMError, match="not a regular file"):
+        read_image(path)
+    result = CliRunner().invoke(app, ["measure", str(path), "--um-per-px", "0.05", "-o", str(tmp_path / "m")])
+    assert result.exit_code == 3 and "not a regular file" in result.output
+
+
+def test_a_fiber_width_wider_than_the_image_is_refused_before_segmenting():
+    from espin.core.errors import ConfigError
+    from espin.imaging.measurement import measure
+
+    with pytest.raises(ConfigError, match="width_px = 1e"):
+        measure(np.random.default_rng(0).random((64, 64)), um_per_px=0.05, width_px=1e9)

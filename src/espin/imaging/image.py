@@ -5,8 +5,10 @@ stack), other formats (PNG, JPEG, BMP ...) with Pillow; both come with scikit-im
 images are mapped through their colour table, colour images to luminance
 (0.2125 R + 0.7154 G + 0.0721 B, as ``skimage.color.rgb2gray``), and an alpha channel is
 dropped. Grey levels are returned as float64 scaled by the range of the storage type (an 8-bit
-image is divided by 255, a 16-bit one by 65535, a float image by its own maximum), so a
-16-bit image that uses only 12 bits stays dark: segmentation normalizes contrast itself.
+image is divided by 255, a 16-bit one by 65535), so a 16-bit image that uses only 12 bits
+stays dark: segmentation normalizes contrast itself. A float image, and an integer image of
+32 or 64 bits (no detector records that many: such files come from image software that
+widened 8- or 16-bit data), are divided by their own maximum.
 
 Checks, each an :class:`~espin.core.errors.SEMError` naming the file: an image of more than
 :data:`MAX_PIXELS` pixels is refused from its header, before any pixel is decoded (so a huge
@@ -61,6 +63,8 @@ def read_image(path: str | Path) -> np.ndarray:
     path = Path(path)
     if path.is_dir():
         raise SEMError(f"image {str(path)!r} is a directory; expected an image file")
+    if path.exists() and not path.is_file():
+        raise SEMError(f"image {str(path)!r} is not a regular file (a pipe or a device); expected an image file")
     if not path.is_file():
         raise SEMError(f"image {str(path)!r}: no such file")
     try:
@@ -132,9 +136,11 @@ def _check_size(path: Path, width: int, height: int) -> None:
 def _scaled(a: np.ndarray) -> np.ndarray:
     if a.dtype == bool:
         return a.astype(float)
-    if np.issubdtype(a.dtype, np.integer):
+    if np.issubdtype(a.dtype, np.integer) and a.dtype.itemsize <= 2:
         info = np.iinfo(a.dtype)
         return (a.astype(float) - min(info.min, 0)) / (info.max - min(info.min, 0))
+    if np.issubdtype(a.dtype, np.integer):
+        a = a.astype(float) - min(float(a.min()), 0.0) if a.size else a.astype(float)
     a = a.astype(float)
     top = float(a.max()) if a.size else 0.0  # finite and >= 0: checked by as_grey
     return a / top if top > 0 else a

@@ -305,6 +305,10 @@ def measure(
     bar = detect_scale_bar(grey, bar_slice) if bar_slice is not None else None
     scale = float(um_per_px) if bar is None else float(scale_bar_um) / bar.length_px
     analysed = grey[crop_rows_slice]
+    if width_px is not None and width_px > min(analysed.shape) / 4:
+        raise ConfigError(f"width_px = {width_px:g} is more than a quarter of the analysed image "
+                          f"({analysed.shape[1]} x {analysed.shape[0]} px): fibers that wide cannot be "
+                          "traced; give the typical fiber width in pixels, or leave it out to estimate it")
     return _measure_grey(analysed, scale, width_px, max_bend_deg, min_length_diameters, bar,
                          scale_bar_um, source, (crop_rows_slice.start, crop_rows_slice.stop), digest)
 
@@ -339,7 +343,10 @@ def measurement_digest(image: str | Path | np.ndarray, **options: Any) -> str:
 
 
 def _file_digest(path: Path) -> bytes:
-    """SHA-256 of an image file's bytes, read in chunks."""
+    """SHA-256 of an image file's bytes, read in chunks (a regular file only: a pipe or a
+    device would block or never end)."""
+    if path.exists() and not path.is_dir() and not path.is_file():
+        raise SEMError(f"image {str(path)!r} is not a regular file (a pipe or a device); expected an image file")
     try:
         with open(path, "rb") as fh:
             return hashlib.file_digest(fh, "sha256").digest()
