@@ -127,6 +127,24 @@ def test_path_with_det_F_not_positive_names_the_line(tmp_path):
         _program("loading.path_csv", path)
 
 
+@pytest.mark.parametrize(("key", "rows", "message"), [
+    ("loading.path_csv", [(0, 1.05, 0, 0, 1), (10, 1.1, 0, 0, 1)], r"line 2: the first F is not the identity"),
+    ("loading.lateral.transverse_csv", [(0, 0), (0.05, -0.02)],
+     r"line 3: the table covers axial strains 0 to 0.05, but the loading program goes from 0 to 0.1"),
+    ("loading.lateral.transverse_csv", [(0.01, -0.1), (0.2, -0.2)],
+     r"line 2: the table covers axial strains 0.01 to 0.2, but the loading program goes from 0"),
+    ("loading.lateral.transverse_csv", [(-0.1, 0.02), (0.2, -0.02)],
+     r"line 2: the transverse strain at zero axial strain is 0.006667, not 0"),
+], ids=["path not from the identity", "transverse table too short", "transverse table not from 0",
+        "transverse strain not 0 at 0"])
+def test_a_table_that_would_jump_or_be_extrapolated_is_refused(tmp_path, key, rows, message):
+    """A silent jump at the start or a held value past the table's end is an error."""
+    path = tmp_path / "table.csv"
+    path.write_text(_table(TABLES[key][0], rows))
+    with pytest.raises(InputError, match=message):
+        _program(key, path)
+
+
 @pytest.mark.parametrize("key", list(TABLES))
 def test_missing_file_is_a_config_error(tmp_path, key):
     with pytest.raises(ConfigError, match=rf"^{key}: the file it references does not exist: .*nothing.csv"):

@@ -241,6 +241,25 @@ def _check_path_determinants(path: Path, F: np.ndarray, lines: np.ndarray) -> No
                              "turned inside out)", int(lines[k]))
 
 
+_START_TOLERANCE = 1e-6
+"""How far a table's first row may be from the undeformed state (F = I, transverse strain 0)."""
+
+
+def _check_transverse_range(path: Path, table: np.ndarray, lines: np.ndarray, low: float, high: float) -> None:
+    """The transverse-strain table covers the program's axial strains and gives 0 at 0."""
+    fmt = _table_format("loading.lateral.transverse_csv", _TRANSVERSE_COLUMNS)
+    first, last = table[0, 0], table[-1, 0]
+    if first > min(low, 0.0) or last < high:
+        raise fmt.fail(path, f"the table covers axial strains {first:.4g} to {last:.4g}, but the "
+                       f"loading program goes from {min(low, 0.0):.4g} to {high:.4g}: extend the table "
+                       "(it is not extrapolated)", int(lines[0] if first > min(low, 0.0) else lines[-1]))
+    at_zero = float(np.interp(0.0, table[:, 0], table[:, 1]))
+    if abs(at_zero) > _START_TOLERANCE:
+        raise fmt.fail(path, f"the transverse strain at zero axial strain is {at_zero:.4g}, not 0: the "
+                       "undeformed RVE would start stretched (give strains relative to the unloaded "
+                       "specimen)", int(lines[0]))
+
+
 @dataclass(frozen=True, eq=False)
 class LoadProgram:
     """A loading program cut into steps.
@@ -329,6 +348,10 @@ def load_program(loading: LoadingConfig) -> LoadProgram:
     if loading.test == "path":
         table, lines = read_table(loading.path_csv, _PATH_COLUMNS, "loading.path_csv")
         _check_path_determinants(loading.path_csv, table[:, 1:].reshape(-1, 2, 2), lines)
+        if np.abs(table[0, 1:] - np.eye(2).ravel()).max() > _START_TOLERANCE:
+            fmt = _table_format("loading.path_csv", _PATH_COLUMNS)
+            raise fmt.fail(loading.path_csv, "the first F is not the identity: a path starts from the "
+                           "undeformed RVE (F11 = F22 = 1, F12 = F21 = 0)", int(lines[0]))
         n = len(table) - 1
         return LoadProgram(
             time=table[:, 0] - table[0, 0], strain=table[:, 0] - table[0, 0],
@@ -357,8 +380,9 @@ def load_program(loading: LoadingConfig) -> LoadProgram:
         elif isinstance(loading.lateral, PoissonLateral):
             lateral = ("poisson", loading.lateral.poisson_ratio)
         elif isinstance(loading.lateral, TransverseCSVLateral):
-            table, _ = read_table(loading.lateral.transverse_csv, _TRANSVERSE_COLUMNS,
-                                  "loading.lateral.transverse_csv")
+            table, lines = read_table(loading.lateral.transverse_csv, _TRANSVERSE_COLUMNS,
+                                      "loading.lateral.transverse_csv")
+            _check_transverse_range(loading.lateral.transverse_csv, table, lines, min(strains), max(strains))
             lateral = ("csv", table)
     strains_arr = np.array(strains)
     if loading.test in ("equibiaxial", "pure_shear", "uniaxial") and strains_arr.min() <= -1.0:
