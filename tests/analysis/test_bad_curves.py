@@ -102,6 +102,10 @@ BAD = [
      r"line 2, field 2 \(stress column 1\): a 50-character field is not a number"),
     ("a password file is not echoed", LONG_SECRET + "\ndaemon:x:1:1:daemon:/usr/sbin:/usr/sbin/nologin\n",
      {}, {}, CurveFileError, r"line 1: the header has no column .*\(a 31-character name\)"),
+    ("two columns named strain", "strain,Strain,stress_MPa\n0,0,0\n0.01,0.02,1\n", {}, {}, CurveFileError,
+     r"line 1: the header names columns 0, 1 alike \('strain', any case\): choose the strain column"),
+    ("two columns named as the chosen one", "strain,load,load\n0,0,0\n0.01,1,2\n", {"stress_column": "load"}, {},
+     CurveFileError, r"line 1: the header names columns 1, 2 alike"),
     ("a stress column name that is not there", "strain,stress\n0,0\n0.01,1\n", {"stress_column": "load"}, {},
      CurveFileError, r"line 1: no stress column named 'load'"),
 ]

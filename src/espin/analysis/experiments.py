@@ -418,9 +418,9 @@ def _column_index(table: _Table, column: int | str | None, header: list[str] | N
         if header is None:
             return fallback
         lowered = [name.lower() for name in header]
-        found = [lowered.index(name.lower()) for name in defaults if name.lower() in lowered]
+        found = [name.lower() for name in defaults if name.lower() in lowered]
         if found:
-            return found[0]
+            return _only(table, lowered, found[0], what)
         if len(header) == 2:
             return fallback
         raise CurveFileError(
@@ -440,7 +440,17 @@ def _column_index(table: _Table, column: int | str | None, header: list[str] | N
     if column.lower() not in lowered:
         raise CurveFileError(f"{table.at(0)}: no {what} column named {column!r} in the header "
                              f"(columns: {shown_names(header)})")
-    return lowered.index(column.lower())
+    return _only(table, lowered, column.lower(), what)
+
+
+def _only(table: _Table, lowered: list[str], name: str, what: str) -> int:
+    """The index of the one column called ``name``; a name given to several columns is an error."""
+    indices = [k for k, found in enumerate(lowered) if found == name]
+    if len(indices) > 1:
+        raise CurveFileError(f"{table.at(0)}: the header names columns {', '.join(str(k) for k in indices)} "
+                             f"alike ({shown(name, 'name')}, any case): choose the {what} column by 0-based "
+                             f"index with --{what}-column ({what}_column= in Python)")
+    return indices[0]
 
 
 def _label(header: list[str] | None, index: int, what: str) -> str:

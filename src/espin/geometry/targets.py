@@ -353,9 +353,15 @@ class GeometryTargets:
     def from_path(cls, path: str | Path, **extra: Any) -> GeometryTargets:
         """Targets from a measure folder or a ``fibers.csv``."""
         path = Path(path)
-        if path.is_dir():
-            return cls.from_folder(path, **extra)
-        return cls.from_csv(path, **extra)
+        try:
+            if path.is_dir():
+                return cls.from_folder(path, **extra)
+            return cls.from_csv(path, **extra)
+        except MeasurementError as err:
+            if str(path) in str(err):
+                raise
+            where = path / "fibers.csv" if path.is_dir() else path
+            raise MeasurementError(f"{where}: {err}") from None
 
     def with_typed(self, **values: Any) -> GeometryTargets:
         """These targets plus typed-in values (None entries are ignored).
