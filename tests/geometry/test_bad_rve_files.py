@@ -393,6 +393,8 @@ CASES = {
     ),
     "n_inner_float": (set_attr("network", "n_inner", 3.0), ["attribute n_inner of network", "3.0"]),
     "n_inner_zero": (set_attr("network", "n_inner", 0), ["attribute n_inner of network", "below"]),
+    "config_volume_fraction": (edit_config("volume_fraction", "0.9"),
+                               ["stored config key rve.volume_fraction", "mean layer volume fraction"]),
     "soft_link_loop": (both(delete("network/element_nodes"), _soft_link_loop),
                        ["dataset network/element_nodes", "cannot be reached"]),
     "huge_declared_shape": (both(delete("network/node_position"), _huge_dataset("network/node_position")),

@@ -88,7 +88,9 @@ def test_bad_csv_names_column_and_row(tmp_path, text, match):
 
 @pytest.mark.parametrize("kwargs, match", [
     ({}, "no scale: give um_per_px"),
-    ({"um_per_px": -1.0}, "um_per_px must be a number > 0"),
+    ({"um_per_px": -1.0}, "um_per_px must be a number in \\[1e-6, 1000\\]"),
+    ({"um_per_px": 1e300}, "um_per_px must be a number in"),
+    ({"scale_bar_um": 1e300, "scale_bar_rows": "0:10"}, "scale_bar_um must be a number in"),
     ({"scale_bar_um": 30.0}, "scale_bar_um needs scale_bar_rows"),
     ({"scale_bar_rows": "0:10"}, "scale_bar_rows needs scale_bar_um"),
     ({"um_per_px": 0.1, "scale_bar_um": 3.0, "scale_bar_rows": "0:10"}, "not both"),

@@ -277,6 +277,11 @@ def _check_same(path: str, name: str, found: np.ndarray, wanted: np.ndarray, wha
                          f"{name} to agree with {what}")
 
 
+_VOLUME_FRACTION_ATOL = 0.02
+"""With a third of the target, how far a mat's volume fraction may be from its config's: a
+sparse layer's last fiber overshoots it (espin.geometry.size_estimate)."""
+
+
 def _check_config(path: Path, config: Config, mat: FiberMat, network: Network) -> None:
     """The stored config must be the one the arrays were generated from."""
     rve = config.rve
@@ -295,6 +300,10 @@ def _check_config(path: Path, config: Config, mat: FiberMat, network: Network) -
     if thinnest < rve.diameter_min_um * (1.0 - _RTOL):
         raise _config_error(path, "rve.diameter_min_um", rve.diameter_min_um,
                             "the smallest of dataset mat/fiber_diameter", thinnest)
+    achieved = float(np.mean(mat.layer_volume_fraction()))
+    if abs(achieved - rve.volume_fraction) > rve.volume_fraction / 3.0 + _VOLUME_FRACTION_ATOL:
+        raise _config_error(path, "rve.volume_fraction", rve.volume_fraction,
+                            "the mean layer volume fraction of the fibers in mat", achieved)
 
 
 def _config_error(path: Path, key: str, stored: float, where: str, found: float) -> RVEFileError:

@@ -410,10 +410,10 @@ def _check_options(um_per_px: float | None, scale_bar_um: float | None, scale_ba
                    crop_rows: Any, crop_bottom_px: int | None, width_px: float | None,
                    max_bend_deg: float, min_length_diameters: float) -> None:
     """Every option error, before any work (ConfigError naming the parameter)."""
-    if um_per_px is not None and not (_finite(um_per_px) and um_per_px > 0):
-        raise ConfigError(f"um_per_px must be a number > 0, got {um_per_px!r}")
-    if scale_bar_um is not None and not (_finite(scale_bar_um) and scale_bar_um > 0):
-        raise ConfigError(f"scale_bar_um must be a number > 0, got {scale_bar_um!r}")
+    if um_per_px is not None and not (_finite(um_per_px) and 1e-6 <= um_per_px <= 1e3):
+        raise ConfigError(f"um_per_px must be a number in [1e-6, 1000] (1 pm to 1 mm per pixel), got {um_per_px!r}")
+    if scale_bar_um is not None and not (_finite(scale_bar_um) and 1e-6 <= scale_bar_um <= 1e6):
+        raise ConfigError(f"scale_bar_um must be a number in [1e-6, 1e6] um, got {scale_bar_um!r}")
     if um_per_px is not None and (scale_bar_um is not None or scale_bar_rows is not None):
         raise ConfigError("give um_per_px, or scale_bar_um with scale_bar_rows, not both")
     if um_per_px is None:
