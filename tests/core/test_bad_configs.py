@@ -180,3 +180,9 @@ def test_tables_are_found_beside_the_config_file(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     config = load_config("mat/mat.toml")
     assert config.loading.lateral.transverse_csv.resolve() == folder / "lateral.csv"
+
+
+@pytest.mark.parametrize("test", ["equibiaxial", "pure_shear", "simple_shear"])
+def test_a_lateral_condition_outside_a_uniaxial_test_is_refused(test):
+    with pytest.raises(ConfigError, match="loading.lateral applies to uniaxial tests only"):
+        load_config("plla", {"loading.test": test, "loading.lateral": "free"})

@@ -142,3 +142,13 @@ def test_resumable_commands_reuse_only_their_own_folder(tmp_path):
     adopted.finish()
     with pytest.raises(ConfigError, match="another sweep run"):
         OutputFolder.claim(study, "rve-size", "new", ["results.csv"], resume="same-command")
+
+
+def test_an_unreadable_run_json_is_replaced_only_with_overwrite(tmp_path):
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / MANIFEST).write_text("{not json")
+    with pytest.raises(ConfigError, match="not an espin run manifest"):
+        OutputFolder.claim(folder, "simulate", "x", ["curve.csv"])
+    OutputFolder.claim(folder, "simulate", "x", ["curve.csv"], overwrite=True).finish()
+    assert read_manifest(folder).status == "complete"

@@ -365,6 +365,11 @@ class LoadingConfig(_Section):
                 f"loading.program replaces the shorthand loading.{', loading.'.join(shorthand)}: "
                 "give one or the other"
             )
+        if self.test != "uniaxial" and self.lateral != "fixed":
+            raise ValueError(
+                f'loading.lateral applies to uniaxial tests only (loading.test = "{self.test}" '
+                "prescribes the whole in-plane deformation)"
+            )
         if self.test == "path" and self.path_csv is None:
             raise ValueError('loading.path_csv is required when loading.test = "path"')
         if self.test != "path" and self.path_csv is not None:

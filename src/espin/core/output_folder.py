@@ -181,7 +181,14 @@ class OutputFolder:
             if Path(name).resolve().parent == path.resolve():
                 raise ConfigError(f"output folder {path} holds the input {Path(name).name} of this run: "
                                   "choose another folder (--out)")
-        previous = read_manifest(path) if path.is_dir() else None
+        try:
+            previous = read_manifest(path) if path.is_dir() else None
+        except ConfigError:
+            if not overwrite:
+                raise
+            previous = None  # an unreadable run.json is replaced like any other run's
+            if (path / MANIFEST).is_dir():
+                raise ConfigError(f"{path / MANIFEST} is a folder: remove it first") from None
         found = _existing(path, [*outputs, *(previous.outputs if previous else [])])
         if resume == "same-inputs":
             reuse = previous is not None and (previous.command, previous.config_hash) == (command, digest)

@@ -68,10 +68,12 @@ def read_image(path: str | Path) -> np.ndarray:
     if not path.is_file():
         raise SEMError(f"image {str(path)!r}: no such file")
     try:
-        if path.suffix.lower() in _TIFF_SUFFIXES:
-            data = _read_tiff(path)
-        else:
-            data = _read_pillow(path)
+        with warnings.catch_warnings():  # a damaged file's decoder chatter: the error says it
+            warnings.simplefilter("ignore")
+            if path.suffix.lower() in _TIFF_SUFFIXES:
+                data = _read_tiff(path)
+            else:
+                data = _read_pillow(path)
     except SEMError:
         raise
     except Exception as err:  # any decoder failure: the user's file, not our bug
