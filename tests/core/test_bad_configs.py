@@ -186,3 +186,16 @@ def test_tables_are_found_beside_the_config_file(tmp_path, monkeypatch):
 def test_a_lateral_condition_outside_a_uniaxial_test_is_refused(test):
     with pytest.raises(ConfigError, match="loading.lateral applies to uniaxial tests only"):
         load_config("plla", {"loading.test": test, "loading.lateral": "free"})
+
+
+def test_an_override_on_a_resolved_file_acts_as_on_the_preset(tmp_path):
+    """Values a resolved file holds only because they were derived (seeding from the
+    orientation, diameter_min_um = 0.1 D) are derived again when what they came from changes."""
+    from espin.core.config import write_config
+
+    path = write_config(load_config("plla"), tmp_path / "resolved.toml")
+    for overrides in ({"rve.orientation": {"von_mises": {"mean_deg": 0.0, "kappa": 2.0}}},
+                      {"rve.diameter_um": 0.04}, {"rve.orientation.von_mises.kappa": 3.0}):
+        assert load_config(path, overrides) == load_config("plla", overrides)
+    kept = load_config(path, {"rve.diameter_um": 0.9, "rve.diameter_min_um": 0.05})
+    assert kept.rve.diameter_min_um == 0.05

@@ -548,6 +548,24 @@ def _drop_alternatives(data: dict[str, Any], overrides: dict[str, Any]) -> None:
                     table.pop(key, None)
 
 
+def _drop_derived(data: dict[str, Any], overrides: dict[str, Any]) -> None:
+    """Remove from ``data`` a value that equals the default derived from a key an override
+    changes, so that it is derived again: a resolved file (``espin config plla``) holds
+    ``diameter_min_um = 0.1 D`` and ``seeding = "border"`` (from ``orientation = "uniform"``),
+    and ``--set rve.diameter_um`` or ``--set rve.orientation`` must act as on the preset."""
+    rve = data.get("rve")
+    if not isinstance(rve, dict):
+        return
+    given = set(overrides)
+    if "rve.diameter_um" in given and "rve.diameter_min_um" not in given and "diameter_um" in rve \
+            and rve.get("diameter_min_um") == round(0.1 * rve["diameter_um"], 12):
+        rve.pop("diameter_min_um")
+    changes_orientation = any(key == "rve.orientation" or key.startswith("rve.orientation.") for key in given)
+    derived_seeding = "border" if rve.get("orientation", "uniform") == "uniform" else "lines"
+    if changes_orientation and "rve.seeding" not in given and rve.get("seeding") == derived_seeding:
+        rve.pop("seeding")
+
+
 def _apply_dotted(data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
     """``data`` with each ``section.key[.sub...]`` override set along its path.
 
@@ -558,6 +576,7 @@ def _apply_dotted(data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, 
     """
     out = copy.deepcopy(data)
     _drop_alternatives(out, overrides)
+    _drop_derived(out, overrides)
     for dotted, value in overrides.items():
         parts = dotted.split(".")
         if len(parts) < 2 or parts[0] not in Config.model_fields or not all(parts):
