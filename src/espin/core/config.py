@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import re
 import tomllib
 from collections.abc import Iterator
 from importlib import resources
@@ -445,6 +446,8 @@ class Config(_Section):
 # --------------------------------------------------------------------------------------------
 # reading and writing
 # --------------------------------------------------------------------------------------------
+_PYDANTIC_TAG = re.compile(r"^(constrained-\w+|\w+\[.*\])$")
+"""Names pydantic gives the members of a union (``constrained-float``, ``literal['off']``)."""
 _UNION_TAGS = {
     "plain", "VonMises", "Histogram", "PoissonLateral", "TransverseCSVLateral", "LoadSegment", "HoldSegment",
 }
@@ -453,7 +456,7 @@ _UNION_TAGS = {
 def _format_validation_error(err: ValidationError, source: str) -> ConfigError:
     lines = []
     for e in err.errors(include_url=False):
-        loc = ".".join(str(p) for p in e["loc"] if str(p) not in _UNION_TAGS)
+        loc = ".".join(str(p) for p in e["loc"] if str(p) not in _UNION_TAGS and not _PYDANTIC_TAG.match(str(p)))
         msg = e["msg"].removeprefix("Value error, ")
         if e["type"] == "extra_forbidden":
             msg = "unknown key"
