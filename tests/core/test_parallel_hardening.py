@@ -215,3 +215,15 @@ def test_tls_files_reach_the_task_pool(tmp_path, monkeypatch, command, target):
     security = seen["security"]
     assert (security.tls_ca_file, security.tls_client_cert, security.tls_client_key) == (str(ca), str(cert), str(key))
     assert security.require_encryption and seen["scheduler"] == "tls://node-7:8786"
+
+
+def test_an_unreachable_scheduler_is_a_clear_error(monkeypatch):
+    """Dask waits for its connect timeout (30 s by default; 1 s here), then: a ConfigError."""
+    import dask
+
+    from espin.core.errors import ConfigError
+
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
+        with TaskPool(scheduler="tcp://127.0.0.1:9") as pool:
+            with pytest.raises(ConfigError, match="tcp://127.0.0.1:9: cannot connect"):
+                list(pool.map(abs, [1]))

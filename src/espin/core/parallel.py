@@ -332,7 +332,11 @@ class TaskPool:
                 self._closers.append(cluster.close)
                 client = Client(cluster)
             else:
-                client = Client(client, security=self.security)
+                try:
+                    client = Client(client, security=self.security)
+                except (OSError, TimeoutError) as err:
+                    raise ConfigError(f"scheduler {client}: cannot connect ({err}); check the address and "
+                                      "that the scheduler is running and reachable") from None
             self._closers.insert(0, client.close)
         return client.get_executor(pure=False)
 
