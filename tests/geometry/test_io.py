@@ -44,6 +44,24 @@ def test_atomic_write_leaves_nothing_on_failure(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["out.bin"]
 
 
+def test_a_full_disk_is_a_clear_error_and_keeps_the_old_file(tmp_path):
+    import errno
+
+    target = tmp_path / "out.bin"
+    target.write_bytes(b"old")
+
+    def full(tmp):
+        tmp.write_bytes(b"half")
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    with pytest.raises(RVEFileError, match=r"cannot write .*out.bin: No space left on device"):
+        atomic_write(target, full)
+    assert target.read_bytes() == b"old"
+    assert [p.name for p in tmp_path.iterdir()] == ["out.bin"]
+    with pytest.raises(RVEFileError, match="cannot write"):
+        atomic_write(tmp_path / "out.bin" / "below_a_file.bin", full)
+
+
 def test_load_errors(tmp_path, small_rve):
     with pytest.raises(RVEFileError, match="cannot open"):
         load_rve(tmp_path / "missing.h5")

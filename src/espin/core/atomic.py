@@ -7,6 +7,8 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+from espin.core.errors import RVEFileError
+
 __all__ = ["atomic_write_bytes", "atomic_write"]
 
 
@@ -27,10 +29,18 @@ def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
     -------
     Path
         The destination path.
+
+    Raises
+    ------
+    RVEFileError
+        If the file cannot be written (no permission, a full disk): the old file is kept.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as err:
+        raise RVEFileError(f"cannot write {path}: {err.strerror or err}") from None
     os.close(fd)
     tmp_path = Path(tmp)
     try:
@@ -41,6 +51,11 @@ def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
         os.umask(umask)
         os.chmod(tmp_path, 0o666 & ~umask)  # mkstemp creates 0600; give a normal file's mode
         os.replace(tmp_path, path)
+    except OSError as err:
+        tmp_path.unlink(missing_ok=True)
+        if isinstance(err, RVEFileError):
+            raise
+        raise RVEFileError(f"cannot write {path}: {err.strerror or err} (a full disk?)") from None
     except BaseException:
         tmp_path.unlink(missing_ok=True)
         raise

@@ -37,6 +37,7 @@ import numpy as np
 
 from espin.core.atomic import atomic_write, atomic_write_bytes
 from espin.core.config import Config
+from espin.core.errors import RVEFileError
 from espin.core.header import open_checked, read_config, write_header
 from espin.geometry.network import Network
 from espin.geometry.vtk import write_network_vtu
@@ -137,12 +138,16 @@ class SimulationWriter:
         names, columns, formats = _curve_columns(result_from_records(self.config, self.program, [record]),
                                                  first_step=record.index)
         row = ",".join(fmt % np.asarray(column)[0] for fmt, column in zip(formats, columns)) + "\n"
-        self.folder.mkdir(parents=True, exist_ok=True)
         first = len(self._records) == 1
-        with open(self.folder / "curve.csv", "w" if first else "a", encoding="utf-8") as fh:
-            fh.write((",".join(names) + "\n" if first else "") + row)
-            fh.flush()
-            os.fsync(fh.fileno())
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            with open(self.folder / "curve.csv", "w" if first else "a", encoding="utf-8") as fh:
+                fh.write((",".join(names) + "\n" if first else "") + row)
+                fh.flush()
+                os.fsync(fh.fileno())
+        except OSError as err:
+            raise RVEFileError(f"cannot write {self.folder / 'curve.csv'}: {err.strerror or err} "
+                               "(a full disk?)") from None
 
     def _write_vtk(self, record: StepRecord) -> None:
         name = f"vtk/step_{record.index:04d}.vtu"
