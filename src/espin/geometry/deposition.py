@@ -65,8 +65,13 @@ def _border_starts(
 def _line_starts(
     rng: np.random.Generator, n: int, side: float, dist: OrientationDistribution
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Entry points of stationary random lines (``lines`` seeding)."""
-    theta = dist.sample(rng, n) + np.pi * rng.integers(0, 2, n)  # random sense
+    """Entry points of stationary random lines (``lines`` seeding).
+
+    Axes are drawn with density proportional to p(theta) w(theta), w = L (|cos| + |sin|) the
+    width of the square across theta (by rejection from p), so that the fiber *length* per
+    direction follows p: a line of axis theta crosses the square along L^2 / w on average.
+    """
+    theta = _width_weighted_axes(rng, n, dist) + np.pi * rng.integers(0, 2, n)  # random sense
     d = np.c_[np.cos(theta), np.sin(theta)]
     normal = np.c_[-d[:, 1], d[:, 0]]
     centre = np.array([side / 2.0, side / 2.0])
@@ -81,6 +86,20 @@ def _line_starts(
     t_enter = np.nanmax(np.where(d != 0.0, np.minimum(t0, t1), -np.inf), axis=1)
     start = np.clip(point + t_enter[:, None] * d, 0.0, side)
     return start, theta
+
+
+def _width_weighted_axes(rng: np.random.Generator, n: int, dist: OrientationDistribution) -> np.ndarray:
+    """``n`` axes [rad] with density proportional to p(theta) (|cos theta| + |sin theta|):
+    draws from p kept with probability (|cos| + |sin|) / sqrt(2)."""
+    kept: list[np.ndarray] = []
+    missing = n
+    while missing > 0:
+        theta = dist.sample(rng, int(1.2 * missing) + 8)
+        width = np.abs(np.cos(theta)) + np.abs(np.sin(theta))
+        accepted = theta[rng.uniform(0.0, np.sqrt(2.0), theta.size) < width][:missing]
+        kept.append(accepted)
+        missing -= accepted.size
+    return np.concatenate(kept)
 
 
 def _exit_distance(p: np.ndarray, u: np.ndarray, side: float) -> np.ndarray:
