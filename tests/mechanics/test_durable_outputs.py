@@ -76,8 +76,10 @@ def test_a_run_killed_over_an_earlier_one_leaves_no_mixed_folder(tmp_path):
     manifest = read_manifest(folder)
     assert manifest.run_id != earlier and manifest.status == "running"
     assert not (folder / "results.h5").exists()  # the earlier run's, removed before the first step
-    steps = sorted(folder.glob("vtk/step_*.vtu"))
-    assert len(steps) >= len(_rows(folder)) - 2  # the new run's steps, not the earlier 6
+    steps = sorted(p.name for p in folder.glob("vtk/step_*.vtu"))
+    rows = len(_rows(folder)) - 1  # the steps in the curve (one may be cut mid-write)
+    assert steps == [f"step_{k:04d}.vtu" for k in range(len(steps))]
+    assert rows - 1 <= len(steps) <= rows  # the new run's steps only: the earlier 6 are gone
 
 
 def test_another_runs_folder_is_refused_and_left_as_it_was(tmp_path):
@@ -115,7 +117,7 @@ def test_an_interrupted_run_is_marked_failed(tmp_path):
 def test_a_run_refused_before_any_work_leaves_no_folder(tmp_path):
     with pytest.raises(ConfigError, match="no cross-link"):
         espin.simulate("plla", tmp_path / "run", rve__size_ratio=30, rve__layers=1, rve__max_deviation_deg=0,
-                       rve__orientation={"von_mises": {"mean_deg": 0, "kappa": 700}})
+                       rve__orientation={"histogram": {"edges_deg": [0, 1e-6, 180], "weights": [1, 0]}})
     assert not (tmp_path / "run").exists()
 
 
@@ -152,3 +154,21 @@ def test_an_unreadable_run_json_is_replaced_only_with_overwrite(tmp_path):
         OutputFolder.claim(folder, "simulate", "x", ["curve.csv"])
     OutputFolder.claim(folder, "simulate", "x", ["curve.csv"], overwrite=True).finish()
     assert read_manifest(folder).status == "complete"
+
+
+def test_overwrite_never_removes_a_file_outside_the_folder(tmp_path):
+    """A run.json is data: outputs naming ../ or absolute paths make it unreadable, and only
+    files inside the folder are ever removed."""
+    victim = tmp_path / "victim.txt"
+    victim.write_text("mine")
+    folder = tmp_path / "run"
+    folder.mkdir()
+    (folder / "link.csv").symlink_to(victim)
+    for outputs in (["../victim.txt"], ["/tmp/*"], 5):
+        (folder / MANIFEST).write_text(json.dumps({"run_id": "a", "command": "simulate", "config_hash": "x",
+                                                   "espin_version": "0", "status": "complete",
+                                                   "started_utc": "", "outputs": outputs}))
+        with pytest.raises(ConfigError, match="not an espin run manifest"):
+            read_manifest(folder)
+        OutputFolder.claim(folder, "simulate", "x", ["*.csv"], overwrite=True).finish()
+    assert victim.read_text() == "mine"

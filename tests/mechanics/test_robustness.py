@@ -55,11 +55,12 @@ def test_continuation_ends_at_the_true_model(small_rve, monkeypatch):
 
 def test_merging_close_crosslinks_makes_shear_cheap():
     """Simple shear of a dense wavy mat, one 1 % step: with cross-links closer than 0.1 D
-    merged (the default) Newton needs under a third of the iterations it needs at 1e-2 D
-    (where elements a few hundredths of D long keep it cycling; at the full case size it
-    failed), and the stress differs by less than the mats differ."""
+    merged (the default) Newton needs fewer iterations than at 1e-2 D, where elements a few
+    hundredths of D long keep it cycling, and the stress differs by less than the mats differ.
+    On this case's mat before `lines` seeding was weighted by the square's width (SPEC 1),
+    118 against 410; on today's mat 322 against 463 (seeds 1-3: 1.2-2.0 times fewer)."""
     shear = dict(loading__test="simple_shear", loading__max_strain=0.01, loading__steps=1)
     merged = simulate(generate("plla", **DENSE_WAVY), **shear)
     fine = simulate(generate("plla", **(DENSE_WAVY | {"rve__merge_tolerance_ratio": 0.01})), **shear)
-    assert 3 * merged.iterations[1] < fine.iterations[1]
+    assert merged.iterations[1] < fine.iterations[1]
     assert merged.P[1, 0, 1] > 0 and fine.P[1, 0, 1] > 0

@@ -180,3 +180,22 @@ def test_a_grid_of_too_many_values_is_refused():
 
     with pytest.raises(ConfigError, match="count must be in"):
         parse_grid(["rve.volume_fraction=0.1:0.3:1000000000"])
+
+
+def test_a_grid_range_of_whole_numbers_stays_integer():
+    from espin.cli.study import parse_grid
+
+    grid = parse_grid(["rve.layers=2:8:4", "rve.volume_fraction=0.1:0.3:3"])
+    assert grid["rve.layers"] == [2, 4, 6, 8] and all(type(v) is int for v in grid["rve.layers"])
+    assert grid["rve.volume_fraction"] == pytest.approx([0.1, 0.2, 0.3])
+
+
+def test_overwrite_clears_a_folder_of_the_same_study(tmp_path):
+    from espin.core.output_folder import OutputFolder
+
+    folder = tmp_path / "study"
+    OutputFolder.claim(folder, "sweep", "a", ["results.csv", "sweep_*.png"], resume="same-command").finish()
+    (folder / "sweep_old.png").write_bytes(b"png")
+    OutputFolder.claim(folder, "sweep", "a", ["results.csv", "sweep_*.png"], resume="same-command",
+                       overwrite=True).finish()
+    assert not (folder / "sweep_old.png").exists()

@@ -61,8 +61,8 @@ def generate(
         name = Path(source).stem if source else "plla"
         folder = out if out is not None else Path(f"{name}_rve")
         check_size(config, allow_large=allow_large)  # before the folder is claimed
-        claimed = OutputFolder.claim(folder, "generate", config_digest(config), RVE_OUTPUTS, overwrite=overwrite)
-        with Progress(console=console, transient=True) as bar:
+        with OutputFolder.claim(folder, "generate", config_digest(config), RVE_OUTPUTS, overwrite=overwrite) as claimed, \
+                Progress(console=console, transient=True) as bar:
             task = bar.add_task("depositing layers", total=config.rve.layers)
 
             def progress(stage: str, done: int, total: int) -> None:
@@ -73,14 +73,9 @@ def generate(
                 elif stage == "crosslinks":
                     bar.update(task, description="building the network")
 
-            try:
-                rve = generate_rve(config, progress=progress, allow_large=allow_large)
-                bar.update(task, description="writing files")
-                result = write_rve_files(rve, folder, figures=figures, vtk=vtk, run_id=claimed.run_id)
-            except BaseException:
-                claimed.finish("failed")
-                raise
-            claimed.finish()
+            rve = generate_rve(config, progress=progress, allow_large=allow_large)
+            bar.update(task, description="writing files")
+            result = write_rve_files(rve, folder, figures=figures, vtk=vtk, run_id=claimed.run_id)
     except EspinError as err:
         fail(err)
     console.print(result.statistics.format_table(), highlight=False)

@@ -7,7 +7,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from espin.cli.common import OverwriteOpt, fail, parse_set
+from espin.cli.common import AllowLargeOpt, OverwriteOpt, fail, parse_set
 from espin.core.errors import EXIT_SOLVER
 
 __all__ = ["register", "parse_grid"]
@@ -70,7 +70,9 @@ def parse_grid(items: list[str] | None) -> dict[str, list[Any]]:
                 raise ConfigError(f"--grid {item!r}: start:stop:count needs two numbers and an integer") from None
             if not 1 <= count <= 10_000:
                 raise ConfigError(f"--grid {key}: count must be in [1, 10000] (got {count})")
-            grid[key] = [float(v) for v in np.linspace(start, stop, count)]
+            values = np.linspace(start, stop, count)
+            integral = all(float(v).is_integer() for v in values) and "." not in parts[0] + parts[1]
+            grid[key] = [int(v) if integral else float(v) for v in values]  # rve.layers=2:8:4 stays integer
             continue
         values = []
         for word in text.split(","):
@@ -170,6 +172,7 @@ def rve_size(
     blas_threads: BlasThreadsOpt = 1,
     set_: SetOpt = None,
     overwrite: OverwriteOpt = False,
+    allow_large: AllowLargeOpt = False,
     quiet: QuietOpt = False,
 ) -> None:
     """Mean, sd and RSD of modulus, yield stress, post-yield modulus versus L/D and N_l (Appendix A).
@@ -189,7 +192,7 @@ def rve_size(
             base, size_ratios=sizes, layer_counts=layers, layers_for_sizes=layers_for_sizes,
             size_for_layers=size_for_layers, realizations=realizations, seed_start=seed_start,
             folder=out, workers=workers, scheduler=scheduler, blas_threads=blas_threads, security=security,
-            on_outcome=on_outcome, overwrite=overwrite, **_overrides(set_))), n_points * realizations
+            on_outcome=on_outcome, overwrite=overwrite, allow_large=allow_large, **_overrides(set_))), n_points * realizations
 
     _run_study(prepare, out, _MEANS + _RSDS, quiet)
 
@@ -215,6 +218,7 @@ def sweep(
     blas_threads: BlasThreadsOpt = 1,
     set_: SetOpt = None,
     overwrite: OverwriteOpt = False,
+    allow_large: AllowLargeOpt = False,
     quiet: QuietOpt = False,
 ) -> None:
     """Properties (modulus, yield stress, post-yield modulus) over any parameter grid, in parallel.
@@ -234,7 +238,7 @@ def sweep(
         return (lambda on_outcome: run_sweep(
             base, parsed, realizations=realizations, seed_start=seed_start, folder=out,
             table_format=table_format, workers=workers, scheduler=scheduler, blas_threads=blas_threads,
-            security=security, on_outcome=on_outcome, overwrite=overwrite, **_overrides(set_))), n_points * realizations
+            security=security, on_outcome=on_outcome, overwrite=overwrite, allow_large=allow_large, **_overrides(set_))), n_points * realizations
 
     _run_study(prepare, out, _MEANS + _SDS, quiet)
 

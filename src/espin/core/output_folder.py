@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Literal
 
 from espin.core.atomic import atomic_write_bytes
-from espin.core.errors import ConfigError
+from espin.core.errors import ConfigError, RVEFileError
 from espin.core.version import __version__
 
 __all__ = ["MANIFEST", "RunManifest", "OutputFolder", "read_manifest", "inputs_digest"]
@@ -117,6 +117,8 @@ def read_manifest(folder: str | Path) -> RunManifest | None:
         manifest = RunManifest(**{key: data[key] for key in RunManifest.__dataclass_fields__ if key in data})
         if not all(isinstance(getattr(manifest, key), str) for key in ("run_id", "command", "status")):
             raise TypeError
+        if not (isinstance(manifest.outputs, list) and all(map(_inside, manifest.outputs))):
+            raise TypeError  # an --overwrite removes these: only patterns inside the folder
         return manifest
     except (OSError, UnicodeDecodeError, ValueError, TypeError):
         raise ConfigError(f"{path} is not an espin run manifest (JSON with run_id, command, "
@@ -172,7 +174,9 @@ class OutputFolder:
         ------
         ConfigError
             If the folder belongs to another run and ``overwrite`` is False, is not a folder,
-            holds one of ``inputs``, or cannot be created.
+            or holds one of ``inputs``.
+        RVEFileError
+            If the folder or its manifest cannot be written.
         """
         path = Path(path)
         if path.exists() and not path.is_dir():
@@ -194,7 +198,7 @@ class OutputFolder:
             reuse = previous is not None and (previous.command, previous.config_hash) == (command, digest)
         else:
             reuse = resume == "same-command" and (previous.command == command if previous else bool(found))
-        if reuse:
+        if reuse and not overwrite:
             manifest = previous or RunManifest(uuid.uuid4().hex, command, digest, __version__, "running", _utc_now())
             folder = cls(path, replace(manifest, config_hash=digest, status="running", finished_utc=None,
                                        outputs=list(outputs)))
@@ -214,7 +218,7 @@ class OutputFolder:
         try:
             path.mkdir(parents=True, exist_ok=True)
         except OSError as err:
-            raise ConfigError(f"cannot create the output folder {path}: {err.strerror or err}") from None
+            raise RVEFileError(f"cannot create the output folder {path}: {err.strerror or err}") from None
         folder._write()  # first, so that a kill while clearing leaves a folder marked partial
         for name in [*found, *(p.relative_to(path).as_posix() for p in path.rglob(_TEMPORARY))]:
             (path / name).unlink(missing_ok=True)
@@ -242,18 +246,23 @@ class OutputFolder:
         self._write()
 
     def _write(self) -> None:
-        try:
-            atomic_write_bytes(self.path / MANIFEST, json.dumps(asdict(self.manifest), indent=1).encode("utf-8"))
-        except OSError as err:
-            raise ConfigError(f"cannot write the output folder {self.path}: {err.strerror or err}") from None
+        atomic_write_bytes(self.path / MANIFEST, json.dumps(asdict(self.manifest), indent=1).encode("utf-8"))
+
+
+def _inside(pattern: object) -> bool:
+    """Whether ``pattern`` is a glob pattern relative to a folder that stays inside it."""
+    return (isinstance(pattern, str) and bool(pattern) and not Path(pattern).is_absolute()
+            and ".." not in Path(pattern).parts)
 
 
 def _existing(path: Path, outputs: Sequence[str]) -> list[str]:
-    """The files under ``path`` that match ``outputs``, relative, sorted."""
+    """The files under ``path`` that match ``outputs``, relative, sorted (never one outside it,
+    whatever a pattern or a link says)."""
     if not path.is_dir():
         return []
-    return sorted({p.relative_to(path).as_posix() for pattern in outputs for p in path.glob(pattern)
-                   if p.is_file()})
+    root = path.resolve()
+    return sorted({p.relative_to(path).as_posix() for pattern in outputs if _inside(pattern)
+                   for p in path.glob(pattern) if p.is_file() and p.resolve().is_relative_to(root)})
 
 
 def _utc_now() -> str:

@@ -277,9 +277,10 @@ def _check_same(path: str, name: str, found: np.ndarray, wanted: np.ndarray, wha
                          f"{name} to agree with {what}")
 
 
-_VOLUME_FRACTION_ATOL = 0.02
-"""With a third of the target, how far a mat's volume fraction may be from its config's: a
-sparse layer's last fiber overshoots it (espin.geometry.size_estimate)."""
+def _fiber_volume_fraction(mat: FiberMat, fiber: int) -> float:
+    """The share of its layer's volume (L^2 times the layer thickness) that one fiber fills."""
+    return float(np.pi * mat.fiber_diameter[fiber] ** 2 / 4 * mat.contour_length[fiber]
+                 / (mat.size**2 * mat.thickness))
 
 
 def _check_config(path: Path, config: Config, mat: FiberMat, network: Network) -> None:
@@ -300,10 +301,14 @@ def _check_config(path: Path, config: Config, mat: FiberMat, network: Network) -
     if thinnest < rve.diameter_min_um * (1.0 - _RTOL):
         raise _config_error(path, "rve.diameter_min_um", rve.diameter_min_um,
                             "the smallest of dataset mat/fiber_diameter", thinnest)
-    achieved = float(np.mean(mat.layer_volume_fraction()))
-    if abs(achieved - rve.volume_fraction) > rve.volume_fraction / 3.0 + _VOLUME_FRACTION_ATOL:
-        raise _config_error(path, "rve.volume_fraction", rve.volume_fraction,
-                            "the mean layer volume fraction of the fibers in mat", achieved)
+    layer = mat.layer_volume_fraction()
+    for k in range(mat.n_layers):  # deposition stops at the fiber that reaches the target
+        in_layer = np.flatnonzero(mat.fiber_layer == k)
+        last = in_layer[-1] if in_layer.size else None
+        before = layer[k] - (0.0 if last is None else _fiber_volume_fraction(mat, last))
+        if not (layer[k] >= rve.volume_fraction * (1 - _RTOL) and before < rve.volume_fraction * (1 + _RTOL)):
+            raise _config_error(path, "rve.volume_fraction", rve.volume_fraction,
+                                f"the volume fraction of layer {k} of mat (reached by its last fiber)", layer[k])
 
 
 def _config_error(path: Path, key: str, stored: float, where: str, found: float) -> RVEFileError:

@@ -57,14 +57,9 @@ def write_rve_folder(
     ConfigError
         If ``folder`` holds another run's results and ``overwrite`` is False.
     """
-    claimed = OutputFolder.claim(folder, "generate", config_digest(rve.config), RVE_OUTPUTS, overwrite=overwrite)
-    try:
-        written = write_rve_files(rve, folder, figures=figures, vtk=vtk, run_id=claimed.run_id)
-    except BaseException:
-        claimed.finish("failed")
-        raise
-    claimed.finish()
-    return written
+    with OutputFolder.claim(folder, "generate", config_digest(rve.config), RVE_OUTPUTS,
+                            overwrite=overwrite) as claimed:
+        return write_rve_files(rve, folder, figures=figures, vtk=vtk, run_id=claimed.run_id)
 
 
 def write_rve_files(

@@ -15,7 +15,7 @@ cross-link becomes a node of two DOF (merging makes a few fewer).
 
 Memory is the peak resident size of ``espin simulate`` (default program, figures and VTK
 written), measured with ``benchmarks/bench_memory.py``: about 200 MiB for Python, the
-libraries and the figures, then 3.9-4.1 kB per DOF (PARDISO, 4.7k to 241k DOF), plus the
+libraries and the figures, then 3.4-3.7 kB per DOF (PARDISO, 4.7k to 143k DOF), plus the
 deposition's arrays per segment. The estimate is 1.1-1.4 times the measured peak on that
 benchmark's mats (docs/performance.md): within 2x, erring high.
 """
@@ -157,8 +157,8 @@ def check_size(config: Config, *, allow_large: bool = False, available: int | No
             f"this mat needs {size.describe()}, more than the {_gib(limit)} available now "
             f"(rve.size_ratio = {rve.side_um / rve.diameter_um:g}, rve.layers = {rve.layers}, "
             f"rve.segment_ratio = {rve.segment_length_um / rve.diameter_um:g}, "
-            f"rve.volume_fraction = {rve.volume_fraction:g}): make the RVE smaller, or pass "
-            "--allow-large (allow_large=True in Python) to try anyway"
+            f"rve.volume_fraction = {rve.volume_fraction:g}): make the RVE smaller, or try anyway "
+            "with --allow-large (generate, simulate, study; allow_large=True in Python)"
         )
     return size
 

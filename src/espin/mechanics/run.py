@@ -106,20 +106,12 @@ def simulate(
     program = load_program(config.loading)  # its tables are read and checked before any work
     if rve is None:
         check_size(config, allow_large=allow_large)  # before the folder is claimed
-    claimed = None
-    if out is not None:
-        outputs = SIMULATION_OUTPUTS + (RVE_OUTPUTS if rve is None else ())
-        claimed = OutputFolder.claim(out, "simulate", config_digest(config), outputs, overwrite=overwrite,
-                                     inputs=[rve.path] if rve is not None and rve.path is not None else [])
-    try:
-        result = _run(config, rve, program, claimed, on_step, threads, allow_large)
-    except BaseException:
-        if claimed is not None:
-            claimed.finish("failed")
-        raise
-    if claimed is not None:
-        claimed.finish()
-    return result
+    if out is None:
+        return _run(config, rve, program, None, on_step, threads, allow_large)
+    outputs = SIMULATION_OUTPUTS + (RVE_OUTPUTS if rve is None else ())
+    with OutputFolder.claim(out, "simulate", config_digest(config), outputs, overwrite=overwrite,
+                            inputs=[rve.path] if rve is not None and rve.path is not None else []) as claimed:
+        return _run(config, rve, program, claimed, on_step, threads, allow_large)
 
 
 def _run(config: Config, rve: RVE | None, program: LoadProgram, claimed: OutputFolder | None,

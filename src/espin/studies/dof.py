@@ -188,7 +188,7 @@ def dof_study(
     configs = [resolve_config(base, rve__size_ratio=s, rve__layers=n, rve__seed=seed) for s, n, seed in cases]
     rows = []
     for (size_ratio, n_layers, seed), config in zip(cases, configs):
-        rve = generate(config)
+        rve = generate(config, allow_large=True)  # only generated: the tensile test's memory is not needed
         count = count_dof(rve.mat, rve.crosslinks, rve.network, elements_per_segment)
         rows.append({
             "size_ratio": float(size_ratio), "layers": int(n_layers), "seed": int(seed),

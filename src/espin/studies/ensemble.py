@@ -65,13 +65,15 @@ class TensileTask:
     parameters: dict[str, Any]
     seed: int
     config: Config
+    allow_large: bool = False
 
 
 MAX_TASKS = 100_000
 """Most tasks one study plans (each is a whole tensile test)."""
 
 
-def plan_tasks(base: Config, points: Sequence[Mapping[str, Any]], seeds: Sequence[int]) -> list[TensileTask]:
+def plan_tasks(base: Config, points: Sequence[Mapping[str, Any]], seeds: Sequence[int], *,
+               allow_large: bool = False) -> list[TensileTask]:
     """Every (point, seed) task, each config validated before any work starts.
 
     Parameters
@@ -83,6 +85,9 @@ def plan_tasks(base: Config, points: Sequence[Mapping[str, Any]], seeds: Sequenc
     seeds
         RVE seeds: the realizations of each point (the same seeds at every point: common
         random numbers).
+    allow_large
+        Plan (and run) mats whose tensile test is estimated to need more memory than is
+        available on this machine.
 
     Raises
     ------
@@ -110,11 +115,11 @@ def plan_tasks(base: Config, points: Sequence[Mapping[str, Any]], seeds: Sequenc
             try:
                 config = apply_overrides(base, {**point, "rve.seed": int(seed)})
                 if seed == seeds[0]:  # the mat's size does not depend on its seed
-                    check_size(config)
+                    check_size(config, allow_large=allow_large)
             except ConfigError as err:
                 raise ConfigError(f"parameter point {dict(point)}: {err}") from None
             key = config_digest(config, digests)[:16]
-            tasks.append(TensileTask(key, dict(point), int(seed), config))
+            tasks.append(TensileTask(key, dict(point), int(seed), config, allow_large))
     keys = [t.key for t in tasks]
     if len(set(keys)) != len(keys):
         raise ConfigError("grid: two parameter points give the same configuration (repeated values?)")
@@ -138,7 +143,7 @@ def run_tensile(task: TensileTask) -> dict[str, Any]:
     from espin.mechanics.run import simulate
 
     start = time.perf_counter()
-    rve = generate(task.config)
+    rve = generate(task.config, allow_large=task.allow_large)
     result = simulate(rve)
     strain, stress = np.asarray(result.strain), np.asarray(result.stress())
     try:

@@ -80,6 +80,7 @@ def rve_size_study(
     security: Any = None,
     on_outcome: OnOutcome | None = None,
     overwrite: bool = False,
+    allow_large: bool = False,
     **overrides: Any,
 ) -> StudyResult:
     """Mean, sd and RSD of modulus, yield stress and post-yield modulus versus RVE size.
@@ -104,6 +105,8 @@ def rve_size_study(
         Replace another run's results in ``folder`` instead of refusing; a folder of the
         same kind of study is resumed without it (finished tasks, keyed by their whole
         config, are reused).
+    allow_large
+        Run mats whose tensile test is estimated to need more memory than is available here.
 
     Returns
     -------
@@ -121,7 +124,7 @@ def rve_size_study(
     points += [{"rve.size_ratio": float(size_for_layers), "rve.layers": int(n)} for n in layer_counts]
     points = list({tuple(p.items()): p for p in points}.values())  # the shared point once
     seeds = realization_seeds(base, realizations, seed_start)
-    tasks = plan_tasks(base, points, seeds)
+    tasks = plan_tasks(base, points, seeds, allow_large=allow_large)
     plan = {"study": "rve-size", "size_ratios": list(size_ratios), "layer_counts": list(layer_counts),
             "layers_for_sizes": layers_for_sizes, "size_for_layers": size_for_layers, "seeds": seeds}
     pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
@@ -156,6 +159,7 @@ def sweep(
     security: Any = None,
     on_outcome: OnOutcome | None = None,
     overwrite: bool = False,
+    allow_large: bool = False,
     **overrides: Any,
 ) -> StudyResult:
     """Properties over a full grid of parameters (every combination), ``realizations`` RVEs each.
@@ -183,6 +187,8 @@ def sweep(
         Replace another run's results in ``folder`` instead of refusing; a folder of the
         same kind of study is resumed without it (finished tasks, keyed by their whole
         config, are reused).
+    allow_large
+        Run mats whose tensile test is estimated to need more memory than is available here.
 
     Returns
     -------
@@ -201,7 +207,7 @@ def sweep(
     keys = list(grid)
     points = [dict(zip(keys, combo)) for combo in itertools.product(*grid.values())] if keys else [{}]
     seeds = realization_seeds(base, realizations, seed_start)
-    tasks = plan_tasks(base, points, seeds)
+    tasks = plan_tasks(base, points, seeds, allow_large=allow_large)
     pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
     with _claimed(folder, "sweep", base, overwrite):
         result = _run(tasks, base, {"study": "sweep", "grid": grid, "seeds": seeds}, folder, pool, on_outcome)
