@@ -172,3 +172,17 @@ def test_overwrite_never_removes_a_file_outside_the_folder(tmp_path):
             read_manifest(folder)
         OutputFolder.claim(folder, "simulate", "x", ["*.csv"], overwrite=True).finish()
     assert victim.read_text() == "mine"
+
+
+def test_the_curve_of_a_killed_run_is_read_with_a_warning(tmp_path):
+    from espin.analysis.experiments import CurveWarning, read_curve
+
+    def interrupt(record):
+        if record.index == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        espin.simulate("plla", tmp_path / "run", on_step=interrupt, loading__steps=5, output__figures=False, **TINY)
+    with pytest.warns(CurveWarning, match="partial result.*failed"):
+        curve = read_curve(tmp_path / "run" / "curve.csv")
+    assert len(curve.strain) == 3

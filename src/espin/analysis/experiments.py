@@ -134,7 +134,8 @@ class CurveFileError(InputError):
 
 
 class CurveWarning(UserWarning):
-    """A curve was read, but its units look wrong (the message names the file and the fix)."""
+    """A curve was read, but its units look wrong, or it is the partial curve of a run that has
+    not completed (the message names the file and the fix)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -608,6 +609,21 @@ def _unit_warnings(path: Path, header: list[str] | None, columns: list[tuple[int
     return found
 
 
+def _partial(path: Path) -> list[str]:
+    """A warning for the ``curve.csv`` of an espin run whose ``run.json`` is not ``complete``."""
+    from espin.core.errors import ConfigError
+    from espin.core.output_folder import read_manifest
+
+    try:
+        manifest = read_manifest(path.parent)
+    except ConfigError:
+        return []
+    if manifest is None or not manifest.partial:
+        return []
+    return [f"{path}: a partial result: its folder's run.json says the run is {manifest.status} "
+            "(killed, failed or still going)"]
+
+
 def read_curve(
     path: str | Path,
     *,
@@ -662,7 +678,8 @@ def read_curve(
     -----
     CurveWarning
         If the units look wrong (module docs): probably percent read as fractions or the
-        reverse, a length for the strain, a stress unit other than MPa, a stress above 10 GPa.
+        reverse, a length for the strain, a stress unit other than MPa, a stress above 10 GPa;
+        or if the file lies in an espin results folder whose ``run.json`` is not complete.
     """
     path = Path(path)
     _check_options(delimiter, decimal, skip_rows)
@@ -677,7 +694,7 @@ def read_curve(
     strain, stress = _numbers(table, data, columns, _decimal(table, data, columns, decimal))
     _check_increasing(table, data, strain)
     _check_tensile(path, strain, stress, columns)
-    for message in _unit_warnings(path, header, columns, strain, stress, percent_strain):
+    for message in [*_unit_warnings(path, header, columns, strain, stress, percent_strain), *_partial(path)]:
         warnings.warn(message, CurveWarning, stacklevel=2)
     if percent_strain:
         strain = strain / 100.0
