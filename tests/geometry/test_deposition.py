@@ -64,6 +64,24 @@ def test_diameters_truncated_normal():
     assert np.all(fixed.fiber_diameter == 0.45)
 
 
+def test_diameters_lognormal():
+    """Lognormal diameters of the given mean and sd, truncated below at diameter_min_um, and
+    the volume fraction counts each fiber's own diameter."""
+    from espin.geometry.deposition import lognormal_diameters
+
+    cfg, mat = _mat(diameter_sd_um=0.2, diameter_um=0.45, diameter_min_um=0.1, layers=80,
+                    diameter_distribution="lognormal")
+    d = mat.fiber_diameter
+    law = lognormal_diameters(0.45, 0.2)
+    assert law.mean() == pytest.approx(0.45) and law.std() == pytest.approx(0.2)
+    low = law.cdf(0.1)
+    assert d.min() >= 0.1
+    assert stats.kstest(d, lambda x: (law.cdf(x) - low) / (1 - low)).pvalue > 1e-3
+    assert stats.kstest(d, stats.truncnorm((0.1 - 0.45) / 0.2, np.inf, loc=0.45, scale=0.2).cdf).pvalue < 1e-3
+    eta = mat.layer_volume_fraction()
+    assert np.all(eta >= cfg.rve.volume_fraction)
+
+
 @pytest.mark.parametrize("seeding", ["border", "lines"])
 @pytest.mark.parametrize(
     "orientation",

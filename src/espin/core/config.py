@@ -166,8 +166,13 @@ class RVEConfig(_Section):
     diameter_um: Annotated[float, Field(ge=1e-3, le=1000.0)] = 0.45
     """Mean fiber diameter D [um], in [0.001, 1000]. Also the layer thickness."""
     diameter_sd_um: Annotated[float, Field(ge=0.0)] = 0.0
-    """Standard deviation of the (truncated) normal diameter distribution [um], in
-    [0, diameter_um] (a coefficient of variation up to 1; measured mats: 0.1-0.6)."""
+    """Standard deviation of the diameter distribution [um], in [0, diameter_um] (a
+    coefficient of variation up to 1; measured mats: 0.1-0.6)."""
+    diameter_distribution: Literal["normal", "lognormal"] = "normal"
+    """Family of the fiber diameters: "normal" (the paper: a normal of mean diameter_um and
+    sd diameter_sd_um, truncated below at diameter_min_um) or "lognormal" (mean diameter_um
+    and sd diameter_sd_um, truncated below at diameter_min_um; how SEM diameters of
+    electrospun mats are usually reported)."""
     diameter_min_um: Annotated[float, Field(gt=0.0)] | None = None
     """Truncation of the diameter distribution [um], > 0 and < diameter_um; default 0.1 D."""
     volume_fraction: Annotated[float, Field(gt=0.0, lt=1.0)] = 0.19

@@ -23,6 +23,7 @@ independent child streams of the seed, so a layer does not change when others ar
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -31,7 +32,7 @@ from espin.core.config import RVEConfig
 from espin.geometry.mat import FiberMat
 from espin.geometry.orientation import OrientationDistribution, orientation_distribution
 
-__all__ = ["deposit", "deposit_layer"]
+__all__ = ["deposit", "deposit_layer", "lognormal_diameters"]
 
 # Inward unit normals of the edges bottom (y = 0), right (x = L), top (y = L), left (x = 0).
 _INWARD = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
@@ -167,11 +168,24 @@ def _walk(
 
 
 def _diameters(rng: np.random.Generator, n: int, rve: RVEConfig) -> np.ndarray:
+    """``n`` fiber diameters [um] from ``rve.diameter_distribution``, truncated below at
+    ``rve.diameter_min_um``."""
     if rve.diameter_sd_um == 0.0:
         return np.full(n, rve.diameter_um)
-    lower = (rve.diameter_min_um - rve.diameter_um) / rve.diameter_sd_um
-    law = stats.truncnorm(lower, np.inf, loc=rve.diameter_um, scale=rve.diameter_sd_um)
-    return law.rvs(size=n, random_state=rng)
+    if rve.diameter_distribution == "normal":
+        lower = (rve.diameter_min_um - rve.diameter_um) / rve.diameter_sd_um
+        law = stats.truncnorm(lower, np.inf, loc=rve.diameter_um, scale=rve.diameter_sd_um)
+        return law.rvs(size=n, random_state=rng)
+    law = lognormal_diameters(rve.diameter_um, rve.diameter_sd_um)
+    low = law.cdf(rve.diameter_min_um)  # inverse CDF over [low, 1): the truncated law exactly
+    return law.ppf(low + (1.0 - low) * rng.uniform(0.0, 1.0, n))
+
+
+def lognormal_diameters(mean_um: float, sd_um: float) -> Any:
+    """The lognormal law (``scipy.stats.lognorm``, frozen) of mean ``mean_um`` and standard
+    deviation ``sd_um`` [um]: sigma^2 = ln(1 + (sd / mean)^2), median mean / sqrt(1 + cv^2)."""
+    sigma = np.sqrt(np.log1p((sd_um / mean_um) ** 2))
+    return stats.lognorm(s=sigma, scale=mean_um * np.exp(-sigma**2 / 2.0))
 
 
 def deposit_layer(
