@@ -27,6 +27,16 @@ def _rows(folder):
     return (folder / "curve.csv").read_text().splitlines()
 
 
+def _interrupt_at(index: int):
+    """An on_step callback that stops the run (as Ctrl-C would) when step ``index`` arrives."""
+
+    def interrupt(record):
+        if record.index == index:
+            raise KeyboardInterrupt
+
+    return interrupt
+
+
 def _run_and_kill(folder, steps: int, after_rows: int, overwrite: bool = False) -> None:
     """Start a simulate in another process, SIGKILL it once its curve.csv has ``after_rows`` steps."""
     earlier = read_manifest(folder) if folder.exists() else None
@@ -58,12 +68,8 @@ def test_a_killed_run_keeps_its_converged_steps_and_is_marked_partial(tmp_path):
     whole = [row for row in rows if row.count(",") == rows[0].count(",")]
     assert 4 <= len(whole) < 402 and len(rows) - len(whole) <= 1  # at most the last line cut mid-write
 
-    def stop(record):  # the same run in this process, stopped after as many steps
-        if record.index == len(whole) - 1:
-            raise KeyboardInterrupt
-
     with pytest.raises(KeyboardInterrupt):
-        espin.simulate("plla", tmp_path / "same", on_step=stop, loading__steps=400, solver__time_rtol="off",
+        espin.simulate("plla", tmp_path / "same", on_step=_interrupt_at(len(whole) - 1), loading__steps=400, solver__time_rtol="off",
                        output__figures=False, **TINY)
     assert whole == _rows(tmp_path / "same")  # every converged step kept, as written
 
@@ -104,12 +110,8 @@ def test_overwrite_leaves_no_stale_steps(tmp_path):
 
 
 def test_an_interrupted_run_is_marked_failed(tmp_path):
-    def interrupt(record):
-        if record.index == 2:
-            raise KeyboardInterrupt
-
     with pytest.raises(KeyboardInterrupt):
-        espin.simulate("plla", tmp_path / "run", on_step=interrupt, loading__steps=5, output__figures=False, **TINY)
+        espin.simulate("plla", tmp_path / "run", on_step=_interrupt_at(2), loading__steps=5, output__figures=False, **TINY)
     assert read_manifest(tmp_path / "run").status == "failed"
     assert len(_rows(tmp_path / "run")) == 3  # header and steps 0, 1 (step 2's callback raised first)
 
@@ -177,12 +179,8 @@ def test_overwrite_never_removes_a_file_outside_the_folder(tmp_path):
 def test_the_curve_of_a_killed_run_is_read_with_a_warning(tmp_path):
     from espin.analysis.experiments import CurveWarning, read_curve
 
-    def interrupt(record):
-        if record.index == 3:
-            raise KeyboardInterrupt
-
     with pytest.raises(KeyboardInterrupt):
-        espin.simulate("plla", tmp_path / "run", on_step=interrupt, loading__steps=5, output__figures=False, **TINY)
+        espin.simulate("plla", tmp_path / "run", on_step=_interrupt_at(3), loading__steps=5, output__figures=False, **TINY)
     with pytest.warns(CurveWarning, match="partial result.*failed"):
         curve = read_curve(tmp_path / "run" / "curve.csv")
     assert len(curve.strain) == 3
