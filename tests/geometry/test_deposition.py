@@ -224,3 +224,58 @@ def test_same_seed_same_mat_and_layers_independent():
 def test_straight_fibers_when_no_deviation():
     _, mat = _mat(max_deviation_deg=0.0, seeding="lines")
     assert np.allclose(mat.tortuosity, 1.0, atol=1e-12)
+
+
+def test_smooth_walk_deviation_is_stationary_gauss_markov():
+    """The smooth walk's deviation from the mean axis has rms waviness_deg at every segment and
+    correlation exp(-lag l_s / l_c), across the chunks in which the walk is drawn."""
+    from espin.geometry.deposition import _SmoothDeviation
+
+    rms, length, segment = np.radians(12.0), 20.0, 2.5
+    model = _SmoothDeviation(rms, length, segment)
+    rng = np.random.default_rng(7)
+    n = 40_000
+    start = np.full((n, 2), 50.0)  # inside: no first deviation is redrawn
+    state = model.start(rng, start, np.zeros(n), 100.0)
+    first, state = model.directions(rng, state, 6, True)
+    second, _ = model.directions(rng, state, 6, False)
+    phi = np.hstack([first, second])  # mean axis 0: the angles are the deviations
+    se = rms / np.sqrt(2 * n)  # standard error of an sd over n normal values
+    assert np.all(np.abs(phi.std(axis=0) - rms) < 4 * se)
+    for lag in (1, 5, 11):
+        r = np.corrcoef(phi[:, 0], phi[:, lag])[0, 1]
+        assert abs(r - np.exp(-lag * segment / length)) < 4 / np.sqrt(n)
+    assert stats.normaltest(phi[:, 8]).pvalue > 1e-3
+
+
+@pytest.mark.parametrize("seeding", ["border", "lines"])
+def test_smooth_fibers_keep_their_direction_across_the_mat(seeding):
+    """Wavy at short range like the paper walk at 40 deg, but no fiber curls: the paper walk
+    with the same local waviness gives fibers that loop (tortuosity > 3)."""
+    _, smooth = _mat(walk="smooth", waviness_deg=25.0, waviness_length_ratio=8.0,
+                     seeding=seeding, size_ratio=150)
+    _, paper = _mat(max_deviation_deg=40.0, seeding=seeding, size_ratio=150)
+    assert smooth.tortuosity.max() < 1.6
+    assert paper.tortuosity.max() > 3.0
+    d = smooth.vertices[smooth.segment_start + 1] - smooth.vertices[smooth.segment_start]
+    assert np.all(np.hypot(*d.T) > 0)  # every first segment points into the square
+
+
+def test_walk_keys_belong_to_their_walk():
+    from espin.core.errors import ConfigError
+
+    cfg = load_config("plla", {"rve.walk": "smooth"})  # the preset's max_deviation_deg goes
+    assert (cfg.rve.max_deviation_deg, cfg.rve.waviness_deg, cfg.rve.waviness_length_ratio) == \
+        (None, 10.0, 20.0)
+    assert load_config("plla").rve.waviness_deg is None
+    with pytest.raises(ConfigError, match="max_deviation_deg does not apply to rve.walk = 'smooth'"):
+        load_config("plla", {"rve.walk": "smooth", "rve.max_deviation_deg": 5})
+    with pytest.raises(ConfigError, match="waviness_deg does not apply to rve.walk = 'paper'"):
+        load_config("plla", {"rve.waviness_deg": 5})
+    with pytest.raises(ConfigError, match="waviness_deg"):
+        load_config("plla", {"rve.walk": "smooth", "rve.waviness_deg": 50})
+
+
+def test_smooth_walk_without_waviness_is_straight():
+    _, mat = _mat(walk="smooth", waviness_deg=0.0, seeding="lines")
+    assert np.allclose(mat.tortuosity, 1.0, atol=1e-12)

@@ -160,6 +160,14 @@ Orientation = Annotated[
 ]
 
 
+WALK_DEFAULTS: dict[str, dict[str, float]] = {
+    "paper": {"max_deviation_deg": 5.0},
+    "smooth": {"waviness_deg": 10.0, "waviness_length_ratio": 20.0},
+}
+"""Default keys of each deposition walk (``rve.walk``); a walk's keys are refused with the
+other walk."""
+
+
 class RVEConfig(_Section):
     """Geometry of the virtual mat (paper Table 2, docs/model.md sections 0-2)."""
 
@@ -186,8 +194,20 @@ class RVEConfig(_Section):
     """Segment length over D (ls_tilde), > 0. Give this or segment_um (default 5)."""
     segment_um: Annotated[float, Field(gt=0.0)] | None = None
     """Segment length l_s [um]; alternative to segment_ratio."""
-    max_deviation_deg: Annotated[float, Field(ge=0.0, lt=90.0)] = 5.0
-    """Largest turn between consecutive segments [deg], in [0, 90)."""
+    walk: Literal["paper", "smooth"] = "paper"
+    """How a fiber's direction changes along it (docs/model.md section 1): "paper" (each
+    segment turned from the previous one by a uniform angle up to max_deviation_deg, so the
+    direction drifts without bound) or "smooth" (the direction meanders around the fiber's
+    own mean axis: a deviation of rms waviness_deg, correlated over waviness_length_ratio D)."""
+    max_deviation_deg: Annotated[float, Field(ge=0.0, lt=90.0)] | None = None
+    """Largest turn between consecutive segments [deg], in [0, 90); walk = "paper" only
+    (default 5)."""
+    waviness_deg: Annotated[float, Field(ge=0.0, le=45.0)] | None = None
+    """Root-mean-square deviation of a fiber's direction from its mean axis [deg], in
+    [0, 45]; walk = "smooth" only (default 10)."""
+    waviness_length_ratio: Annotated[float, Field(gt=0.0, le=1e4)] | None = None
+    """Correlation length of that deviation over D, in (0, 1e4]: the arc length over which the
+    direction forgets its deviation; walk = "smooth" only (default 20)."""
     layers: Annotated[int, Field(ge=1, le=1000)] = 15
     """Number of layers N_l, in [1, 1000]."""
     orientation: Orientation = "uniform"
@@ -217,6 +237,17 @@ class RVEConfig(_Section):
             updates["diameter_min_um"] = round(0.1 * self.diameter_um, 12)
         if self.seeding is None:
             updates["seeding"] = "border" if self.orientation == "uniform" else "lines"
+        other_walk = {"paper": ("waviness_deg", "waviness_length_ratio"),
+                      "smooth": ("max_deviation_deg",)}[self.walk]
+        wrong = [key for key in other_walk if getattr(self, key) is not None]
+        if wrong:
+            raise ValueError(
+                f"rve.{wrong[0]} does not apply to rve.walk = {self.walk!r}: "
+                + ("max_deviation_deg is the paper walk's key" if self.walk == "smooth"
+                   else "waviness_deg and waviness_length_ratio are the smooth walk's keys")
+            )
+        updates |= {key: value for key, value in WALK_DEFAULTS[self.walk].items()
+                    if getattr(self, key) is None}
         for key, value in updates.items():
             object.__setattr__(self, key, value)
         if self.diameter_sd_um > self.diameter_um:
@@ -560,7 +591,9 @@ def _drop_derived(data: dict[str, Any], overrides: dict[str, Any]) -> None:
     """Remove from ``data`` a value that equals the default derived from a key an override
     changes, so that it is derived again: a resolved file (``espin config plla``) holds
     ``diameter_min_um = 0.1 D`` and ``seeding = "border"`` (from ``orientation = "uniform"``),
-    and ``--set rve.diameter_um`` or ``--set rve.orientation`` must act as on the preset."""
+    and ``--set rve.diameter_um`` or ``--set rve.orientation`` must act as on the preset; and
+    ``--set rve.walk`` drops the keys of the other walk (``max_deviation_deg`` of the paper
+    walk, ``waviness_*`` of the smooth one) unless they are set too."""
     rve = data.get("rve")
     if not isinstance(rve, dict):
         return
@@ -568,6 +601,11 @@ def _drop_derived(data: dict[str, Any], overrides: dict[str, Any]) -> None:
     if "rve.diameter_um" in given and "rve.diameter_min_um" not in given and "diameter_um" in rve \
             and rve.get("diameter_min_um") == round(0.1 * rve["diameter_um"], 12):
         rve.pop("diameter_min_um")
+    walk = overrides.get("rve.walk")
+    if walk in WALK_DEFAULTS:  # another walk: the keys of the old one go
+        for key in {k for w, keys in WALK_DEFAULTS.items() if w != walk for k in keys}:
+            if f"rve.{key}" not in given:
+                rve.pop(key, None)
     changes_orientation = any(key == "rve.orientation" or key.startswith("rve.orientation.") for key in given)
     derived_seeding = "border" if rve.get("orientation", "uniform") == "uniform" else "lines"
     if changes_orientation and "rve.seeding" not in given and rve.get("seeding") == derived_seeding:

@@ -1,9 +1,12 @@
 """Virtual deposition of fiber layers (paper 3.1.1, Fig. 4; docs/model.md section 1).
 
 A fiber starts at a point of the border of the square [0, L]^2 and walks inwards in segments
-of length l_s, each turned from the previous one by a uniform random angle in
-[-theta_max, +theta_max], until a segment leaves the square; that segment is trimmed at the
-border. Fibers are laid until the layer reaches its target volume fraction; the fiber that
+of length l_s until a segment leaves the square; that segment is trimmed at the border. Two
+walks set the segment directions (``rve.walk``): the paper's turns each segment from the
+previous one by a uniform random angle in [-theta_max, +theta_max] (the direction drifts
+without bound); the smooth walk keeps the drawn axis as the fiber's mean direction and adds a
+stationary Gauss-Markov deviation of rms ``waviness_deg`` and correlation length
+``waviness_length_ratio`` D (the fiber meanders but keeps its course). Fibers are laid until the layer reaches its target volume fraction; the fiber that
 crosses the target is kept.
 
 Two seedings choose the start point and the first axis:
@@ -110,15 +113,96 @@ def _exit_distance(p: np.ndarray, u: np.ndarray, side: float) -> np.ndarray:
     return np.maximum(t.min(axis=1), 0.0)
 
 
+class _PaperTurns:
+    """The paper's walk: each segment turned from the previous one by a uniform angle in
+    [-max_turn, max_turn] [rad]; the first segment follows the drawn axis. The state of a
+    fiber is its last direction."""
+
+    def __init__(self, max_turn: float) -> None:
+        self.max_turn = max_turn
+
+    def start(self, rng: np.random.Generator, start: np.ndarray, theta: np.ndarray,
+              side: float) -> np.ndarray:
+        return theta.copy()
+
+    def directions(self, rng: np.random.Generator, state: np.ndarray, n_steps: int,
+                   first: bool) -> tuple[np.ndarray, np.ndarray]:
+        turns = rng.uniform(-self.max_turn, self.max_turn, (len(state), n_steps))
+        if first:
+            turns[:, 0] = 0.0  # the first segment follows the drawn axis
+        angles = state[:, None] + np.cumsum(turns, axis=1)
+        return angles, angles[:, -1]
+
+    @staticmethod
+    def keep(state: np.ndarray, going: np.ndarray) -> np.ndarray:
+        return state[going]
+
+
+class _SmoothDeviation:
+    """The smooth walk: segment k points along the fiber's mean axis theta plus a deviation
+    phi_k, a stationary Gauss-Markov (Ornstein-Uhlenbeck) sequence of rms ``rms`` [rad] and
+    correlation length ``length`` [um] sampled every segment ``segment`` [um]:
+    phi_k = a phi_(k-1) + rms sqrt(1 - a^2) xi_k, a = exp(-segment / length). The deviation
+    stays bounded, so a fiber keeps its mean direction across the mat. The state of a fiber is
+    (mean axis, last deviation)."""
+
+    def __init__(self, rms: float, length: float, segment: float) -> None:
+        self.rms = rms
+        self.a = float(np.exp(-segment / length))
+
+    def start(self, rng: np.random.Generator, start: np.ndarray, theta: np.ndarray,
+              side: float) -> tuple[np.ndarray, np.ndarray]:
+        # The first deviation is drawn from the stationary law, again while the first segment
+        # would point out of the square (then the drawn axis itself, which points in).
+        phi = rng.normal(0.0, self.rms, len(theta))
+        step = 1e-9 * side
+        for _ in range(50):
+            ahead = start + step * np.c_[np.cos(theta + phi), np.sin(theta + phi)]
+            out = ((ahead <= 0.0) | (ahead >= side)).any(axis=1)
+            if not out.any():
+                break
+            phi[out] = rng.normal(0.0, self.rms, int(out.sum()))
+        else:
+            phi[out] = 0.0
+        return theta, phi
+
+    def directions(self, rng: np.random.Generator, state: tuple[np.ndarray, np.ndarray],
+                   n_steps: int, first: bool) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        from scipy.signal import lfilter
+
+        mean, last = state
+        kicks = rng.normal(0.0, self.rms * np.sqrt(1.0 - self.a**2), (len(mean), n_steps))
+        if first:
+            kicks[:, 0] = last  # the first segment takes the drawn first deviation
+            carried = np.zeros((len(mean), 1))
+        else:
+            carried = self.a * last[:, None]
+        phi = lfilter([1.0], [1.0, -self.a], kicks, axis=1, zi=carried)[0]
+        return mean[:, None] + phi, (mean, phi[:, -1])
+
+    @staticmethod
+    def keep(state: tuple[np.ndarray, np.ndarray], going: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return state[0][going], state[1][going]
+
+
+def _walk_model(rve: RVEConfig) -> _PaperTurns | _SmoothDeviation:
+    """The direction model of ``rve.walk`` (docs/model.md section 1)."""
+    if rve.walk == "smooth":
+        return _SmoothDeviation(np.radians(rve.waviness_deg),
+                                rve.waviness_length_ratio * rve.diameter_um, rve.segment_length_um)
+    return _PaperTurns(np.radians(rve.max_deviation_deg))
+
+
 def _walk(
     rng: np.random.Generator,
     start: np.ndarray,
     theta: np.ndarray,
     side: float,
     segment: float,
-    max_turn: float,
+    model: _PaperTurns | _SmoothDeviation,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Random walks from ``start`` along first axes ``theta`` until they leave the square.
+    """Walks of segments ``segment`` from ``start`` along first axes ``theta``, directions from
+    ``model``, until they leave the square; the leaving segment is trimmed at the border.
 
     Returns
     -------
@@ -133,14 +217,11 @@ def _walk(
     pieces_vertex = [start]
     active = np.arange(n)
     pos = start.copy()
-    angle = theta.copy()
+    state = model.start(rng, start, theta, side)
     first = True
     while active.size:
-        turns = rng.uniform(-max_turn, max_turn, (active.size, chunk))
-        if first:
-            turns[:, 0] = 0.0  # the first segment follows the drawn axis
-            first = False
-        angles = angle[:, None] + np.cumsum(turns, axis=1)
+        angles, state = model.directions(rng, state, chunk, first)
+        first = False
         steps = segment * np.stack([np.cos(angles), np.sin(angles)], axis=-1)
         path = pos[:, None, :] + np.cumsum(steps, axis=1)
         outside = ((path < 0.0) | (path > side)).any(axis=2)
@@ -160,7 +241,7 @@ def _walk(
         # Fibers still inside carry on from their last vertex.
         going = ~exited
         pos = path[going, -1]
-        angle = angles[going, -1]
+        state = model.keep(state, going)
         active = active[going]
     fiber = np.concatenate(pieces_fiber)
     order = np.argsort(fiber, kind="stable")
@@ -212,6 +293,7 @@ def deposit_layer(
     side, segment = rve.side_um, rve.segment_length_um
     dist = orientation_distribution(rve.orientation)
     seed_fibers = _border_starts if rve.seeding == "border" else _line_starts
+    walk = _walk_model(rve)
     target = rve.volume_fraction * side**2 * rve.diameter_um
     # Mean chord of isotropic lines in a square is pi L / 4 (Cauchy-Crofton).
     expected = target / (np.pi * rve.diameter_um**2 / 4.0 * np.pi * side / 4.0)
@@ -221,7 +303,7 @@ def deposit_layer(
     while True:
         start, theta = seed_fibers(rng, batch, side, dist)
         diameter = _diameters(rng, batch, rve)
-        vertices, counts = _walk(rng, start, theta, side, segment, np.radians(rve.max_deviation_deg))
+        vertices, counts = _walk(rng, start, theta, side, segment, walk)
         seg = np.diff(vertices, axis=0)
         seg_len = np.hypot(seg[:, 0], seg[:, 1])
         ends = np.cumsum(counts)
