@@ -33,7 +33,7 @@ from espin.imaging.geometry_calibration import (
     persistence_ratio,
     truncated_normal_parameters,
 )
-from espin.imaging.geometry_calibration.virtual import _point_at, window_runs
+from espin.geometry.pieces import _point_at, window_runs
 
 FAST = {"seeds": 4, "min_portions": 400}
 TRUE_SEGMENT_RATIO, TRUE_DEVIATION_DEG = 5.0, 25.0
