@@ -185,7 +185,8 @@ def test_measured_folder_sets_window_diameters_and_orientation(measured_mat, tmp
     assert result.config.rve.orientation == "uniform" and o.ks < 0.07
     assert result.match("tortuosity").ks < 0.07
     assert set(result.parameters["fitted"]) == {
-        "rve.diameter_um", "rve.diameter_sd_um", "rve.max_deviation_deg", "rve.orientation"}
+        "rve.diameter_um", "rve.diameter_sd_um", "rve.diameter_distribution",
+        "rve.max_deviation_deg", "rve.orientation"}
 
 
 # --------------------------------------------------------------------------------------------

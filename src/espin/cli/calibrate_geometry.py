@@ -71,9 +71,15 @@ def calibrate_geometry_command(
     ] = "plla",
     fit: Annotated[
         str,
-        typer.Option(help="Walk parameter matched to the tortuosity: deviation "
+        typer.Option(help="Paper walk parameter matched to the tortuosity: deviation "
                           "(rve.max_deviation_deg), segment (rve.segment_ratio) or both."),
     ] = "deviation",
+    walk: Annotated[
+        str,
+        typer.Option(help="Deposition walk: auto (fit the paper and the smooth walk, keep the "
+                          "better; the paper walk when the measurement has no fibers crossing "
+                          "the image edge to edge), paper or smooth."),
+    ] = "auto",
     segment_ratio: Annotated[
         Optional[float], typer.Option(help="Fixed rve.segment_ratio when it is not fitted.")
     ] = None,
@@ -131,13 +137,13 @@ def calibrate_geometry_command(
         except MeasurementError as err:
             raise ConfigError(str(err)) from None
         base_config = resolve_config(base)
-        check_options(fit, segment_ratio, max_deviation_deg, seeds, MIN_PORTIONS, window_um)  # before the claim
-        options = [typed, fit, segment_ratio, max_deviation_deg, window_um, correct_orientation, seeds]
+        check_options(fit, segment_ratio, max_deviation_deg, seeds, MIN_PORTIONS, window_um, walk)  # before the claim
+        options = [typed, fit, walk, segment_ratio, max_deviation_deg, window_um, correct_orientation, seeds]
         digest = _inputs_digest(base_config, measured, options)
         with claim_output(out, digest, overwrite=overwrite), \
                 console.status("calibrating the deposition") as status:
             result = calibrate_geometry(
-                targets, base_config, fit=fit, segment_ratio=segment_ratio,
+                targets, base_config, fit=fit, walk=walk, segment_ratio=segment_ratio,
                 max_deviation_deg=max_deviation_deg, window_um=window_um,
                 correct_orientation=correct_orientation, seeds=seeds,
                 progress=lambda message: status.update(f"calibrating: {message}"),

@@ -13,10 +13,10 @@ Without lengths (typed-in targets) whole window portions are measured
 
 Method (docs/geometry_calibration.md)
 -------------------------------------
-1. **Diameters** are set directly: a normal with the sample's mean and sd, truncated below at
-   ``rve.diameter_min_um`` as the deposition draws it; when the truncation matters the
-   parent normal is solved for so that the *truncated* distribution has the target mean and
-   sd.
+1. **Diameters** are set directly, with the sample's mean and sd: of a lognormal, or of a
+   normal truncated below at ``rve.diameter_min_um`` as the deposition draws it (the parent
+   normal is solved for so that the *truncated* distribution has the target mean and sd);
+   of a measured sample, the family of larger likelihood.
 2. **Tortuosity.** The visible tortuosity depends on the walk (segment length l_s and largest
    turn theta_max) through, mainly, its persistence length
    ``l_p = -l_s / ln(sin theta_max / theta_max)`` relative to the window: pairs along a curve
@@ -29,6 +29,13 @@ Method (docs/geometry_calibration.md)
    segment lengths and the whole valley is reported; of the points whose KS lies within the
    sampling spread (1 / sqrt(n)) of the best, the one nearest the base segment length is
    kept, since the window cannot tell them apart.
+   **Walk model.** When the targets carry the long-range shape of the fibers (``espin
+   measure``: of the traced fibers crossing the image edge to edge, the U-turn fraction and
+   the straightness, end-to-end over contour), the score adds their squared standardized
+   misfits to (KS / its sampling spread)^2, and the smooth walk (``rve.walk = "smooth"``) is
+   fitted too: its waviness and correlation length over a grid, then refined one at a time.
+   The walk of smaller score is kept. The paper walk, matched to the waviness of short pieces,
+   curls at long range; the smooth one keeps each fiber's course.
 3. **Orientation**: uniform, or an axial von Mises fitted to the sample (uniform when a
    Rayleigh test on the doubled angles does not reject isotropy at 1 %; when ``espin
    measure``'s rule, the smaller AIC, picks the other model, a warning says so). The deposition walk
@@ -65,7 +72,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from espin.core.config import Config, config_from_dict
+from espin.core.config import WALK_DEFAULTS, Config, config_from_dict
 from espin.core.errors import ConfigError
 from espin.geometry.targets import GeometryTargets, MeasurementError
 from espin.imaging.geometry_calibration.fits import (
@@ -79,6 +86,7 @@ from espin.imaging.geometry_calibration.matching import (
     ISOTROPY_P_VALUE,
     DistributionMatch,
     _diameter_target,
+    crossing_target,
     _orientation_spec,
     _tortuosity_target,
 )
@@ -104,10 +112,14 @@ from espin.imaging.geometry_calibration.search import (
     SEGMENT_RATIO_MAX_FRACTION,
     SEGMENT_RATIO_MIN,
     VALLEY_SEGMENT_RATIOS,
+    WAVINESS_RANGE_DEG,
     ValleyPoint,
+    WalkScore,
     _correct_kappa,
     _fit_walk,
     _Objective,
+    _search_smooth,
+    smooth_walk,
 )
 from espin.imaging.geometry_calibration.virtual import (
     VirtualMeasurement,
@@ -154,6 +166,14 @@ HALFNORM_MEDIAN = 0.6744897501960817
 SEARCH_SIDE_OVER_WINDOW = 2.0
 """Side of the search RVE over the window side (the window sits in its central quarter)."""
 Fit = Literal["deviation", "segment", "both"]
+Walk = Literal["auto", "paper", "smooth"]
+
+
+def _walk_models(walk: str, long_range: bool) -> tuple[str, ...]:
+    """The walks fitted: both for ``auto`` when the targets carry the long-range shape."""
+    if walk == "auto":
+        return ("paper", "smooth") if long_range else ("paper",)
+    return (walk,)
 
 
 def calibrate_geometry(
@@ -161,6 +181,7 @@ def calibrate_geometry(
     base: Config | str | Path | None = None,
     *,
     fit: Fit = "deviation",
+    walk: Walk = "auto",
     segment_ratio: float | None = None,
     max_deviation_deg: float | None = None,
     segment_ratios: tuple[float, ...] = VALLEY_SEGMENT_RATIOS,
@@ -185,8 +206,14 @@ def calibrate_geometry(
         (``rve.max_deviation_deg``, default), ``"segment"`` (``rve.segment_ratio``) or
         ``"both"`` (deviation searched at several segment lengths; the valley is reported,
         and of the equally good points the one nearest the base segment length is kept).
+    walk
+        ``"auto"`` (default): fit the paper walk and the smooth walk and keep the one of
+        smaller score; only the paper walk when the targets carry no long-range shape
+        (U-turn fraction and straightness of fibers crossing the image edge to edge), which
+        alone tells them apart. ``"paper"`` or ``"smooth"``: that walk.
     segment_ratio
-        Fixed segment length over D when it is not searched (default: the base's).
+        Fixed segment length over D when it is not searched (default: the base's; the
+        smooth walk takes segments of at most a quarter of its correlation length).
     max_deviation_deg : float [deg]
         Fixed largest turn when it is not searched (default: the base's).
     segment_ratios
@@ -218,7 +245,7 @@ def calibrate_geometry(
         ConfigError or MeasurementError for bad options or targets, before any work.
     """
     started = time.perf_counter()
-    check_options(fit, segment_ratio, max_deviation_deg, seeds, min_portions, window_um)
+    check_options(fit, segment_ratio, max_deviation_deg, seeds, min_portions, window_um, walk)
     if isinstance(targets_or_path, GeometryTargets):
         targets = targets_or_path
     elif hasattr(targets_or_path, "fibers") and hasattr(targets_or_path, "field_of_view_um"):
@@ -238,8 +265,11 @@ def calibrate_geometry(
 
     # 1. Diameters.
     if targets.has_diameter:
-        rve |= _diameter_keys(targets, base_config)
-        parameters |= {f"rve.{k}": rve[k] for k in ("diameter_um", "diameter_sd_um")}
+        keys, family_note = _diameter_keys(targets, base_config)
+        rve |= keys
+        parameters |= {f"rve.{k}": v for k, v in keys.items()}
+        if family_note:
+            notes.append(family_note)
     calibrated_d = _validated_rve(rve).diameter_um
 
     # 2. The window and how mats are measured.
@@ -272,26 +302,60 @@ def calibrate_geometry(
     sampling = _sampling_description(measurement)
     evaluations = 0
 
-    # 3. Tortuosity: the walk.
+    # 3. Tortuosity and long-range shape: the walk.
     valley: list[ValleyPoint] = []
+    scores: dict[str, WalkScore] = {}
+    chosen: str | None = None  # the walk kept
     if targets.has_tortuosity:
-        objective = _Objective(measurement, rve, search_side, _tortuosity_target(targets), progress)
+        crossing = crossing_target(targets)
+        start = _validated_rve(rve)
+        sr = segment_ratio if segment_ratio is not None else start.segment_length_um / calibrated_d
+        objective = _Objective(measurement, rve, search_side, _tortuosity_target(targets),
+                               crossing, sr, progress)
         largest_segment = SEGMENT_RATIO_MAX_FRACTION * window / calibrated_d
         if largest_segment <= SEGMENT_RATIO_MIN:
             raise ConfigError(
                 f"the observation window ({window:.4g} um) is too small to measure tortuosity: "
                 f"it must exceed {SEGMENT_RATIO_MIN / SEGMENT_RATIO_MAX_FRACTION:g} D"
             )
-        start = _validated_rve(rve)
-        sr = segment_ratio if segment_ratio is not None else start.segment_length_um / calibrated_d
-        dev = max_deviation_deg if max_deviation_deg is not None else start.max_deviation_deg
-        sr, dev, valley, problem = _fit_walk(objective, fit, sr, dev, largest_segment, segment_ratios)
-        if problem:
-            warnings.append(problem)
-        rve |= {"segment_ratio": float(sr), "max_deviation_deg": float(dev)}
-        rve.pop("segment_um", None)
-        parameters |= {"rve.segment_ratio": float(sr), "rve.max_deviation_deg": float(dev),
-                       "persistence_ratio": persistence_ratio(sr, dev)}
+        models = _walk_models(walk, crossing is not None)
+        if walk == "auto" and crossing is None:
+            notes.append("walk: the targets carry no long-range shape (fibers crossing the image "
+                         "edge to edge), which alone tells the walks apart: the paper walk is kept")
+        problems: dict[str, str | None] = {}
+        if "paper" in models:
+            dev = max_deviation_deg if max_deviation_deg is not None else \
+                start.max_deviation_deg or WALK_DEFAULTS["paper"]["max_deviation_deg"]
+            sr_p, dev, valley, problems["paper"] = _fit_walk(objective, fit, sr, dev,
+                                                             largest_segment, segment_ratios)
+            scores["paper"] = objective.evaluate(
+                {"walk": "paper", "segment_ratio": sr_p, "max_deviation_deg": dev})
+        if "smooth" in models:
+            fixed_length = None if crossing is not None else \
+                start.waviness_length_ratio or WALK_DEFAULTS["smooth"]["waviness_length_ratio"]
+            sigma, length = _search_smooth(objective, window / calibrated_d, fixed_length)
+            scores["smooth"] = objective.evaluate(smooth_walk(sigma, length, sr))
+            problems["smooth"] = None
+            if sigma >= WAVINESS_RANGE_DEG[1] - 0.5:
+                problems["smooth"] = (f"waviness_deg = {sigma:g} is at the end of its search range "
+                                      f"{WAVINESS_RANGE_DEG}")
+        chosen = min(scores, key=lambda name: scores[name].score)
+        if problems[chosen]:
+            warnings.append(problems[chosen])
+        keys = {k: v for k, v in scores[chosen].walk.items()}
+        other = {k for name, ks in WALK_DEFAULTS.items() if name != chosen for k in ks}
+        rve = {k: v for k, v in rve.items() if k not in other | {"segment_um"}} | keys
+        rve.setdefault("segment_ratio", float(sr))  # the paper walk with fit = deviation
+        parameters |= {f"rve.{k}": v for k, v in keys.items()}
+        parameters["rve.segment_ratio"] = float(rve["segment_ratio"])
+        if chosen == "paper":
+            parameters["persistence_ratio"] = persistence_ratio(keys["segment_ratio"],
+                                                                keys["max_deviation_deg"])
+        if len(scores) > 1:
+            notes.append("walk: " + ", ".join(
+                f"{name} score {sc.score:.3g} (tortuosity KS {sc.ks:.3f}, U-turns "
+                f"{sc.u_turn_fraction:.3f}, straightness {sc.straightness:.4f})"
+                for name, sc in scores.items()) + f" -> {chosen}")
         evaluations += len(objective.cache)
 
     # 4. Orientation: correct the deposition kappa for the widening by the walk.
@@ -313,7 +377,7 @@ def calibrate_geometry(
     output = {"window_ratio": float(f"{window / calibrated_d:.6g}")}
     config = config_from_dict(_with_section(base_config, rve, output), "(calibrated)")
     parameters["output.window_ratio"] = output["window_ratio"]
-    parameters["fitted"] = _fitted(targets, fit)
+    parameters["fitted"] = _fitted(targets, fit, chosen)
     seen = measurement.measure(_base_rve_data(config), check_side)
     evaluations += 1
     matches = []

@@ -12,7 +12,7 @@ import numpy as np
 from espin.geometry.targets import GeometryTargets
 from espin.imaging.geometry_calibration.fits import _mean_resultant, fit_axial_von_mises
 
-__all__ = ["ISOTROPY_P_VALUE", "DistributionMatch", "FIXED_TOLERANCE"]
+__all__ = ["ISOTROPY_P_VALUE", "DistributionMatch", "FIXED_TOLERANCE", "CrossingTarget", "crossing_target"]
 
 ISOTROPY_P_VALUE = 0.01
 """A measured orientation sample is taken as uniform unless a Rayleigh test rejects isotropy
@@ -215,3 +215,41 @@ def _orientation_spec(targets: GeometryTargets) -> tuple[str | dict[str, Any], _
                    ("order", float(special.i1e(k) / special.i0e(k))))
     return spec, _Target("orientation_deg", None, lambda x: law.cdf(np.radians(x)), law.label,
                          summary), notes
+
+
+@dataclass(frozen=True)
+class CrossingTarget:
+    """The long-range shape measured on an image: of the traced fibers that cross it edge to
+    edge, the U-turn fraction and the straightness (end-to-end over contour), with their count.
+
+    :meth:`misfit` weighs a virtual mat's differences by the standard errors of the target:
+    for the fraction p of n fibers sqrt(max(p (1 - p), 1 / n) / n) (a binomial, floored so
+    that p = 0 of a few fibers still has an error), for the straightness s
+    max(1 - s, 0.005) / sqrt(n) (the spread of a ratio bounded by 1 is of the order of its
+    distance from 1).
+    """
+
+    u_turn_fraction: float
+    straightness: float
+    n_crossing: int
+
+    def misfit(self, crossing: np.ndarray) -> float:
+        """Sum of the squared standardized differences of a virtual ``crossing`` (count, U-turn
+        fraction, straightness; :meth:`VirtualMeasurement.measure`); inf if it has none."""
+        n_virtual, u_turn, straightness = crossing
+        if n_virtual == 0:
+            return math.inf
+        n = max(self.n_crossing, 1)
+        p = self.u_turn_fraction
+        se_u = math.sqrt(max(p * (1.0 - p), 1.0 / n) / n)
+        se_s = max(1.0 - self.straightness, 0.005) / math.sqrt(n)
+        return ((u_turn - p) / se_u) ** 2 + ((straightness - self.straightness) / se_s) ** 2
+
+
+def crossing_target(targets: GeometryTargets) -> CrossingTarget | None:
+    """The targets' long-range shape, or None when they do not carry it (a plain fibers.csv,
+    typed-in targets) or no traced fiber crosses the image."""
+    u, s, n = (getattr(targets, key, None) for key in ("u_turn_fraction", "straightness", "n_crossing"))
+    if u is None or s is None or not n or not (math.isfinite(u) and math.isfinite(s)):
+        return None
+    return CrossingTarget(float(u), float(s), int(n))

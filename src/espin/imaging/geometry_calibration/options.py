@@ -30,7 +30,8 @@ MIN_PORTIONS = 1000
 
 
 def check_options(fit: str, segment_ratio: float | None, max_deviation_deg: float | None,
-                  seeds: int, min_portions: int, window_um: float | None) -> None:
+                  seeds: int, min_portions: int, window_um: float | None,
+                  walk: str = "auto") -> None:
     """Refuse, before any work, search options out of range or in contradiction.
 
     Raises
@@ -40,6 +41,11 @@ def check_options(fit: str, segment_ratio: float | None, max_deviation_deg: floa
     """
     if fit not in ("deviation", "segment", "both"):
         raise ConfigError(f"fit must be deviation, segment or both, got {fit!r}")
+    if walk not in ("auto", "paper", "smooth"):
+        raise ConfigError(f"walk must be auto, paper or smooth, got {walk!r}")
+    if walk == "smooth" and (max_deviation_deg is not None or fit != "deviation"):
+        raise ConfigError("fit and max_deviation_deg set the paper walk: do not give them with "
+                          "walk = smooth (its waviness and correlation length are both searched)")
     if fit in ("deviation", "both") and max_deviation_deg is not None:
         raise ConfigError("max_deviation_deg is searched with fit = deviation or both: do not fix it")
     if fit in ("segment", "both") and segment_ratio is not None:
@@ -71,11 +77,16 @@ def _window(targets: GeometryTargets, window_um: float | None, config: Config) -
         f"default {config.output.window_ratio:g} D"
 
 
-def _diameter_keys(targets: GeometryTargets, base: Config) -> dict[str, float]:
-    """``diameter_um`` and ``diameter_sd_um`` whose truncated normal has the target moments.
+def _diameter_keys(targets: GeometryTargets, base: Config) -> tuple[dict[str, Any], str | None]:
+    """``diameter_um``, ``diameter_sd_um`` and ``diameter_distribution`` with the target
+    moments, and a note on the family chosen.
 
-    Values computed here (a sample's moments, a truncation correction) are rounded to four
-    significant digits; typed-in values that need no correction are written as typed.
+    A measured sample (sd > 0) gets the family of larger likelihood: the normal truncated at
+    ``diameter_min_um`` whose truncation has the sample's mean and sd, or the lognormal of
+    that mean and sd (both have two parameters, so this is the smaller AIC). Typed-in
+    targets keep the base config's family. Values computed here (a sample's moments, a
+    truncation correction) are rounded to four significant digits; typed-in values that need
+    no correction are written as typed.
     """
     sample = targets.diameter_um
     if sample is not None:
@@ -83,17 +94,46 @@ def _diameter_keys(targets: GeometryTargets, base: Config) -> dict[str, float]:
     else:
         mean, sd = targets.diameter_mean_um, targets.diameter_sd_um or 0.0
     explicit_min = base.rve.diameter_min_um if "diameter_min_um" in base.rve.model_fields_set else None
-    mu, sigma = truncated_normal_parameters(mean, sd, explicit_min)
+    family = base.rve.diameter_distribution
+    note = None
+    if sample is not None and sd > 0.0:
+        log_likelihood = _diameter_log_likelihoods(sample, mean, sd, explicit_min)
+        family = max(log_likelihood, key=log_likelihood.get)
+        note = ("diameter family: " + ", ".join(f"{name} log-likelihood {value:.1f}"
+                                                 for name, value in log_likelihood.items())
+                + f" -> {family}")
+    mu, sigma = (mean, sd) if family == "lognormal" else truncated_normal_parameters(mean, sd, explicit_min)
+    keys: dict[str, Any] = {"diameter_distribution": family}
     if sample is None and (mu, sigma) == (mean, sd):
-        return {"diameter_um": float(mu), "diameter_sd_um": float(sigma)}
-    return {"diameter_um": float(f"{mu:.4g}"), "diameter_sd_um": float(f"{sigma:.4g}")}
+        return keys | {"diameter_um": float(mu), "diameter_sd_um": float(sigma)}, note
+    return keys | {"diameter_um": float(f"{mu:.4g}"), "diameter_sd_um": float(f"{sigma:.4g}")}, note
 
 
-def _fitted(targets: GeometryTargets, fit: str) -> list[str]:
+def _diameter_log_likelihoods(sample: np.ndarray, mean: float, sd: float,
+                              lower: float | None) -> dict[str, float]:
+    """Log-likelihood of a diameter sample [um] under the two families the deposition draws,
+    each truncated below at ``lower`` (default 0.1 of its mean) and of the sample's moments."""
+    from scipy import stats
+
+    from espin.geometry.deposition import lognormal_diameters
+
+    mu, sigma = truncated_normal_parameters(mean, sd, lower)
+    low_n = 0.1 * mu if lower is None else lower
+    normal = stats.truncnorm((low_n - mu) / sigma, np.inf, loc=mu, scale=sigma)
+    low_l = 0.1 * mean if lower is None else lower
+    lognormal = lognormal_diameters(mean, sd)
+    return {"normal": float(np.sum(normal.logpdf(sample))),
+            "lognormal": float(np.sum(lognormal.logpdf(sample)) - len(sample) * np.log(lognormal.sf(low_l)))}
+
+
+def _fitted(targets: GeometryTargets, fit: str, walk: str | None) -> list[str]:
+    """The keys a calibration searched; ``walk`` is the walk it chose (None: none fitted)."""
     keys = []
     if targets.has_diameter:
-        keys += ["rve.diameter_um", "rve.diameter_sd_um"]
-    if targets.has_tortuosity:
+        keys += ["rve.diameter_um", "rve.diameter_sd_um", "rve.diameter_distribution"]
+    if walk == "smooth":
+        keys += ["rve.walk", "rve.waviness_deg", "rve.waviness_length_ratio"]
+    elif walk == "paper":
         keys += {"deviation": ["rve.max_deviation_deg"], "segment": ["rve.segment_ratio"],
                  "both": ["rve.segment_ratio", "rve.max_deviation_deg"]}[fit]
     if targets.has_orientation:

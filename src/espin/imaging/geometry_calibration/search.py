@@ -11,7 +11,8 @@ import numpy as np
 
 from espin.core.errors import ConfigError
 from espin.imaging.geometry_calibration.fits import KAPPA_MAX, _mean_resultant, persistence_ratio
-from espin.imaging.geometry_calibration.matching import _Target
+from espin.core.config import WALK_DEFAULTS
+from espin.imaging.geometry_calibration.matching import CrossingTarget, _Target
 from espin.imaging.geometry_calibration.virtual import VirtualMeasurement
 
 __all__ = [
@@ -21,6 +22,12 @@ __all__ = [
     "SEGMENT_RATIO_MAX_FRACTION",
     "VALLEY_SEGMENT_RATIOS",
     "ValleyPoint",
+    "WalkScore",
+    "SEGMENTS_PER_WAVINESS_LENGTH",
+    "smooth_walk",
+    "WAVINESS_RANGE_DEG",
+    "WAVINESS_GRID_STEP_DEG",
+    "WAVINESS_LENGTH_RATIOS",
 ]
 
 DEVIATION_RANGE_DEG = (0.0, 85.0)
@@ -33,6 +40,12 @@ SEGMENT_RATIO_MAX_FRACTION = 1.0 / 3.0
 visible portion a few straight pieces."""
 VALLEY_SEGMENT_RATIOS = (1.0, 2.0, 3.0, 5.0, 8.0, 12.0)
 """Segment lengths [D] at which ``fit="both"`` searches the deviation."""
+WAVINESS_RANGE_DEG = (0.0, 45.0)
+"""Search range of ``rve.waviness_deg`` [deg] (the smooth walk)."""
+WAVINESS_GRID_STEP_DEG = 2.5
+WAVINESS_LENGTH_RATIOS = (2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0)
+"""Correlation lengths [D] of the smooth walk's grid (those longer than four windows are
+skipped: they look straight in the window)."""
 
 
 @dataclass(frozen=True)
@@ -57,27 +70,87 @@ class ValleyPoint:
     ks: float
 
 
+@dataclass(frozen=True)
+class WalkScore:
+    """How well one walk matches the targets, as measured on the virtual mats.
+
+    Attributes
+    ----------
+    walk : dict
+        The walk's config keys (``walk`` and its parameters).
+    ks : float
+        Tortuosity KS distance of the virtual pieces against the target.
+    u_turn_fraction, straightness : float
+        Of the virtual window portions that cross the window edge to edge.
+    score : float
+        What the search minimizes: (KS / its sampling spread)^2, plus the crossing misfit
+        (:meth:`CrossingTarget.misfit`) when the targets carry the long-range shape.
+    """
+
+    walk: dict[str, Any]
+    ks: float
+    u_turn_fraction: float
+    straightness: float
+    score: float
+
+
+SEGMENTS_PER_WAVINESS_LENGTH = 4.0
+"""The smooth walk is drawn with segments of at most its correlation length over this, so
+that the wiggles the correlation length sets are resolved."""
+
+
+def smooth_walk(waviness_deg: float, waviness_length_ratio: float, segment_ratio: float) -> dict[str, Any]:
+    """Config keys of a smooth walk, its segment the shorter of ``segment_ratio`` and the
+    correlation length over :data:`SEGMENTS_PER_WAVINESS_LENGTH` (three digits)."""
+    segment = min(segment_ratio, waviness_length_ratio / SEGMENTS_PER_WAVINESS_LENGTH)
+    return {"walk": "smooth", "waviness_deg": waviness_deg,
+            "waviness_length_ratio": waviness_length_ratio, "segment_ratio": float(f"{segment:.3g}")}
+
+
 class _Objective:
-    """Visible-tortuosity KS of a walk (segment_ratio, max_deviation_deg), cached."""
+    """Score of a walk against the tortuosity (and the long-range shape), cached.
+    ``segment_ratio`` is the longest segment [D] of the smooth walk."""
 
     def __init__(self, measurement: VirtualMeasurement, rve: dict[str, Any], side_um: float,
-                 target: _Target, progress: Callable[[str], None] | None) -> None:
+                 target: _Target, crossing: CrossingTarget | None, segment_ratio: float,
+                 progress: Callable[[str], None] | None) -> None:
         self.measurement, self.rve, self.side_um = measurement, rve, side_um
-        self.target, self.progress = target, progress
-        self.cache: dict[tuple[float, float], float] = {}
+        self.target, self.crossing, self.progress = target, crossing, progress
+        self.cache: dict[tuple[Any, ...], WalkScore] = {}
         self.n_virtual = 0
+        self.segment_ratio = float(segment_ratio)
+
+    def evaluate(self, walk: dict[str, Any]) -> WalkScore:
+        """Measure mats of ``walk`` (config keys; the other walk's keys of the base dropped)."""
+        walk = {k: round(v, 6) if isinstance(v, float) else v for k, v in walk.items()}
+        key = tuple(sorted(walk.items()))
+        if key not in self.cache:
+            other = {k for name, keys in WALK_DEFAULTS.items() if name != walk["walk"] for k in keys}
+            rve = {k: v for k, v in self.rve.items() if k not in other} | walk
+            seen = self.measurement.measure(rve, self.side_um)
+            ks = self.target.ks(seen["tortuosity"])
+            self.n_virtual = len(seen["tortuosity"])
+            score = (ks / self.target.ks_noise(self.n_virtual)) ** 2
+            if self.crossing is not None:
+                score += self.crossing.misfit(seen["crossing"])
+            result = WalkScore(dict(walk), ks, float(seen["crossing"][1]), float(seen["crossing"][2]),
+                               float(score))
+            self.cache[key] = result
+            if self.progress is not None:
+                shown = ", ".join(f"{k} {v:.3g}" for k, v in walk.items() if k != "walk")
+                self.progress(f"{walk['walk']} walk, {shown}: KS {ks:.4f}, U-turns "
+                              f"{result.u_turn_fraction:.3f}, straightness {result.straightness:.4f}")
+        return self.cache[key]
 
     def __call__(self, segment_ratio: float, max_deviation_deg: float) -> float:
-        key = (round(segment_ratio, 6), round(max_deviation_deg, 6))
-        if key not in self.cache:
-            walk = {"segment_ratio": key[0], "max_deviation_deg": key[1]}
-            seen = self.measurement.measure(self.rve | walk, self.side_um)
-            self.cache[key] = self.target.ks(seen["tortuosity"])
-            self.n_virtual = len(seen["tortuosity"])
-            if self.progress is not None:
-                self.progress(f"segment_ratio {key[0]:.3g}, max_deviation_deg {key[1]:.2f}: "
-                              f"KS {self.cache[key]:.4f}")
-        return self.cache[key]
+        """Score of the paper walk (segment_ratio, max_deviation_deg)."""
+        return self.evaluate({"walk": "paper", "segment_ratio": segment_ratio,
+                              "max_deviation_deg": max_deviation_deg}).score
+
+    def smooth(self, waviness_deg: float, waviness_length_ratio: float) -> float:
+        """Score of the smooth walk, with segments of :func:`smooth_segment_ratio`."""
+        return self.evaluate(smooth_walk(waviness_deg, waviness_length_ratio,
+                                         self.segment_ratio)).score
 
 
 def _grid_then_refine(f: Callable[[float], float], grid: np.ndarray, xatol: float) -> tuple[float, float]:
@@ -181,7 +254,8 @@ def _fit_walk(objective: _Objective, fit: str, segment_ratio: float, max_deviati
         )
     valley = []
     for s in usable:
-        d, ks = _search_deviation(objective, s)
+        d, _ = _search_deviation(objective, s)
+        ks = objective.evaluate({"walk": "paper", "segment_ratio": s, "max_deviation_deg": d}).ks
         valley.append(ValleyPoint(s, d, persistence_ratio(s, d), ks))
     # Points within the sampling spread of the best KS are equally good: keep the one whose
     # segment length is closest to the given (base) one.
@@ -189,3 +263,28 @@ def _fit_walk(objective: _Objective, fit: str, segment_ratio: float, max_deviati
     best = min((v for v in valley if v.ks <= tie),
                key=lambda v: abs(math.log(v.segment_ratio / segment_ratio)))
     return best.segment_ratio, best.max_deviation_deg, valley, None
+
+
+def _search_smooth(objective: _Objective, window_ratio: float,
+                   length_ratio: float | None) -> tuple[float, float]:
+    """Waviness [deg] and correlation length [D] of the smooth walk of least score: a grid,
+    then bounded refinements of each at the best grid point. With ``length_ratio`` given
+    (no long-range target: only one combination is identifiable) only the waviness is
+    searched.
+
+    Returns the waviness [deg] and the correlation length over D.
+    """
+    lo, hi = WAVINESS_RANGE_DEG
+    sigmas = np.arange(lo, hi + 1e-9, WAVINESS_GRID_STEP_DEG)
+    if length_ratio is not None:
+        x, _ = _grid_then_refine(lambda w: objective.smooth(w, length_ratio), sigmas, xatol=0.05)
+        return round(x, 1), length_ratio
+    lengths = [r for r in WAVINESS_LENGTH_RATIOS if r <= 4.0 * window_ratio] or [WAVINESS_LENGTH_RATIOS[0]]
+    scores = np.array([[objective.smooth(w, r) for r in lengths] for w in sigmas])
+    i, j = np.unravel_index(np.argmin(scores), scores.shape)
+    grid = np.log(lengths)
+    sigma, _ = _grid_then_refine(lambda w: objective.smooth(w, lengths[j]),
+                                 sigmas[max(i - 1, 0):i + 2], xatol=0.05)
+    u, _ = _grid_then_refine(lambda v: objective.smooth(round(sigma, 1), float(f"{math.exp(v):.3g}")),
+                             grid[max(j - 1, 0):j + 2], xatol=0.02)
+    return round(sigma, 1), float(f"{math.exp(u):.3g}")

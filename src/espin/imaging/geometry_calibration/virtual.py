@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from espin.core.config import RVEConfig, config_from_dict
-from espin.geometry.pieces import sample_pieces, window_runs
+from espin.geometry.pieces import sample_pieces, window_crossings, window_runs
 
 __all__ = ["VirtualMeasurement"]
 
@@ -81,29 +81,42 @@ class VirtualMeasurement:
         -------
         dict
             ``tortuosity`` (n,), ``orientation_deg`` (n,) [deg] of the chords and
-            ``diameter_um`` (n,) [um] of the fibers they belong to, pooled over the seeds.
+            ``diameter_um`` (n,) [um] of the fibers they belong to, pooled over the seeds;
+            and ``crossing``, a (3,) array: the number of whole window portions (edge to
+            edge, chord >= ``min_chord_um``), their U-turn fraction and straightness
+            (:func:`espin.geometry.pieces.window_crossings`), pooled.
         """
         from espin.geometry.deposition import deposit
         from espin.geometry.statistics import centred_window, window_tortuosity
 
         parts: dict[str, list[np.ndarray]] = {"tortuosity": [], "orientation_deg": [], "diameter_um": []}
+        crossings = []
         for seed in self.seeds:
             cfg = _validated_rve(rve | {"size_um": side_um, "layers": self.layers, "seed": seed})
             mat = deposit(cfg)
             origin, side = centred_window(mat.size, self.window_um)
+            runs = window_runs(mat.vertices, mat.fiber_offsets, origin, side)
+            crossings.append(window_crossings(runs, origin, side, self.min_chord_um))
             if self.piece_lengths_um is None:
                 seen = window_tortuosity(mat.vertices, mat.fiber_offsets, origin, side,
                                          self.min_chord_um)
                 tortuosity, orientation, fiber = seen.tortuosity, seen.orientation, seen.fiber
             else:
-                runs = window_runs(mat.vertices, mat.fiber_offsets, origin, side)
                 rng = np.random.default_rng([SAMPLING_SEED, seed])
                 tortuosity, orientation, fiber = sample_pieces(
                     runs, self.piece_lengths_um, self.min_chord_um, rng)
             parts["tortuosity"].append(tortuosity)
             parts["orientation_deg"].append(np.degrees(orientation))
             parts["diameter_um"].append(mat.fiber_diameter[fiber])
-        return {k: np.concatenate(v) for k, v in parts.items()}
+        seen = {k: np.concatenate(v) for k, v in parts.items()}
+        n = np.array([c.n_crossing for c in crossings], dtype=float)
+        if n.sum() == 0:
+            seen["crossing"] = np.array([0.0, np.nan, np.nan])
+        else:
+            pooled = [np.nansum(n * [getattr(c, key) for c in crossings]) / n.sum()
+                      for key in ("u_turn_fraction", "straightness")]
+            seen["crossing"] = np.array([n.sum(), *pooled])
+        return seen
 
 
 def _validated_rve(data: dict[str, Any]) -> RVEConfig:
