@@ -128,6 +128,8 @@ _KEYS = st.sampled_from([
     "fiber.taut_modulus_MPa", "fiber.slack_modulus_MPa", "fiber.flow_rate_per_s",
     "fiber.hardening_exponent", "loading.test", "loading.lateral", "loading.program",
     "loading.max_strain", "loading.steps", "solver.rtol", "solver.time_rtol", "output.window_ratio",
+    "targets.diameter_um", "targets.tortuosity", "targets.contour_length_um",
+    "targets.diameter_mean_um", "targets.tortuosity_halfnorm_scale", "targets.straightness",
 ])
 
 
@@ -142,7 +144,9 @@ def test_any_values_validate_or_raise_config_error(values):
         config = config_from_dict(data)
     except ConfigError:
         return
-    numbers = [v for v in config.model_dump().values() for v in v.values() if isinstance(v, float)]
+    values = [v for section in config.model_dump().values() if section is not None
+              for v in section.values()]
+    numbers = [x for v in values for x in (v if isinstance(v, list) else [v]) if isinstance(x, float)]
     assert all(math.isfinite(v) for v in numbers)
 
 

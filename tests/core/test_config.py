@@ -29,7 +29,11 @@ def test_plla_preset_is_tables_2_and_3():
     assert (f.taut_modulus_MPa, f.slack_modulus_MPa, f.flow_rate_per_s) == (3000, 3, 1e-8)
     assert (f.flow_resistance_MPa, f.hardening_exponent) == (5, 0.5)
     assert c.rve.side_um == pytest.approx(90.0) and c.rve.segment_length_um == pytest.approx(2.25)
-    assert load_config(None) == c  # the built-in defaults are the plla values
+    # The built-in defaults are the plla values, without the paper's measured targets.
+    assert load_config(None) == c.model_copy(update={"targets": None})
+    t = c.targets
+    assert (t.diameter_mean_um, t.diameter_sd_um, t.diameter_distribution) == (0.463, 0.131, "normal")
+    assert t.tortuosity_halfnorm_scale == 0.14 and "Fig. 10" in t.source
 
 
 @pytest.mark.parametrize(

@@ -1,9 +1,10 @@
 """The run configuration: one validated model for every section of a run.
 
 A run is described by one TOML file (or a preset name such as ``plla``) with the sections
-``rve``, ``fiber``, ``loading``, ``solver`` and ``output``. Every key that carries a unit names
-it (``diameter_um``, ``strain_rate_per_s``); angles are degrees here and radians inside the
-code. Unknown keys and out-of-range values raise :class:`ConfigError`, which names the key and
+``rve``, ``fiber``, ``loading``, ``solver`` and ``output``, and optionally ``targets``
+(statistics measured on SEM images that the generated mat is graded against). Every key that
+carries a unit names it (``diameter_um``, ``strain_rate_per_s``); angles are degrees here and
+radians inside the code. Unknown keys and out-of-range values raise :class:`ConfigError`, which names the key and
 the allowed range, before any work starts.
 
 Units inside espin: length um, stress MPa, force uN (= MPa um^2), time s, angles rad.
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import math
 import re
 import tomllib
 from collections.abc import Iterator
@@ -41,6 +43,7 @@ __all__ = [
     "LoadingConfig",
     "SolverConfig",
     "OutputConfig",
+    "TargetsConfig",
     "VonMises",
     "Histogram",
     "LoadSegment",
@@ -426,6 +429,107 @@ class LoadingConfig(_Section):
 
 
 # --------------------------------------------------------------------------------------------
+# targets
+# --------------------------------------------------------------------------------------------
+MAX_SAMPLE_VALUES = 100_000
+"""Most values of one measured sample in ``[targets]``."""
+
+
+def _sample_check(low: float, low_open: bool, high: float | None = None) -> BeforeValidator:
+    """Validator of a measured sample: a list of 1 to MAX_SAMPLE_VALUES finite numbers in
+    the range from ``low`` (excluded if ``low_open``) to ``high`` (excluded), with one error
+    for the whole list that gives the range and the first value out of it."""
+    bound = f"{'>' if low_open else '>='} {low:g}" if high is None else \
+        f"in {'(' if low_open else '['}{low:g}, {high:g})"
+
+    def check(value: Any) -> Any:
+        if not isinstance(value, list):
+            return value  # the strict list type refuses it
+        if not 1 <= len(value) <= MAX_SAMPLE_VALUES:
+            raise ValueError(f"must hold 1 to {MAX_SAMPLE_VALUES:,} values, got {len(value):,}")
+        for index, x in enumerate(value):
+            if isinstance(x, bool) or not isinstance(x, (int, float)):
+                raise ValueError(f"values must be numbers {bound}; value {index} is {x!r}")
+        bad = [i for i, x in enumerate(value) if not (math.isfinite(x) and (
+            (x > low if low_open else x >= low) and (high is None or x < high)))]
+        if bad:
+            raise ValueError(f"values must be finite and {bound}; value {bad[0]} is "
+                             f"{value[bad[0]]!r} ({len(bad):,} of {len(value):,} out of range)")
+        return [float(x) for x in value]
+
+    return BeforeValidator(check)
+
+
+class TargetsConfig(_Section):
+    """Statistics measured on SEM images that a generated mat is graded against.
+
+    Each quantity is given as a measured sample (graded by the two-sample Kolmogorov-Smirnov
+    statistic) or as a distribution (one-sample KS), not both; any may be left out. The mat
+    is seen through its observation window (``output.window_ratio``), docs/configuration.md.
+    """
+
+    source: Annotated[str, Field(max_length=500)] | None = None
+    """What the targets were measured on, for reports (at most 500 characters), e.g.
+    "PLGA-1500_1.tif, espin measure"."""
+    diameter_um: Annotated[list[float], _sample_check(0.0, True)] | None = None
+    """Measured fiber diameters [um], one per fiber, each > 0."""
+    orientation_deg: Annotated[list[float], _sample_check(0.0, False, 180.0)] | None = None
+    """Measured axes of the chords of visible fiber pieces [deg] from +x, each in [0, 180)."""
+    tortuosity: Annotated[list[float], _sample_check(1.0, False)] | None = None
+    """Measured contour / chord length of visible fiber pieces, each >= 1."""
+    contour_length_um: Annotated[list[float], _sample_check(0.0, True)] | None = None
+    """Contour lengths of those same pieces [um], each > 0, one per tortuosity value: the
+    mat is then measured on pieces of these lengths, as the SEM tracer cut them."""
+    diameter_mean_um: Annotated[float, Field(gt=0.0)] | None = None
+    """Mean of a diameter distribution [um], > 0; with diameter_sd_um, instead of
+    diameter_um."""
+    diameter_sd_um: Annotated[float, Field(ge=0.0)] | None = None
+    """Standard deviation of that distribution [um], >= 0 (0: one fixed diameter)."""
+    diameter_distribution: Literal["normal", "lognormal"] | None = None
+    """Family of that distribution: "normal" or "lognormal" (of that mean and sd); default
+    normal."""
+    tortuosity_halfnorm_scale: Annotated[float, Field(gt=0.0)] | None = None
+    """Scale of a half-normal tortuosity distribution from 1, halfnorm(loc=1, scale), > 0
+    (mean 1 + 0.798 scale); instead of tortuosity."""
+    window_um: Annotated[float, Field(gt=0.0)] | None = None
+    """Side of the square observation window the statistics refer to [um], > 0 (the mat's
+    window is output.window_ratio D; both are reported)."""
+    min_chord_um: Annotated[float, Field(ge=0.0)] | None = None
+    """Shortest chord of a measured piece [um], >= 0; the mat's pieces and window portions
+    with a shorter chord are left out too (default a tenth of the mat's window)."""
+    u_turn_fraction: Annotated[float, Field(ge=0.0, le=1.0)] | None = None
+    """Of the fiber portions that cross the observation window edge to edge, the fraction
+    that leave through the edge they entered, in [0, 1]."""
+    straightness: Annotated[float, Field(gt=0.0, le=1.0)] | None = None
+    """Of those portions, the mean end-to-end over contour length, in (0, 1]."""
+
+    @model_validator(mode="after")
+    def _check(self) -> TargetsConfig:
+        law = [key for key in ("diameter_mean_um", "diameter_sd_um", "diameter_distribution")
+               if getattr(self, key) is not None]
+        if self.diameter_um is not None and law:
+            raise ValueError(f"give targets.diameter_um (a sample) or targets.{law[0]} (a "
+                             "distribution), not both")
+        if law and (self.diameter_mean_um is None or self.diameter_sd_um is None):
+            raise ValueError("a diameter distribution needs both targets.diameter_mean_um and "
+                             "targets.diameter_sd_um")
+        if self.tortuosity is not None and self.tortuosity_halfnorm_scale is not None:
+            raise ValueError("give targets.tortuosity (a sample) or "
+                             "targets.tortuosity_halfnorm_scale (a distribution), not both")
+        if self.contour_length_um is not None and self.tortuosity is None:
+            raise ValueError("targets.contour_length_um needs targets.tortuosity (the contour "
+                             "lengths are those of the measured pieces)")
+        if self.contour_length_um is not None and len(self.contour_length_um) != len(self.tortuosity):
+            raise ValueError(
+                "targets.contour_length_um must hold one contour length per targets.tortuosity "
+                f"value (the lengths of those pieces): got {len(self.contour_length_um):,} "
+                f"lengths and {len(self.tortuosity):,} tortuosities")
+        if self.diameter_mean_um is not None and self.diameter_distribution is None:
+            object.__setattr__(self, "diameter_distribution", "normal")
+        return self
+
+
+# --------------------------------------------------------------------------------------------
 # solver, output
 # --------------------------------------------------------------------------------------------
 class SolverConfig(_Section):
@@ -465,13 +569,15 @@ class OutputConfig(_Section):
 
 
 class Config(_Section):
-    """A whole run: ``rve``, ``fiber``, ``loading``, ``solver``, ``output``."""
+    """A whole run: ``rve``, ``fiber``, ``loading``, ``solver``, ``output``, and optionally
+    ``targets`` (measured statistics the mat is graded against; None: none)."""
 
     rve: RVEConfig = RVEConfig()
     fiber: FiberConfig = FiberConfig()
     loading: LoadingConfig = LoadingConfig()
     solver: SolverConfig = SolverConfig()
     output: OutputConfig = OutputConfig()
+    targets: TargetsConfig | None = None
 
     @property
     def observation_window_um(self) -> float:
@@ -497,11 +603,21 @@ def _format_validation_error(err: ValidationError, source: str) -> ConfigError:
         if e["type"] == "extra_forbidden":
             msg = "unknown key"
         got = e.get("input")
-        shown = "" if isinstance(got, dict) or e["type"] == "extra_forbidden" else f" (got {got!r})"
+        shown = "" if isinstance(got, dict) or e["type"] == "extra_forbidden" else f" (got {_shown(got)})"
         lines.append(f"{loc or '<top>'}: {msg}{shown}")
     # Unions report every alternative; keep each distinct line once.
     unique = list(dict.fromkeys(lines))
     return ConfigError(f"invalid configuration {source}:\n  " + "\n  ".join(unique))
+
+
+def _shown(value: Any) -> str:
+    """``value`` as an error message shows it: a long list (a measured sample) or string by
+    its length."""
+    if isinstance(value, list) and len(value) > 10:
+        return f"a list of {len(value):,} values"
+    if isinstance(value, str) and len(value) > 80:
+        return f"a string of {len(value):,} characters"
+    return repr(value)
 
 
 def config_from_dict(data: dict[str, Any], source: str = "") -> Config:
@@ -568,6 +684,8 @@ _ALTERNATIVES = (
     ("rve", {"size_ratio"}, {"size_um"}),
     ("rve", {"segment_ratio"}, {"segment_um"}),
     ("loading", {"program"}, {"max_strain", "strain_rate_per_s", "steps"}),
+    ("targets", {"diameter_um"}, {"diameter_mean_um", "diameter_sd_um", "diameter_distribution"}),
+    ("targets", {"tortuosity", "contour_length_um"}, {"tortuosity_halfnorm_scale"}),
 )
 """Keys that are given instead of each other: (section, one group, the other group)."""
 
@@ -575,7 +693,8 @@ _ALTERNATIVES = (
 def _drop_alternatives(data: dict[str, Any], overrides: dict[str, Any]) -> None:
     """Remove from ``data`` the keys that an override is given instead of (a resolved file
     holds ``size_ratio``; ``--set rve.size_um=...`` replaces it, as ``--set loading.program``
-    replaces the shorthand ``max_strain`` / ``steps`` / ``strain_rate_per_s``)."""
+    replaces the shorthand ``max_strain`` / ``steps`` / ``strain_rate_per_s``, and a measured
+    sample in ``targets`` replaces the distribution of the same quantity, and back)."""
     for section, one, other in _ALTERNATIVES:
         table = data.get(section)
         if not isinstance(table, dict):
@@ -669,7 +788,7 @@ def load_config(source: str | Path | None = None, overrides: dict[str, Any] | No
     ----------
     source
         A preset name (``"plla"``), a path to a TOML file, or None for the built-in
-        defaults (which are the ``plla`` values).
+        defaults (the ``plla`` values, without its measured ``targets``).
     overrides
         Dotted keys and values applied on top, e.g. ``{"rve.layers": 5}``.
 
