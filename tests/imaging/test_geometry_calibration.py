@@ -262,6 +262,29 @@ def test_calibration_from_an_espin_measure_folder(sem_measurement, tmp_path):
         float(sem_measurement.fibers["diameter_um"].mean()), rel=1e-3)
 
 
+def test_comparison_shows_the_image_beside_a_rendering_at_its_scale(sem_measurement, tmp_path):
+    """The image an SEMMeasurement analysed is kept, and the folder gets comparison.png: the
+    image and a synthetic SEM of the calibrated mat over the same field of view."""
+    from PIL import Image
+
+    from espin.imaging.geometry_calibration.comparison import render_like
+
+    result = calibrate_geometry(sem_measurement, "plla", **FAST)
+    assert result.image.pixels.shape == sem_measurement.image.shape
+    rendering = render_like(result.config, result.image.pixels.shape, result.image.um_per_px)
+    assert rendering.shape == sem_measurement.image.shape
+    assert 0.05 < rendering.mean() < 0.95  # fibers on a background, not an empty square
+    files = result.write(tmp_path / "cal")
+    assert files["comparison"].name == "comparison.png"
+    with Image.open(files["comparison"]) as png:
+        assert png.format == "PNG" and png.width > png.height
+    # Typed-in targets have no image: no comparison, and none left from another run.
+    files["comparison"].write_bytes(b"old")
+    typed = calibrate_geometry(GeometryTargets(diameter_mean_um=0.4), "plla", **FAST)
+    assert "comparison" not in typed.write(tmp_path / "cal", overwrite=True)
+    assert not (tmp_path / "cal" / "comparison.png").exists()
+
+
 def test_aligned_target_is_corrected_for_the_widening_by_the_walk():
     base = load_config("plla", {"rve.size_ratio": 100})
     targets = GeometryTargets(orientation_mean_deg=30.0, orientation_kappa=3.0)

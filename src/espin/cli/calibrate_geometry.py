@@ -116,7 +116,13 @@ def calibrate_geometry_command(
     from espin.core.errors import ConfigError, EspinError
     from espin.geometry.rve import resolve_config
     from espin.geometry.targets import GeometryTargets, MeasurementError
-    from espin.imaging.geometry_calibration import MECHANICS_NOTE, MIN_PORTIONS, calibrate_geometry, check_options
+    from espin.imaging.geometry_calibration import (
+        MECHANICS_NOTE,
+        MIN_PORTIONS,
+        calibrate_geometry,
+        check_options,
+        measured_image,
+    )
     from espin.imaging.geometry_calibration.result import claim_output
 
     console = Console(stderr=True, quiet=quiet)
@@ -147,7 +153,9 @@ def calibrate_geometry_command(
                 max_deviation_deg=max_deviation_deg, window_um=window_um,
                 correct_orientation=correct_orientation, seeds=seeds,
                 progress=lambda message: status.update(f"calibrating: {message}"),
+                image=measured_image(measured) if measured is not None else None,
             )
+            status.update("writing the config and comparison.png")
             files = result.write_files(out)
     except EspinError as err:
         fail(err)

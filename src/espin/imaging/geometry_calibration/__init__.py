@@ -105,6 +105,7 @@ from espin.imaging.geometry_calibration.result import (
     SCHEMA,
     SCHEMA_VERSION,
     GeometryCalibration,
+    MeasuredImage,
 )
 from espin.imaging.geometry_calibration.search import (
     DEVIATION_GRID_STEP_DEG,
@@ -135,7 +136,9 @@ __all__ = [
     "ValleyPoint",
     "VirtualMeasurement",
     "GeometryCalibration",
+    "MeasuredImage",
     "calibrate_geometry",
+    "measured_image",
     "persistence_ratio",
     "fit_axial_von_mises",
     "truncated_normal_parameters",
@@ -191,6 +194,7 @@ def calibrate_geometry(
     seed: int = 0,
     min_portions: int = MIN_PORTIONS,
     progress: Callable[[str], None] | None = None,
+    image: MeasuredImage | None = None,
 ) -> GeometryCalibration:
     """Find deposition parameters whose mat, measured in the same window, matches the targets.
 
@@ -233,6 +237,10 @@ def calibrate_geometry(
         Fewest visible fiber portions per evaluation (sets the layers per mat).
     progress
         Called with a short message after each evaluation.
+    image
+        The analysed SEM image the targets were measured on, for ``comparison.png``;
+        default: an SEMMeasurement's, or the one a measure folder's ``measurement.toml``
+        names (:func:`measured_image`).
 
     Returns
     -------
@@ -419,7 +427,23 @@ def calibrate_geometry(
         log.info("calibration warning: %s", w)
     log.debug("virtual measurement: %s", sampling)
     return GeometryCalibration(config, base_config, targets, parameters, tuple(matches),
-                               tuple(valley), search, tuple(warnings))
+                               tuple(valley), search, tuple(warnings),
+                               image if image is not None else measured_image(targets_or_path))
+
+
+def measured_image(source: Any) -> MeasuredImage | None:
+    """The analysed image behind the targets: an SEMMeasurement's, or the one a measure
+    folder's ``measurement.toml`` names (None when unknown or not found)."""
+    if hasattr(source, "image") and hasattr(source, "um_per_px"):
+        return MeasuredImage(np.asarray(source.image), float(source.um_per_px),
+                             Path(str(getattr(source, "source", "image"))).name)
+    if isinstance(source, (str, Path)) and Path(source).is_dir():
+        from espin.imaging.geometry_calibration.comparison import MeasuredView
+
+        view = MeasuredView.from_measure_folder(source)
+        if view is not None:
+            return MeasuredImage(view.read(), view.um_per_px, view.path.name)
+    return None
 
 
 def _sampling_description(measurement: VirtualMeasurement) -> str:

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import tomli_w
 
 from espin.core.config import Config, config_digest
@@ -20,7 +21,7 @@ from espin.imaging.geometry_calibration.options import _written_data
 from espin.imaging.geometry_calibration.search import ValleyPoint
 
 __all__ = ["SCHEMA", "SCHEMA_VERSION", "MECHANICS_NOTE", "CALIBRATION_OUTPUTS", "GeometryCalibration",
-           "output_files", "claim_output"]
+           "MeasuredImage", "output_files", "claim_output"]
 
 SCHEMA = "espin.geometry_calibration"
 SCHEMA_VERSION = 1
@@ -28,8 +29,27 @@ MECHANICS_NOTE = (
     "New deposition parameters change the network and so the mechanics: fit the fiber "
     "parameters again (espin fit) before using stresses of the calibrated mat."
 )
-CALIBRATION_OUTPUTS = ("config.toml", "calibration.json", "calibration.txt")
+CALIBRATION_OUTPUTS = ("config.toml", "calibration.json", "calibration.txt", "comparison.png")
 """The files a calibration writes into a folder."""
+
+
+@dataclass(frozen=True, eq=False)
+class MeasuredImage:
+    """The analysed SEM image of a calibration's targets.
+
+    Attributes
+    ----------
+    pixels : (rows, cols) float64
+        Grey levels of the analysed part (the data bar left out).
+    um_per_px : float [um / px]
+        Pixel size.
+    label : str
+        What it is (file name).
+    """
+
+    pixels: np.ndarray
+    um_per_px: float
+    label: str
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,6 +77,9 @@ class GeometryCalibration:
         Window, RVE sides, seeds, layers, evaluations and wall time [s].
     warnings : tuple of str
         What the user must know (targets out of reach, window larger than the layer...).
+    image : MeasuredImage or None
+        The analysed SEM image the targets were measured on, when known: the files then
+        include ``comparison.png``.
     """
 
     config: Config
@@ -67,6 +90,7 @@ class GeometryCalibration:
     valley: tuple[ValleyPoint, ...] = ()
     search: dict[str, Any] = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
+    image: MeasuredImage | None = None
 
     def match(self, quantity: str) -> DistributionMatch:
         """The match of one quantity (``tortuosity``, ``orientation_deg``, ``diameter_um``)."""
@@ -156,7 +180,8 @@ class GeometryCalibration:
         Returns
         -------
         dict
-            The files written, by kind (``config``, ``report``, and ``table`` for a folder).
+            The files written, by kind (``config``, ``report``, ``table`` for a folder, and
+            ``comparison`` when the targets were measured on a known image).
 
         Raises
         ------
@@ -183,13 +208,33 @@ class GeometryCalibration:
         report = json.dumps(self.report, indent=2, allow_nan=False) + "\n"
         try:
             files["report"].unlink(missing_ok=True)
+            files["comparison"].unlink(missing_ok=True)  # never another run's
             atomic_write_bytes(files["config"], text.encode("utf-8"))
             atomic_write_bytes(files["report"], report.encode("utf-8"))
             if "table" in files:
                 atomic_write_bytes(files["table"], (self.format_table() + "\n").encode("utf-8"))
         except OSError as err:
             raise RVEFileError(f"cannot write the calibration to {path}: {err}") from None
+        if self.image is None:
+            files.pop("comparison")
+        else:
+            self.save_comparison(files["comparison"])
         return files
+
+    def save_comparison(self, path: str | Path) -> Path:
+        """Write the measured image beside a synthetic SEM rendering of a mat of the calibrated
+        config (its seed), at the same pixel size and field of view
+        (:mod:`~espin.imaging.geometry_calibration.comparison`)."""
+        from espin.imaging.geometry_calibration.comparison import RENDERED_LAYERS, render_like, save_comparison
+
+        if self.image is None:
+            raise ConfigError("the calibration has no measured image to compare with")
+        picture = self.image.pixels
+        rendering = render_like(self.config, picture.shape, self.image.um_per_px, seed=self.config.rve.seed)
+        walk = self.config.rve.walk
+        return save_comparison(picture, rendering, self.image.um_per_px, path,
+                               f"measured: {self.image.label}",
+                               f"calibrated mat ({walk} walk), top {RENDERED_LAYERS} layers, synthetic SEM")
 
     def _header_lines(self) -> list[str]:
         from espin.core.version import __version__
@@ -216,14 +261,15 @@ def output_files(path: str | Path) -> dict[str, Path]:
     if path.suffix == ".toml":
         if path.is_dir():
             raise ConfigError(f"{path} is a folder: give a .toml file or a folder name without .toml")
-        return {"config": path, "report": path.with_name(f"{path.stem}.calibration.json")}
+        return {"config": path, "report": path.with_name(f"{path.stem}.calibration.json"),
+                "comparison": path.with_name(f"{path.stem}.comparison.png")}
     if path.exists() and not path.is_dir():
         raise ConfigError(
             f"{path} is an existing file: a path without .toml is a folder "
             "(config.toml, calibration.json, calibration.txt); give a .toml file or a folder"
         )
     return {"config": path / "config.toml", "report": path / "calibration.json",
-            "table": path / "calibration.txt"}
+            "table": path / "calibration.txt", "comparison": path / "comparison.png"}
 
 
 def claim_output(path: str | Path, digest: str, *, overwrite: bool = False) -> AbstractContextManager:
