@@ -9,17 +9,21 @@ import numpy as np
 import pytest
 from scipy import stats as sps
 
-from espin.core.config import Config, OutputConfig, RVEConfig, VonMises, VonMisesParams
+from espin.core.config import Config, OutputConfig, RVEConfig, TargetsConfig, VonMises, VonMisesParams
 from espin.geometry.mat import FiberMat
 from espin.geometry.network import Network
 from espin.geometry.statistics import (
     DEFAULT_MIN_CHORD_FRACTION,
-    MeasuredTargets,
     centred_window,
+    diameter_target,
     ks_statistic,
     network_statistics,
+    tortuosity_target,
     window_tortuosity,
 )
+
+PAPER = TargetsConfig(diameter_mean_um=0.463, diameter_sd_um=0.131, tortuosity_halfnorm_scale=0.14)
+"""The paper's PLLA SEM statistics (Fig. 10), as the plla preset gives them."""
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -268,13 +272,13 @@ def straight_line_mat(theta: np.ndarray, diameter: np.ndarray, size: float, rng)
 def test_ks_statistics_separate_right_and_wrong_targets():
     rng = np.random.default_rng(7)
     n = 800
-    config = Config(rve=RVEConfig(size_um=90.0, layers=1))
+    config = Config(rve=RVEConfig(size_um=90.0, layers=1), targets=PAPER)
     aligned = Config(
         rve=RVEConfig(size_um=90.0, layers=1,
-                      orientation=VonMises(von_mises=VonMisesParams(mean_deg=0, kappa=4)))
+                      orientation=VonMises(von_mises=VonMisesParams(mean_deg=0, kappa=4))),
+        targets=PAPER,
     )
-    targets = MeasuredTargets()
-    diam = np.clip(targets.diameter_distribution().rvs(n, random_state=rng), 0.05, None)
+    diam = np.clip(diameter_target(PAPER).law.rvs(n, random_state=rng), 0.05, None)
     mat = straight_line_mat(rng.uniform(0, np.pi, n), diam, 90.0, rng)
     net = _trivial_network(mat)
     right = network_statistics(mat, net, config)
@@ -282,20 +286,20 @@ def test_ks_statistics_separate_right_and_wrong_targets():
     # Samples from the target: KS > 0.1 at n = 800 has probability ~1e-7.
     assert right.ks_fiber_orientation < 0.1
     assert right.ks_window_orientation < 0.1
-    assert right.ks_diameter < 0.1
+    assert right.grading.diameter.ks < 0.1
     assert wrong.ks_fiber_orientation > 0.25
     # Straight fibers against the measured half-normal: every tortuosity is 1, F(1) = 0.
-    assert right.ks_window_tortuosity == pytest.approx(1.0)
+    assert right.grading.tortuosity.ks == pytest.approx(1.0)
     # A fixed diameter: the statistic is 0.5 + |F(D) - 1/2| (no meaningful p-value).
     fixed = straight_line_mat(rng.uniform(0, np.pi, n), np.full(n, 0.45), 90.0, rng)
     st = network_statistics(fixed, _trivial_network(fixed), config)
     f = sps.norm(0.463, 0.131).cdf(0.45)
-    assert st.ks_diameter == pytest.approx(0.5 + abs(f - 0.5))
+    assert st.grading.diameter.ks == pytest.approx(0.5 + abs(f - 0.5))
 
 
 def test_ks_statistic_of_tortuosity_samples():
     rng = np.random.default_rng(11)
-    target = MeasuredTargets().tortuosity_distribution()
+    target = tortuosity_target(PAPER).law
     assert target.mean() == pytest.approx(1.1117, abs=1e-3)
     good = target.rvs(1000, random_state=rng)
     bad = 1.0 + np.abs(rng.normal(0.0, 0.006, 1000))  # Table 2 fibers: almost straight
@@ -306,7 +310,7 @@ def test_ks_statistic_of_tortuosity_samples():
 
 def test_summary_is_flat_json_and_table_lists_it():
     mat, network, config = tiny_mat_and_network()
-    st = network_statistics(mat, network, config)
+    st = network_statistics(mat, network, config.model_copy(update={"targets": PAPER}))
     s = st.summary()
     text = json.dumps(s, allow_nan=False)
     assert json.loads(text) == s

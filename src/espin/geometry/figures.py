@@ -8,6 +8,7 @@ Agg canvas (no pyplot global state) and written atomically. Lengths in um, angle
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -21,7 +22,7 @@ from espin.core.figures import save_figure
 
 if TYPE_CHECKING:  # pragma: no cover
     from espin.geometry.mat import FiberMat
-    from espin.geometry.statistics import NetworkStatistics, VisibleFibers
+    from espin.geometry.statistics import NetworkStatistics, Target, VisibleFibers
 
 __all__ = ["plot_mat", "plot_statistics"]
 
@@ -121,15 +122,44 @@ def _ks(value: float) -> str:
     return "KS -" if not np.isfinite(value) else f"KS = {value:.3f}"
 
 
+def _against_target(ax, values: np.ndarray, target: Target | None, label: str, floor: float) -> None:
+    """Histogram of a mat's ``values`` against a measured target: the distribution's density,
+    the measured sample's histogram, or a note that there is none; bins over both, from at
+    least ``floor``."""
+    values = np.asarray(values, dtype=float)
+    values = values[np.isfinite(values)]
+    ends = [float(values.min()), float(values.max())] if len(values) else []
+    if target is not None:
+        ends += [target.quantile(0.0005), target.quantile(0.9995)]
+    lo = max(min(ends, default=floor), floor)
+    hi = max(ends, default=lo)
+    hi = hi if hi > lo else lo + max(0.1 * abs(lo), 1e-3)  # one value: a bin around it
+    bins = np.linspace(lo, hi, 41)
+    mean = f", mean {np.mean(values):.4g}" if len(values) else ""
+    _hist(ax, values, bins, label + mean)
+    if target is None:
+        ax.plot([], [], " ", label="no measured target in the config")
+    elif target.law is not None:
+        x = np.linspace(lo, hi, 400)
+        ax.plot(x, target.law.pdf(x), color="k",
+                label=f"measured {target.label}, mean {target.mean:.4g}")
+    else:
+        ax.hist(np.clip(target.sample, lo, hi), bins=bins, density=True, histtype="step",
+                color="k", label=f"measured {target.label}, mean {target.mean:.4g}")
+    ax.legend(fontsize="small")
+
+
 def plot_statistics(stats: NetworkStatistics, path: str | Path, *, dpi: float = 150.0) -> Path:
     """Histograms of the mat's statistics against their targets (paper Fig. 12b-c).
 
     Panels: fiber orientation (end-to-end chords) and the orientation of the portions visible
     in the observation window, both against the configured distribution; tortuosity in the
-    window against the measured half-normal; diameter against the measured normal; element
+    window (of the portions or pieces graded) and diameter, against the measured targets of
+    the config (``[targets]``: a distribution or a sample; none without it); element
     tortuosity; element length (log scale). Panel titles carry the KS statistics. With the
-    paper's Table 2 parameters the tortuosity panel shows virtual fibers far straighter than
-    the measured ones: that is the model's result (docs/model.md section 7), not a plotting problem.
+    paper's Table 2 parameters the tortuosity panel of ``plla`` shows virtual fibers far
+    straighter than the measured ones: that is the model's result (docs/model.md section 7),
+    not a plotting problem.
 
     Parameters
     ----------
@@ -148,7 +178,6 @@ def plot_statistics(stats: NetworkStatistics, path: str | Path, *, dpi: float = 
     fig = Figure(figsize=(14.0, 8.0), layout="constrained")
     axes = fig.subplots(2, 3)
     target = stats.orientation_target
-    t = stats.targets
     w = stats.window
 
     # Orientation [deg]: density per degree, target pdf [1/rad] * pi / 180.
@@ -169,40 +198,27 @@ def plot_statistics(stats: NetworkStatistics, path: str | Path, *, dpi: float = 
         ax.set_ylim(0.0, 1.4 * ax.get_ylim()[1])  # room for the legend above the bars
         ax.legend(fontsize="small", loc="upper center")
 
-    # Tortuosity in the window against the measured half-normal.
+    # Tortuosity in the window and diameter against their measured targets.
+    g = stats.grading
     ax = axes[0, 1]
-    tort = t.tortuosity_distribution()
-    hi = max(float(tort.ppf(0.995)), float(np.nanmax(w.tortuosity, initial=1.0)))
-    bins = np.linspace(t.tortuosity_loc, hi, 41)
-    _hist(ax, w.tortuosity, bins, f"visible portions, mean {np.mean(w.tortuosity):.4f}"
-          if len(w) else "visible portions")
-    x = np.linspace(t.tortuosity_loc, hi, 400)
-    ax.plot(x, tort.pdf(x), color="k",
-            label=f"measured halfnorm(loc {t.tortuosity_loc:g}, scale {t.tortuosity_scale:g}),"
-                  f" mean {tort.mean():.3f}")
+    graded = g.tortuosity
+    tortuosity = w.tortuosity if graded is None else graded.mat
+    name = "visible portions" if graded is None else g.tortuosity_sampling
+    _against_target(ax, tortuosity, None if graded is None else graded.target, name, floor=1.0)
     ax.set_yscale("log")
     ax.set_xlabel("tortuosity (contour / chord)")
     ax.set_ylabel("density (log)")
-    ax.set_title(f"tortuosity in a {w.side:.3g} um window: {_ks(stats.ks_window_tortuosity)}")
-    ax.legend(fontsize="small")
+    ks = math.nan if graded is None else graded.ks
+    ax.set_title(f"tortuosity in a {w.side:.3g} um window: {_ks(ks)}")
 
-    # Diameter against the measured normal.
     ax = axes[0, 2]
-    dia = t.diameter_distribution()
     d = stats.diameter_um
-    lo = min(float(dia.ppf(0.0005)), float(np.min(d, initial=np.inf)))
-    hi = max(float(dia.ppf(0.9995)), float(np.max(d, initial=-np.inf)))
-    lo = max(lo, 0.0)
-    bins = np.linspace(lo, hi, 41)
-    _hist(ax, d, bins, "fibers")
-    x = np.linspace(lo, hi, 400)
-    ax.plot(x, dia.pdf(x), color="k",
-            label=f"measured normal({t.diameter_mean_um:g}, {t.diameter_sd_um:g}) um")
+    _against_target(ax, d, None if g.diameter is None else g.diameter.target, "fibers", floor=0.0)
     ax.set_xlabel("diameter [um]")
     ax.set_ylabel("density [1/um]")
     fixed = len(d) > 0 and np.ptp(d) == 0.0
-    ax.set_title(f"diameter: {_ks(stats.ks_diameter)}" + (" (fixed diameter)" if fixed else ""))
-    ax.legend(fontsize="small")
+    ks = math.nan if g.diameter is None else g.diameter.ks
+    ax.set_title(f"diameter: {_ks(ks)}" + (" (fixed diameter)" if fixed else ""))
 
     # Element tortuosity.
     ax = axes[1, 1]

@@ -3,7 +3,21 @@
 This module measures what docs/model.md section 2 lists and what the paper compares with SEM images (Fig. 10,
 12; docs/model.md section 7): counts, the achieved volume fraction, cross-link densities against the
 integral-geometry expectation, and samples of orientation, tortuosity, diameter and element
-length, with Kolmogorov-Smirnov statistics against their targets.
+length, with Kolmogorov-Smirnov statistics against their targets: the orientation against the
+config's own distribution, and diameter, tortuosity, orientation and the crossing statistics
+against the measured targets of the config's ``[targets]`` section (:class:`TargetGrading`;
+none without that section).
+
+Measured as the targets were
+----------------------------
+A measured sample is compared with the mat's by the two-sample KS statistic, a distribution
+by the one-sample one. When the targets give the contour lengths of the measured pieces
+(``targets.contour_length_um``, as ``espin measure`` writes them), the mat is measured on
+pieces of those lengths cut from its window portions, like the SEM tracer's pieces, and the
+U-turn fraction and straightness of its edge-to-edge portions are measured for the targets
+that give them. Both need :mod:`espin.geometry.pieces`, which stands on this module's window
+clipping: :func:`espin.geometry.rve_folder.trace_window` measures them and hands them to
+:func:`network_statistics` (:class:`TracedWindow`).
 
 Tortuosity as an SEM image sees it
 ----------------------------------
@@ -20,9 +34,10 @@ With the paper's Table 2 deposition parameters (max deviation 5 deg between segm
 virtual fibers are far straighter than the measured ones: whole fibers have a tortuosity of
 about 1.006 and the portions visible in a 50 D window about 1.002, while the SEM half-normal
 ``halfnorm(loc=1, scale=0.14)`` has mean 1.112. The KS statistic of window tortuosity is then
-about 0.95 (1 = disjoint distributions). espin reports this honestly (docs/model.md sections 7-8): matching the
-measured tortuosity needs other deposition parameters (a larger ``max_deviation_deg`` or
-segment length), and then the material parameters must be fitted again.
+about 0.95 (1 = disjoint distributions) against the paper's targets of the ``plla`` preset.
+espin reports this honestly (docs/model.md sections 7-8): matching the measured tortuosity needs
+other deposition parameters (a larger ``max_deviation_deg`` or segment length), and then the
+material parameters must be fitted again.
 
 Units: lengths um, areas um^2, angles rad inside (degrees in :meth:`NetworkStatistics.summary`
 and on plots).
@@ -39,7 +54,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 if TYPE_CHECKING:  # pragma: no cover
-    from espin.core.config import Config
+    from espin.core.config import Config, TargetsConfig
     from espin.geometry.mat import FiberMat
     from espin.geometry.network import Network
     from espin.geometry.orientation import OrientationDistribution
@@ -48,11 +63,22 @@ __all__ = [
     "DEFAULT_MIN_CHORD_FRACTION",
     "VisibleFibers",
     "window_tortuosity",
-    "MeasuredTargets",
+    "Target",
+    "tortuosity_target",
+    "diameter_target",
+    "TracedWindow",
+    "Graded",
+    "TargetGrading",
+    "grade",
     "NetworkStatistics",
     "network_statistics",
     "ks_statistic",
+    "ks_two_sample",
     "centred_window",
+    "observation_window",
+    "WHOLE_PORTIONS",
+    "LENGTH_MATCHED",
+    "NO_TARGETS",
 ]
 
 DEFAULT_MIN_CHORD_FRACTION = 0.1
@@ -284,43 +310,240 @@ def centred_window(size: float, side: float) -> tuple[np.ndarray, float]:
     return np.array([corner, corner]), side
 
 
+def observation_window(config: Config, size: float) -> tuple[np.ndarray, float, float]:
+    """Origin [um], side [um] and shortest chord [um] of the window a mat of layer side
+    ``size`` [um] is seen through: centred, of side ``config.observation_window_um``; the
+    shortest chord is ``targets.min_chord_um`` when the config gives it, else
+    ``DEFAULT_MIN_CHORD_FRACTION`` of the side."""
+    origin, side = centred_window(size, config.observation_window_um)
+    given = None if config.targets is None else config.targets.min_chord_um
+    return origin, side, DEFAULT_MIN_CHORD_FRACTION * side if given is None else given
+
+
 # --------------------------------------------------------------------------------------------
 # Targets and goodness of fit
 # --------------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class MeasuredTargets:
-    """Distributions measured on SEM images that a virtual mat is compared with.
+WHOLE_PORTIONS = "whole window portions"
+"""Tortuosity measured on every maximal fiber portion in the window (:func:`window_tortuosity`)."""
+LENGTH_MATCHED = "length-matched pieces"
+"""Tortuosity measured on pieces of the targets' contour lengths (:class:`TracedWindow`)."""
 
-    Defaults are the paper's PLLA measurements (Fig. 10, docs/model.md section 7).
+
+@dataclass(frozen=True, eq=False)
+class Target:
+    """A measured target of one quantity: a sample, or a distribution.
 
     Attributes
     ----------
-    tortuosity_loc : float
-        Location of the half-normal tortuosity distribution (the minimum, 1).
-    tortuosity_scale : float
-        Scale of the half-normal tortuosity distribution (0.14: mean 1.112, sd 0.084).
-    diameter_mean_um : float [um]
-        Mean of the normal diameter distribution (0.463).
-    diameter_sd_um : float [um]
-        Standard deviation of the normal diameter distribution (0.131).
+    label : str
+        What it is, for reports: ``"halfnorm(loc=1, scale=0.14)"``, ``"sample of 523 values"``.
+    sample : (n,) float64, optional
+        The measured values (in the units the quantity is graded in).
+    law : frozen ``scipy.stats`` distribution, optional
+        The distribution, when no sample is given.
     """
 
-    tortuosity_loc: float = 1.0
-    tortuosity_scale: float = 0.14
-    diameter_mean_um: float = 0.463
-    diameter_sd_um: float = 0.131
+    label: str
+    sample: np.ndarray | None = None
+    law: Any = None
 
-    def tortuosity_distribution(self) -> Any:
-        """``scipy.stats.halfnorm(loc, scale)`` (frozen) of the tortuosity."""
-        from scipy import stats
+    @property
+    def mean(self) -> float:
+        """Mean of the sample or the distribution."""
+        return _mean(self.sample) if self.sample is not None else float(self.law.mean())
 
-        return stats.halfnorm(loc=self.tortuosity_loc, scale=self.tortuosity_scale)
+    @property
+    def sd(self) -> float:
+        """Standard deviation (population) of the sample or the distribution."""
+        return _std(self.sample) if self.sample is not None else float(self.law.std())
 
-    def diameter_distribution(self) -> Any:
-        """``scipy.stats.norm(mean, sd)`` (frozen) of the diameter [um]."""
-        from scipy import stats
+    def quantile(self, q: float) -> float:
+        """The ``q`` quantile of the sample or the distribution."""
+        return float(np.quantile(self.sample, q)) if self.sample is not None else float(self.law.ppf(q))
 
-        return stats.norm(loc=self.diameter_mean_um, scale=self.diameter_sd_um)
+    def ks(self, values: ArrayLike) -> float:
+        """KS statistic of ``values`` against this target: two-sample against a sample,
+        one-sample against a distribution (NaN for an empty sample)."""
+        if self.sample is not None:
+            return ks_two_sample(values, self.sample)
+        return ks_statistic(values, self.law.cdf)
+
+
+def _sample_target(values: list[float], scale: float = 1.0) -> Target:
+    return Target(f"sample of {len(values):,} values", sample=np.asarray(values, dtype=float) * scale)
+
+
+def tortuosity_target(targets: TargetsConfig | None) -> Target | None:
+    """The tortuosity target of ``targets``: its sample, or ``halfnorm(loc=1, scale)``; None
+    when it gives neither."""
+    from scipy import stats
+
+    if targets is None:
+        return None
+    if targets.tortuosity is not None:
+        return _sample_target(targets.tortuosity)
+    scale = targets.tortuosity_halfnorm_scale
+    if scale is None:
+        return None
+    return Target(f"halfnorm(loc=1, scale={scale:g})", law=stats.halfnorm(loc=1.0, scale=scale))
+
+
+def diameter_target(targets: TargetsConfig | None) -> Target | None:
+    """The diameter target [um] of ``targets``: its sample, or the normal or lognormal of
+    the given mean and sd (a point mass, given as a one-value sample, when sd = 0); None
+    when it gives neither."""
+    from scipy import stats
+
+    if targets is None:
+        return None
+    if targets.diameter_um is not None:
+        return _sample_target(targets.diameter_um)
+    mean, sd = targets.diameter_mean_um, targets.diameter_sd_um
+    if mean is None:
+        return None
+    if sd == 0.0:
+        return Target(f"fixed {mean:g} um", sample=np.array([mean]))
+    if targets.diameter_distribution == "normal":
+        return Target(f"normal({mean:g}, {sd:g}) um", law=stats.norm(loc=mean, scale=sd))
+    sigma2 = math.log1p((sd / mean) ** 2)  # lognormal of that mean and sd
+    law = stats.lognorm(s=math.sqrt(sigma2), scale=mean * math.exp(-sigma2 / 2.0))
+    return Target(f"lognormal(mean {mean:g}, sd {sd:g}) um", law=law)
+
+
+@dataclass(frozen=True, eq=False)
+class TracedWindow:
+    """A mat measured in its observation window as the SEM tracer measures, beyond the whole
+    window portions: made by :func:`espin.geometry.rve_folder.trace_window` with
+    :mod:`espin.geometry.pieces` (which stands on this module).
+
+    Attributes
+    ----------
+    piece_tortuosity : (n,) float64, optional
+        Tortuosity of pieces of the targets' contour lengths (None: not sampled).
+    piece_orientation : (n,) float64 [rad], optional
+        Axes of their chords, in [0, pi).
+    n_crossing : int, optional
+        Window portions that cross the window edge to edge (None: not measured).
+    u_turn_fraction : float
+        Of those, the fraction that leave through the edge they entered (NaN: none or not
+        measured).
+    straightness : float
+        Their mean end-to-end over contour length (NaN: none or not measured).
+    """
+
+    piece_tortuosity: np.ndarray | None = None
+    piece_orientation: np.ndarray | None = None
+    n_crossing: int | None = None
+    u_turn_fraction: float = math.nan
+    straightness: float = math.nan
+
+
+@dataclass(frozen=True, eq=False)
+class Graded:
+    """One quantity of a mat graded against its measured target.
+
+    Attributes
+    ----------
+    target : Target
+        The measured target.
+    mat : (n,) float64
+        The mat's values as graded (empty when they could not be measured).
+    ks : float
+        KS statistic of ``mat`` against ``target`` (0 same, 1 disjoint; NaN if ``mat`` is
+        empty).
+    """
+
+    target: Target
+    mat: np.ndarray
+    ks: float
+
+
+def _graded(target: Target | None, mat: np.ndarray) -> Graded | None:
+    return None if target is None else Graded(target, mat, target.ks(mat))
+
+
+@dataclass(frozen=True, eq=False)
+class TargetGrading:
+    """A mat against the measured targets of its config (``[targets]``).
+
+    Attributes
+    ----------
+    targets : TargetsConfig, optional
+        The config's targets; None: no measured targets, nothing graded.
+    tortuosity : Graded, optional
+        Tortuosity in the window: of the whole window portions, or of pieces of the targets'
+        contour lengths (``tortuosity_sampling``).
+    tortuosity_sampling : str, optional
+        :data:`WHOLE_PORTIONS` or :data:`LENGTH_MATCHED` when tortuosity is graded.
+    diameter : Graded, optional
+        Fiber diameters [um], one per fiber.
+    orientation : Graded, optional
+        Chord axes [rad] of the same portions or pieces as the tortuosity, against the
+        measured sample of ``targets.orientation_deg``.
+    n_crossing : int, optional
+        Window portions crossing the window edge to edge, when the U-turn fraction or the
+        straightness is a target (None: not measured).
+    u_turn_fraction, straightness : float
+        The mat's (NaN: not measured, or no portion crossing).
+    """
+
+    targets: TargetsConfig | None = None
+    tortuosity: Graded | None = None
+    tortuosity_sampling: str | None = None
+    diameter: Graded | None = None
+    orientation: Graded | None = None
+    n_crossing: int | None = None
+    u_turn_fraction: float = math.nan
+    straightness: float = math.nan
+
+
+def grade(targets: TargetsConfig | None, window: VisibleFibers, diameter_um: np.ndarray,
+          traced: TracedWindow | None = None) -> TargetGrading:
+    """Grade a mat against measured ``targets``.
+
+    Parameters
+    ----------
+    targets : TargetsConfig, optional
+        The config's ``[targets]``; None grades nothing.
+    window : VisibleFibers
+        The mat's whole portions in its observation window.
+    diameter_um : (n_fibers,) float64 [um]
+        Its fiber diameters.
+    traced : TracedWindow, optional
+        Its length-matched pieces and crossing statistics, needed when the targets give
+        contour lengths or crossing statistics (without it those are not measured: empty
+        samples, NaN).
+
+    Returns
+    -------
+    TargetGrading
+    """
+    if targets is None:
+        return TargetGrading()
+    traced = TracedWindow() if traced is None else traced
+    if targets.contour_length_um is None:
+        sampling, tortuosity, orientation = WHOLE_PORTIONS, window.tortuosity, window.orientation
+    else:
+        sampling = LENGTH_MATCHED
+        tortuosity = _or_empty(traced.piece_tortuosity)
+        orientation = _or_empty(traced.piece_orientation)
+    graded_tortuosity = _graded(tortuosity_target(targets), tortuosity)
+    crossings = targets.u_turn_fraction is not None or targets.straightness is not None
+    return TargetGrading(
+        targets=targets,
+        tortuosity=graded_tortuosity,
+        tortuosity_sampling=None if graded_tortuosity is None else sampling,
+        diameter=_graded(diameter_target(targets), diameter_um),
+        orientation=None if targets.orientation_deg is None else _graded(
+            _sample_target(targets.orientation_deg, math.pi / 180.0), orientation),
+        n_crossing=traced.n_crossing if crossings else None,
+        u_turn_fraction=traced.u_turn_fraction if crossings else math.nan,
+        straightness=traced.straightness if crossings else math.nan,
+    )
+
+
+def _or_empty(x: np.ndarray | None) -> np.ndarray:
+    return np.empty(0) if x is None else np.asarray(x, dtype=float)
 
 
 def ks_statistic(sample: ArrayLike, cdf: Callable[[np.ndarray], np.ndarray]) -> float:
@@ -339,6 +562,18 @@ def ks_statistic(sample: ArrayLike, cdf: Callable[[np.ndarray], np.ndarray]) -> 
     if len(x) == 0:
         return math.nan
     return float(stats.kstest(x, cdf).statistic)
+
+
+def ks_two_sample(sample: ArrayLike, target: ArrayLike) -> float:
+    """Two-sample Kolmogorov-Smirnov statistic sup |F_n - G_m| of ``sample`` against a
+    measured ``target`` sample (NaN if either is empty); see :func:`ks_statistic` for why
+    only the statistic."""
+    from scipy import stats
+
+    x, y = _finite(sample), _finite(target)
+    if len(x) == 0 or len(y) == 0:
+        return math.nan
+    return float(stats.ks_2samp(x, y).statistic)
 
 
 # --------------------------------------------------------------------------------------------
@@ -423,20 +658,18 @@ class NetworkStatistics:
         Fiber portions (all layers pooled) visible in the observation window.
     orientation_target : OrientationDistribution
         The configured orientation distribution.
-    targets : MeasuredTargets
-        The measured tortuosity and diameter distributions.
     ks_fiber_orientation : float
         KS statistic of ``fiber_orientation`` against ``orientation_target``.
     ks_window_orientation : float
         KS statistic of the visible portions' orientation against ``orientation_target``.
-    ks_window_tortuosity : float
-        KS statistic of the visible portions' tortuosity against the measured half-normal.
-        About 0.95 with the paper's Table 2 parameters: the virtual fibers are far straighter
-        than the measured ones (a result, not a failure; see the module docs).
-    ks_diameter : float
-        KS statistic of ``diameter_um`` against the measured normal. With a fixed diameter
-        (``plla``) the sample is degenerate; the statistic still measures the distance to the
-        target (about 0.5 + |Phi((D - mean) / sd) - 0.5|), but no p-value is meaningful.
+    grading : TargetGrading
+        The mat against the measured targets of the config (none without ``[targets]``).
+        Against the paper's targets (``plla``) the window tortuosity's KS statistic is about
+        0.95 with the Table 2 parameters: the virtual fibers are far straighter than the
+        measured ones (a result, not a failure; see the module docs); and with a fixed
+        diameter the diameter sample is degenerate: its KS statistic still measures the
+        distance to the target (0.5 + |Phi((D - mean) / sd) - 0.5|), but no p-value is
+        meaningful.
     """
 
     n_fibers: int
@@ -469,11 +702,9 @@ class NetworkStatistics:
     element_length_um: np.ndarray
     window: VisibleFibers
     orientation_target: OrientationDistribution
-    targets: MeasuredTargets = field(default_factory=MeasuredTargets)
     ks_fiber_orientation: float = math.nan
     ks_window_orientation: float = math.nan
-    ks_window_tortuosity: float = math.nan
-    ks_diameter: float = math.nan
+    grading: TargetGrading = field(default_factory=TargetGrading)
 
     @property
     def n_crosslinks(self) -> int:
@@ -561,14 +792,9 @@ class NetworkStatistics:
             "window_tortuosity_mean": _mean(w.tortuosity),
             "window_tortuosity_sd": _std(w.tortuosity),
             "orientation_target": self.orientation_target.label,
-            "target_tortuosity_mean": float(self.targets.tortuosity_distribution().mean()),
-            "target_tortuosity_sd": float(self.targets.tortuosity_distribution().std()),
-            "target_diameter_mean_um": self.targets.diameter_mean_um,
-            "target_diameter_sd_um": self.targets.diameter_sd_um,
             "ks_fiber_orientation": self.ks_fiber_orientation,
             "ks_window_orientation": self.ks_window_orientation,
-            "ks_window_tortuosity": self.ks_window_tortuosity,
-            "ks_diameter": self.ks_diameter,
+            **_grading_summary(self.grading),
         }
         return {k: _json_value(v) for k, v in out.items()}
 
@@ -598,26 +824,84 @@ class NetworkStatistics:
             ("observation window (as SEM)", ["window_side_um", "window_min_chord_um",
                                             "window_n_portions", "window_tortuosity_mean",
                                             "window_tortuosity_sd"]),
-            ("against targets: orientation of the config, tortuosity and diameter of the paper's "
-             "PLLA SEM (Fig. 10) (KS statistic: 0 same, 1 disjoint)",
-             ["orientation_target", "ks_fiber_orientation", "ks_window_orientation",
-              "target_tortuosity_mean", "target_tortuosity_sd", "ks_window_tortuosity",
-              "target_diameter_mean_um", "target_diameter_sd_um", "ks_diameter"]),
+            ("against the config's orientation distribution (KS statistic: 0 same, 1 disjoint)",
+             ["orientation_target", "ks_fiber_orientation", "ks_window_orientation"]),
+            ("against measured targets (KS statistic: 0 same, 1 disjoint)",
+             _graded_keys(self.grading)),
         ]
         width = max(len(k) for _, keys in groups for k in keys)
         lines: list[str] = []
         for title, keys in groups:
             lines.append(title)
-            for k in keys:
-                lines.append(f"  {k:<{width}}  {_format_value(s[k])}")
+            lines += [f"  {k:<{width}}  {_format_value(s[k])}" for k in keys] or [f"  {NO_TARGETS}"]
         return "\n".join(lines)
+
+
+NO_TARGETS = "no measured targets in the config"
+"""What the table says when the config has no ``[targets]`` section."""
+
+
+def _grading_summary(g: TargetGrading) -> dict[str, Any]:
+    """The summary entries of a grading: target against mat for each quantity (None where
+    it is not graded)."""
+    t = g.targets
+    tort, dia, ori = g.tortuosity, g.diameter, g.orientation
+    mat_tortuosity = np.empty(0) if tort is None else tort.mat
+    return {
+        "targets_source": None if t is None else t.source or "not given",
+        "target_window_um": None if t is None else t.window_um,
+        "target_tortuosity": None if tort is None else tort.target.label,
+        "tortuosity_sampling": g.tortuosity_sampling,
+        "target_tortuosity_mean": None if tort is None else tort.target.mean,
+        "target_tortuosity_sd": None if tort is None else tort.target.sd,
+        "mat_tortuosity_n": None if tort is None else len(mat_tortuosity),
+        "mat_tortuosity_mean": _mean(mat_tortuosity),
+        "mat_tortuosity_sd": _std(mat_tortuosity),
+        "ks_window_tortuosity": math.nan if tort is None else tort.ks,
+        "target_diameter": None if dia is None else dia.target.label,
+        "target_diameter_mean_um": None if dia is None else dia.target.mean,
+        "target_diameter_sd_um": None if dia is None else dia.target.sd,
+        "ks_diameter": math.nan if dia is None else dia.ks,
+        "target_orientation": None if ori is None else ori.target.label,
+        "ks_measured_orientation": math.nan if ori is None else ori.ks,
+        "target_u_turn_fraction": None if t is None else t.u_turn_fraction,
+        "target_straightness": None if t is None else t.straightness,
+        "mat_n_crossing": g.n_crossing,
+        "mat_u_turn_fraction": g.u_turn_fraction,
+        "mat_straightness": g.straightness,
+    }
+
+
+def _graded_keys(g: TargetGrading) -> list[str]:
+    """Keys of the table's target rows: the source, and target against mat of each graded
+    quantity."""
+    t = g.targets
+    if t is None:
+        return []
+    keys = ["targets_source"] + ["target_window_um", "window_side_um"] * (t.window_um is not None)
+    if g.tortuosity is not None:
+        keys += ["target_tortuosity", "tortuosity_sampling", "target_tortuosity_mean",
+                 "target_tortuosity_sd", "mat_tortuosity_n", "mat_tortuosity_mean",
+                 "mat_tortuosity_sd", "ks_window_tortuosity"]
+    if g.diameter is not None:
+        keys += ["target_diameter", "target_diameter_mean_um", "target_diameter_sd_um",
+                 "diameter_mean_um", "diameter_sd_um", "ks_diameter"]
+    if g.orientation is not None:
+        keys += ["target_orientation", "ks_measured_orientation"]
+    if g.n_crossing is not None or t.u_turn_fraction is not None or t.straightness is not None:
+        keys += ["mat_n_crossing"]
+    if t.u_turn_fraction is not None:
+        keys += ["target_u_turn_fraction", "mat_u_turn_fraction"]
+    if t.straightness is not None:
+        keys += ["target_straightness", "mat_straightness"]
+    return keys
 
 
 def network_statistics(
     mat: FiberMat,
     network: Network,
     config: Config,
-    targets: MeasuredTargets | None = None,
+    traced: TracedWindow | None = None,
 ) -> NetworkStatistics:
     """Statistics of a deposited mat and its network, compared with their targets.
 
@@ -629,11 +913,14 @@ def network_statistics(
         The network built from ``mat``.
     config : Config
         The run configuration: the orientation target (``rve.orientation``), the target
-        volume fraction and diameter, and the observation window side
-        (``Config.observation_window_um``; the window is centred in the RVE and sees all
-        layers, like an SEM image of a mat whose layers are statistically alike).
-    targets : MeasuredTargets, optional
-        Measured tortuosity and diameter distributions; default the paper's (Fig. 10).
+        volume fraction and diameter, the measured targets (``targets``, optional), and the
+        observation window (:func:`observation_window`: side
+        ``Config.observation_window_um``, centred in the RVE, seeing all layers like an SEM
+        image of a mat whose layers are statistically alike).
+    traced : TracedWindow, optional
+        The mat's length-matched pieces and crossing statistics, from
+        :func:`espin.geometry.rve_folder.trace_window`; needed when the targets give contour
+        lengths or crossing statistics, which are otherwise reported as not measured.
 
     Returns
     -------
@@ -642,7 +929,6 @@ def network_statistics(
     """
     from espin.geometry.orientation import orientation_distribution
 
-    targets = MeasuredTargets() if targets is None else targets
     L = float(mat.size)
     n_layers = int(mat.n_layers)
     area = L * L
@@ -674,8 +960,9 @@ def network_statistics(
     seg_vec = mat.vertices[mat.segment_start + 1] - mat.vertices[mat.segment_start]
     segment_orientation = np.mod(np.arctan2(seg_vec[:, 1], seg_vec[:, 0]), np.pi)
     element_tortuosity = np.asarray(network.element_tortuosity, dtype=float)
-    origin, side = centred_window(L, config.observation_window_um)
-    window = window_tortuosity(mat.vertices, mat.fiber_offsets, origin, side)
+    origin, side, min_chord = observation_window(config, L)
+    window = window_tortuosity(mat.vertices, mat.fiber_offsets, origin, side, min_chord)
+    diameter = np.asarray(mat.fiber_diameter, dtype=float)
 
     target = orientation_distribution(config.rve.orientation)
     D = config.rve.diameter_um
@@ -707,15 +994,13 @@ def network_statistics(
         segment_orientation=segment_orientation,
         fiber_tortuosity=np.asarray(mat.tortuosity),
         element_tortuosity=element_tortuosity,
-        diameter_um=np.asarray(mat.fiber_diameter, dtype=float),
+        diameter_um=diameter,
         element_length_um=np.asarray(network.element_length, dtype=float),
         window=window,
         orientation_target=target,
-        targets=targets,
         ks_fiber_orientation=ks_statistic(mat.orientation, target.cdf),
         ks_window_orientation=ks_statistic(window.orientation, target.cdf),
-        ks_window_tortuosity=ks_statistic(window.tortuosity, targets.tortuosity_distribution().cdf),
-        ks_diameter=ks_statistic(mat.fiber_diameter, targets.diameter_distribution().cdf),
+        grading=grade(config.targets, window, diameter, traced),
     )
 
 
