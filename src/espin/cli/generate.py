@@ -78,7 +78,7 @@ def generate(
             result = write_rve_files(rve, folder, figures=figures, vtk=vtk, run_id=claimed.run_id)
     except EspinError as err:
         fail(err)
-    console.print(result.statistics.format_table(), highlight=False)
+    console.print(result.statistics.format_table(), highlight=False, soft_wrap=True)
     console.print(f"seeding: {config.rve.seeding}   wrote {folder}/: " + ", ".join(
         p.name for p in result.files.values()
     ), highlight=False)
