@@ -53,6 +53,10 @@ def test_plga_plausible_numbers(plga):
     assert 1.5 < np.median(plga.widths_um) < 4.5  # top fibers about 45 px = 3 um wide
     assert 1.0 <= plga.fibers["tortuosity"].mean() < 1.2
     assert 0.0 <= plga.coherency < 0.5
+    # Several thick top fibers run from the top edge to the bottom one (6 traced so, none
+    # back to the edge it came from; docs/sem.md).
+    assert plga.n_crossing >= 4 and plga.u_turn_fraction == 0.0
+    assert 0.9 < plga.straightness <= 1.0
 
 
 def test_nano_plausible_numbers(nano):

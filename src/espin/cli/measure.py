@@ -58,8 +58,10 @@ def measure(
 ) -> None:
     """Measure fiber diameters, orientation and tortuosity on an SEM image.
 
-    Writes fibers.csv (one row per traced fiber), measurement.toml (scale, field of view,
-    counts, fitted distributions), histograms.png and overlay.png, and run.json.
+    Writes fibers.csv (one row per traced fiber, with the image edges its ends lie on),
+    measurement.toml (scale, field of view, counts, fitted distributions, U-turn fraction and
+    straightness of the fibers traced edge to edge), histograms.png and overlay.png, and
+    run.json.
     """
     from rich.console import Console
     from rich.table import Table

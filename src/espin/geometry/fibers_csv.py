@@ -3,8 +3,10 @@
 Columns (units in the names): ``fiber`` (int), ``diameter_um`` (width of a blurred flat
 profile fitted to the fiber's median profile), ``orientation_deg`` (axis of the end-to-end
 line, [0, 180)), ``tortuosity`` (contour / end-to-end, >= 1), ``contour_length_um``,
-``end_to_end_um``. An empty cell is a value that was not measured (e.g. a fiber whose every
-width sample was next to a crossing).
+``end_to_end_um``, ``start_edge`` and ``end_edge`` (the edge of the analysed image that the
+fiber's first / last end lies on: ``bottom``, ``right``, ``top`` or ``left``; empty for an end
+inside the image). An empty number cell is a value that was not measured (e.g. a fiber whose
+every width sample was next to a crossing).
 A table made by hand needs only one of ``diameter_um``, ``orientation_deg``, ``tortuosity``.
 """
 
@@ -18,10 +20,15 @@ import pandas as pd
 from espin.core.atomic import atomic_write
 from espin.core.errors import SEMError
 
-__all__ = ["FIBER_COLUMNS", "read_fibers_csv", "write_fibers_csv"]
+__all__ = ["FIBER_COLUMNS", "EDGE_COLUMNS", "EDGE_NAMES", "read_fibers_csv", "write_fibers_csv"]
 
-FIBER_COLUMNS = ("fiber", "diameter_um", "orientation_deg", "tortuosity", "contour_length_um",
-                 "end_to_end_um")
+EDGE_COLUMNS = ("start_edge", "end_edge")
+"""Text columns: the image edge each end of a fiber lies on (empty: inside the image)."""
+EDGE_NAMES = ("bottom", "right", "top", "left")
+"""Edge names, in the order of :func:`espin.geometry.pieces.border_edges` (0 = bottom)."""
+_NUMBER_COLUMNS = ("diameter_um", "orientation_deg", "tortuosity", "contour_length_um",
+                   "end_to_end_um")
+FIBER_COLUMNS = ("fiber", *_NUMBER_COLUMNS, *EDGE_COLUMNS)
 """Columns of ``fibers.csv``, in order."""
 
 _MEASURED = ("diameter_um", "orientation_deg", "tortuosity")
@@ -53,14 +60,16 @@ def read_fibers_csv(path: str | Path) -> pd.DataFrame:
     Returns
     -------
     pandas.DataFrame
-        The known columns present (others are dropped), as float (``fiber`` as int); empty
-        cells are NaN. A missing ``fiber`` column is numbered 0, 1, ...
+        The known columns present (others are dropped), as float (``fiber`` as int, the edge
+        columns as text); empty number cells are NaN, empty edge cells "". A missing ``fiber``
+        column is numbered 0, 1, ...
 
     Raises
     ------
     SEMError
-        Unreadable file, none of the measured columns, a non-numeric cell, or a value outside
-        its range (the message names the column, the first bad row and the range).
+        Unreadable file, none of the measured columns, a non-numeric cell, a value outside
+        its range or an unknown edge name (the message names the column, the first bad row and
+        the range).
     """
     path = Path(path)
     if not path.is_file():
@@ -74,9 +83,12 @@ def read_fibers_csv(path: str | Path) -> pd.DataFrame:
         raise SEMError(f"fibers table {str(path)!r} needs at least one of the columns "
                        f"{', '.join(_MEASURED)}; found {', '.join(raw.columns) or 'none'}")
     out = pd.DataFrame(index=raw.index)
-    for column in FIBER_COLUMNS[1:]:
+    for column in _NUMBER_COLUMNS:
         if column in raw.columns:
             out[column] = _checked(raw[column], column, path)
+    for column in EDGE_COLUMNS:
+        if column in raw.columns:
+            out[column] = _checked_edges(raw[column], column, path)
     if "fiber" in raw.columns:
         out.insert(0, "fiber", _checked_ids(raw["fiber"], path))
     else:
@@ -101,6 +113,16 @@ def _checked(values: pd.Series, column: str, path: Path) -> pd.Series:
         raise SEMError(f"fibers table {str(path)!r}: column {column}, data row {row + 1}: "
                        f"{x[row]:g} is not {allowed}")
     return numbers
+
+
+def _checked_edges(values: pd.Series, column: str, path: Path) -> pd.Series:
+    names = values.fillna("").astype(str).str.strip()
+    bad = ~names.isin(("", *EDGE_NAMES))
+    if bad.any():
+        row = int(np.flatnonzero(bad.to_numpy())[0])
+        raise SEMError(f"fibers table {str(path)!r}: column {column}, data row {row + 1}: "
+                       f"{values.iloc[row]!r} is not an edge ({', '.join(EDGE_NAMES)} or empty)")
+    return names
 
 
 def _checked_ids(values: pd.Series, path: Path) -> pd.Series:

@@ -7,6 +7,14 @@ diameter, orientation and tortuosity as the paper defines them (section 2.2: con
 end-to-end length, orientation of the end-to-end line) -> fitted distributions
 (:mod:`espin.imaging.distributions`) and the image's structure-tensor orientation
 (:mod:`espin.imaging.orientation`).
+
+Long-range shape: the edge of the analysed image each traced fiber's ends lie on, and of the
+fibers traced from edge to edge the fraction that leave through the edge they entered (U-turn
+fraction) and their mean end-to-end over contour length (straightness), with
+:func:`espin.geometry.pieces.crossing_statistics`, as for the window portions of a virtual mat
+(:func:`espin.geometry.pieces.window_crossings`). An end lies on an edge when it is within
+:data:`EDGE_NEAR` w of it, or when the fiber, continued straight from it, reaches the edge
+within :data:`EDGE_REACH` w (see there why).
 """
 
 from __future__ import annotations
@@ -22,7 +30,8 @@ import pandas as pd
 
 from espin.core.errors import ConfigError, SEMError
 from espin.core.output_folder import OutputFolder
-from espin.geometry.fibers_csv import FIBER_COLUMNS, write_fibers_csv
+from espin.geometry.fibers_csv import EDGE_NAMES, FIBER_COLUMNS, write_fibers_csv
+from espin.geometry.pieces import CrossingStatistics, border_edges, crossing_statistics
 from espin.imaging.distributions import FittedDistributions, fit_distributions
 from espin.imaging.image import as_grey, parse_rows, read_image, row_slice
 from espin.imaging.orientation import image_angle_deg, structure_tensor_orientation
@@ -31,12 +40,32 @@ from espin.imaging.segment import MIN_WIDTH_PX, segment_fibers
 from espin.imaging.trace import trace_fibers
 from espin.imaging.widths import WidthSamples, fiber_diameters, local_widths
 
-__all__ = ["SEMMeasurement", "measure", "measurement_digest", "SCHEMA", "MEASURE_OUTPUTS"]
+__all__ = ["SEMMeasurement", "measure", "measurement_digest", "SCHEMA", "MEASURE_OUTPUTS",
+           "EDGE_NEAR", "EDGE_REACH"]
 
 SCHEMA = "espin.sem.measurement/1"
 """Schema of ``measurement.toml``."""
 MEASURE_OUTPUTS = ("fibers.csv", "measurement.toml", "histograms.png", "overlay.png")
 """The files a measurement writes into its folder (glob patterns relative to it)."""
+EDGE_NEAR = 0.2
+"""A traced fiber's end within this many fiber widths w (the tracer's) of an edge of the
+analysed image lies on it. The mask is padded by replication before skeletonizing, so a
+skeleton runs out to the border, and :func:`espin.imaging.trace.trace_fibers` keeps the ends
+there: they lay within 0.14 w of the edge on 36 images of virtual mats (0, 20 and 40 deg
+waviness, 60 D windows) and within 0.09 w on the two real images (PLGA-1500_1: 2.4 px, w =
+26 px); the next ends lay 0.23 w and more inside, but for the cut tips of Vs (see
+:data:`EDGE_REACH`), from 0.18 w."""
+EDGE_REACH = 2.0
+"""An end farther inside lies on the edge that the fiber, continued straight from it (the
+direction of its last w of arc), reaches within this many widths w. The tracer pulls some ends
+of fibers that reach the edge back: a crossing less than w from the edge leaves a stub shorter
+than w, pruned as a spur, and the unpaired end at that junction loses the pixels within w of
+it, so the end lies up to 2 w inside; where two fibers reach the border together, the padded
+skeleton joins them in a V that is cut at its tip, a few pixels inside. On virtual mats about
+a fifth of the ends of fibers reaching the edge were pulled back. A distance alone cannot tell
+them from the ends of a fiber running along the edge: with 1 w, 3 of 89 edge-to-edge traces
+on straight fibers were U-turns, and curling fibers (40 deg, 100 D window) read a U-turn
+fraction of 0.33 against a true 0.20; with this rule 0 of 107 and 0.21 (12 images each)."""
 
 Rows = tuple[int, int] | str
 
@@ -51,7 +80,9 @@ class SEMMeasurement:
         One row per traced fiber: ``fiber`` (int), ``diameter_um`` (blurred flat profile
         fitted to the fiber's median profile, :func:`espin.imaging.widths.fiber_diameters`),
         ``orientation_deg`` (end-to-end axis, [0, 180)), ``tortuosity`` (contour /
-        end-to-end, >= 1), ``contour_length_um``, ``end_to_end_um``.
+        end-to-end, >= 1), ``contour_length_um``, ``end_to_end_um``, ``start_edge`` and
+        ``end_edge`` (edge of the analysed image that the first / last end lies on:
+        ``bottom``, ``right``, ``top``, ``left``, or "" inside the image).
     widths_um : (n,) float64 [um]
         All local width samples.
     um_per_px : float [um / px]
@@ -64,6 +95,15 @@ class SEMMeasurement:
         Structure-tensor coherency, 0 (isotropic) to 1 (parallel).
     fits : FittedDistributions
         Normal diameter, uniform or von Mises orientation (AIC), half-normal tortuosity.
+    n_crossing : int
+        Traced fibers whose two ends lie on edges of the analysed image (``start_edge`` and
+        ``end_edge`` of ``fibers`` both set).
+    u_turn_fraction : float
+        Of those, the fraction whose two ends lie on the same edge (NaN if none).
+    straightness : float
+        Their mean end-to-end distance over contour length, each continued straight to the
+        edge where an end was pulled back (:data:`EDGE_REACH`); 1 for straight fibers, NaN if
+        none.
     min_chord_um : float [um]
         Traced fibers with a shorter end-to-end length were dropped.
     typical_width_px : float [px]
@@ -96,6 +136,9 @@ class SEMMeasurement:
     dominant_direction_deg: float
     coherency: float
     fits: FittedDistributions
+    n_crossing: int
+    u_turn_fraction: float
+    straightness: float
     min_chord_um: float
     typical_width_px: float
     image: np.ndarray
@@ -151,6 +194,10 @@ class SEMMeasurement:
                            "scale": fits.tortuosity_scale,
                            "mean": _nan_stat(np.mean, f["tortuosity"]),
                            "sd": _nan_stat(np.std, f["tortuosity"])},
+            "crossing": {"n_crossing": self.n_crossing,
+                         "u_turn_fraction": self.u_turn_fraction,
+                         "straightness": self.straightness,
+                         "edge_near_widths": EDGE_NEAR, "edge_reach_widths": EDGE_REACH},
         }
 
     def table_rows(self) -> list[tuple[str, str]]:
@@ -174,7 +221,14 @@ class SEMMeasurement:
             ("tortuosity", f"mean {_nan_stat(np.mean, f['tortuosity']):.4f}; half-normal loc 1, "
                            f"scale {fits.tortuosity_scale:.4f} (of the traced pieces; whole "
                            "fibers across the image: espin calibrate-geometry)"),
+            ("edge to edge", self._crossing_text()),
         ]
+
+    def _crossing_text(self) -> str:
+        if self.n_crossing == 0:
+            return "no fiber traced across the image"
+        return (f"{self.n_crossing} fibers traced across the image; U-turn fraction "
+                f"{self.u_turn_fraction:.3f}, straightness {self.straightness:.4f}")
 
     def write(self, folder: str | Path, figures: bool = True, *, overwrite: bool = False) -> dict[str, Path]:
         """Write ``fibers.csv``, ``measurement.toml`` and (optionally) the figures, with the
@@ -384,13 +438,19 @@ def _measure_grey(grey: np.ndarray, um_per_px: float, width_px: float | None,
     renumber[kept] = np.arange(len(kept))
     on_kept = renumber[samples.fiber] >= 0
     samples = samples.subset(on_kept, renumber[samples.fiber[on_kept]])
+    contour_px = np.maximum(contour[kept], chord[kept])
+    edges, edge_to_edge = _edge_crossings([paths[i] for i in kept], contour_px, grey.shape,
+                                          seg.width_px)
+    names = np.array(EDGE_NAMES + ("",))  # index -1 (inside the image) -> ""
     fibers = pd.DataFrame({
         "fiber": np.arange(len(kept), dtype=np.int64),
         "diameter_um": diameter_px * um_per_px,
         "orientation_deg": image_angle_deg(chord_vec[kept, 0], chord_vec[kept, 1]) % 180.0,
         "tortuosity": np.maximum(contour[kept] / chord[kept], 1.0),
-        "contour_length_um": np.maximum(contour[kept], chord[kept]) * um_per_px,
+        "contour_length_um": contour_px * um_per_px,
         "end_to_end_um": chord[kept] * um_per_px,
+        "start_edge": names[edges[:, 0]],
+        "end_edge": names[edges[:, 1]],
     }, columns=list(FIBER_COLUMNS))
     direction, coherency = structure_tensor_orientation(seg.flat)
     fits = fit_distributions(fibers["diameter_um"].to_numpy(), fibers["orientation_deg"].to_numpy(),
@@ -399,11 +459,78 @@ def _measure_grey(grey: np.ndarray, um_per_px: float, width_px: float | None,
         fibers=fibers, widths_um=samples.width_px * um_per_px, um_per_px=um_per_px,
         field_of_view_um=(grey.shape[1] * um_per_px, grey.shape[0] * um_per_px),
         dominant_direction_deg=direction, coherency=coherency, fits=fits,
+        n_crossing=edge_to_edge.n_crossing, u_turn_fraction=edge_to_edge.u_turn_fraction,
+        straightness=edge_to_edge.straightness,
         min_chord_um=min_chord_px * um_per_px, typical_width_px=typical, image=grey, rows=rows,
         paths_px=[paths[i] for i in kept], width_samples=samples, junctions_px=traced.junctions,
         scale_bar=bar, scale_bar_um=None if bar is None else float(scale_bar_um), source=source,
         inputs_digest=inputs_digest,
     )
+
+
+def _edge_crossings(paths: list[np.ndarray], contour_px: np.ndarray, shape: tuple[int, int],
+                    width_px: float) -> tuple[np.ndarray, CrossingStatistics]:
+    """Edge of the analysed image at both ends of each traced fiber, and the crossing
+    statistics of the fibers traced from edge to edge.
+
+    Parameters
+    ----------
+    paths : list of (n_i, 2) float64 [px]
+        Centre lines (row, col), one point per pixel of arc length.
+    contour_px : (n,) float64 [px]
+        Their contour lengths.
+    shape : (rows, cols)
+        Size of the analysed image.
+    width_px : float [px]
+        Fiber width w the tracer worked with.
+
+    Returns
+    -------
+    edges : (n, 2) int64
+        Edge of the first and last end: 0 bottom, 1 right, 2 top, 3 left (y up), -1 inside.
+    CrossingStatistics
+        Of the fibers with both ends on edges, each continued straight to the edge where an
+        end was pulled back (:data:`EDGE_REACH`): count, U-turn fraction, straightness.
+    """
+    rows, cols = shape
+    lower, upper = np.zeros(2), np.array([cols - 1.0, rows - 1.0])  # outermost pixel centres
+    ends = np.zeros((len(paths), 2, 2))
+    added = np.zeros(len(paths))
+    for i, path in enumerate(paths):
+        xy = np.column_stack([path[:, 1], rows - 1.0 - path[:, 0]])  # x right, y up
+        for side, oriented in enumerate((xy[::-1], xy)):
+            ends[i, side], extension = _end_on_edge(oriented, lower, upper, width_px)
+            added[i] += extension
+    tol = EDGE_NEAR * width_px
+    edges = border_edges(ends.reshape(-1, 2), lower, upper, tol).reshape(-1, 2)
+    return edges, crossing_statistics(ends[:, 0], ends[:, 1], contour_px + added, lower, upper, tol)
+
+
+def _end_on_edge(oriented: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                 width_px: float) -> tuple[np.ndarray, float]:
+    """The last point of a centre line (x, y) [px], or where its straight continuation leaves
+    the rectangle [lower, upper] if that is within :data:`EDGE_REACH` w (and the point is not
+    within :data:`EDGE_NEAR` w of an edge already); and the length [px] added.
+
+    A point just outside the rectangle (the smoothing can carry an end on the border a pixel
+    or two out) is moved onto it.
+    """
+    end = oriented[-1]
+    if min(np.min(end - lower), np.min(upper - end)) <= EDGE_NEAR * width_px:
+        return np.clip(end, lower, upper), 0.0
+    back = oriented[-1 - min(max(int(round(width_px)), 1), len(oriented) - 1)]
+    direction = end - back
+    norm = float(np.hypot(*direction))
+    if norm == 0.0:
+        return end, 0.0
+    direction = direction / norm
+    with np.errstate(divide="ignore", invalid="ignore"):
+        steps = np.where(direction > 0, (upper - end) / direction,
+                         np.where(direction < 0, (lower - end) / direction, np.inf))
+    reach = float(np.min(steps))
+    if reach > EDGE_REACH * width_px:
+        return end, 0.0
+    return np.clip(end + reach * direction, lower, upper), reach
 
 
 def _check_options(um_per_px: float | None, scale_bar_um: float | None, scale_bar_rows: Any,
