@@ -16,6 +16,7 @@ import espin.geometry.rve
 from espin.core.errors import SEMError
 from espin.geometry.fibers_csv import EDGE_COLUMNS, read_fibers_csv
 from espin.geometry.pieces import window_crossings, window_runs
+from espin.geometry.targets import GeometryTargets, MeasurementError
 from espin.imaging.measurement import _edge_crossings, measure
 from espin.imaging.synthetic import render_sem
 
@@ -146,3 +147,48 @@ def test_bad_edge_name_in_fibers_csv(tmp_path):
     path.write_text("tortuosity,start_edge,end_edge\n1.1,top,\n1.2,left,north\n")
     with pytest.raises(SEMError, match="column end_edge, data row 2: 'north' is not an edge"):
         read_fibers_csv(path)
+
+
+def _measure_folder(m, folder, crossing: str | None = None):
+    """``m`` written to ``folder``, its ``[crossing]`` table replaced by ``crossing`` (TOML
+    lines) or, with None, left out (a file written before espin measure reported it)."""
+    files = m.write(folder)
+    toml = files["summary"].read_text()
+    files["summary"].write_text(toml[:toml.index("[crossing]")]
+                                + ("" if crossing is None else f"[crossing]\n{crossing}\n"))
+    return files
+
+
+def test_geometry_targets_read_the_crossing_statistics(straight, tmp_path):
+    _, m = straight[0]
+    files = m.write(tmp_path / "out")
+    for targets in (GeometryTargets.from_folder(tmp_path / "out"),
+                    GeometryTargets.from_measurement(m)):
+        assert targets.n_crossing == m.n_crossing
+        assert targets.u_turn_fraction == m.u_turn_fraction
+        assert targets.straightness == pytest.approx(m.straightness)
+    # A table on its own, or a measurement.toml without [crossing], has none.
+    assert GeometryTargets.from_csv(files["fibers"]).u_turn_fraction is None
+    _measure_folder(m, tmp_path / "old", None)
+    old = GeometryTargets.from_folder(tmp_path / "old")
+    assert (old.n_crossing, old.u_turn_fraction, old.straightness) == (None, None, None)
+
+
+def test_no_crossing_fiber_gives_none(straight, tmp_path):
+    _, m = straight[0]
+    _measure_folder(m, tmp_path / "out", "n_crossing = 0\nu_turn_fraction = nan\nstraightness = nan")
+    targets = GeometryTargets.from_folder(tmp_path / "out")
+    assert (targets.n_crossing, targets.u_turn_fraction, targets.straightness) == (0, None, None)
+
+
+@pytest.mark.parametrize("line, match", [
+    ("u_turn_fraction = 1.5", "u_turn_fraction must be in \\[0, 1\\], got 1.5"),
+    ("straightness = 0.0", "straightness must be in \\(0, 1\\], got 0.0"),
+    ("n_crossing = -1", "n_crossing must be an integer >= 0"),
+    ("n_crossing = 'many'", "n_crossing must be a number"),
+])
+def test_bad_crossing_values_name_the_file(straight, tmp_path, line, match):
+    _, m = straight[0]
+    _measure_folder(m, tmp_path / "out", line)
+    with pytest.raises(MeasurementError, match=f"measurement.toml: {match}"):
+        GeometryTargets.from_folder(tmp_path / "out")

@@ -12,7 +12,9 @@ The targets come from SEM images, one row per traced fiber, as written by ``espi
   :mod:`espin.imaging.geometry_calibration.virtual`).
 * a folder holding ``fibers.csv`` and ``measurement.toml`` with at least ``um_per_px`` and
   ``field_of_view_um = [width, height]`` (and optionally ``min_chord_um``, the shortest
-  end-to-end length the tracer kept).
+  end-to-end length the tracer kept, and a ``[crossing]`` table with ``n_crossing``,
+  ``u_turn_fraction`` and ``straightness`` of the fibers traced from edge to edge of the
+  image).
 * an :class:`espin.imaging.measurement.SEMMeasurement` (:meth:`GeometryTargets.from_measurement`).
 
 Or they are typed in: a normal diameter distribution (mean, sd), a half-normal tortuosity
@@ -102,6 +104,38 @@ def _field_of_view(value: Any) -> tuple[float, float]:
     return fov[0], fov[1]
 
 
+_CROSSING_KEYS = ("n_crossing", "u_turn_fraction", "straightness")
+
+
+def _crossing(n_crossing: Any = None, u_turn_fraction: Any = None,
+              straightness: Any = None) -> dict[str, Any]:
+    """Checked edge-to-edge statistics: a count >= 0, a fraction in [0, 1], a straightness in
+    (0, 1]. A fraction or straightness of NaN (no fiber crossed) becomes None."""
+    out: dict[str, Any] = {"n_crossing": None, "u_turn_fraction": None, "straightness": None}
+    if n_crossing is not None:
+        count = _number(n_crossing, "n_crossing")
+        if not (count >= 0 and count == int(count)):
+            raise MeasurementError(f"n_crossing must be an integer >= 0, got {n_crossing!r}")
+        out["n_crossing"] = int(count)
+    for name, value, low in (("u_turn_fraction", u_turn_fraction, "["),
+                             ("straightness", straightness, "(")):
+        number = None if value is None else _number(value, name)
+        if number is None or math.isnan(number):
+            continue
+        if not ((number > 0.0 if low == "(" else number >= 0.0) and number <= 1.0):
+            raise MeasurementError(f"{name} must be in {low}0, 1], got {value!r}")
+        out[name] = number
+    return out
+
+
+def _crossing_table(table: Any) -> dict[str, Any]:
+    """The checked ``[crossing]`` table of a ``measurement.toml`` ({} when absent: files
+    written before espin measure reported it)."""
+    if not isinstance(table, dict):
+        raise MeasurementError(f"[crossing] must be a table, got {table!r}")
+    return _crossing(**{key: table[key] for key in _CROSSING_KEYS if key in table})
+
+
 def _positive(value: float | None, name: str, allow_zero: bool = False) -> None:
     if value is None:
         return
@@ -142,6 +176,15 @@ class GeometryTargets:
         Size of the SEM images the sample was measured on.
     min_chord_um : float [um], optional
         Shortest end-to-end length the tracer kept (the virtual measurement does the same).
+    n_crossing : int, optional
+        Measured fibers traced from edge to edge of the image (``espin measure``).
+    u_turn_fraction : float, optional
+        Of those, the fraction that leave through the edge they entered, in [0, 1]; None when
+        not measured or when no fiber crossed (compare
+        :func:`espin.geometry.pieces.window_crossings`).
+    straightness : float, optional
+        Their mean end-to-end distance over contour length, in (0, 1]; None as
+        ``u_turn_fraction``.
     source : str
         Where the targets came from, for reports.
     notes : tuple of str
@@ -162,6 +205,9 @@ class GeometryTargets:
     source: str = "typed-in"
     contour_length_um: np.ndarray | None = None
     notes: tuple[str, ...] = ()
+    n_crossing: int | None = None
+    u_turn_fraction: float | None = None
+    straightness: float | None = None
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
@@ -183,6 +229,8 @@ class GeometryTargets:
         if self.min_chord_um is not None:
             set_(self, "min_chord_um", _number(self.min_chord_um, "min_chord_um"))
         _positive(self.min_chord_um, "min_chord_um", allow_zero=True)
+        for key, value in _crossing(**{k: getattr(self, k) for k in _CROSSING_KEYS}).items():
+            set_(self, key, value)
 
     def _check_typed(self) -> None:
         both = [
@@ -315,15 +363,17 @@ class GeometryTargets:
     @classmethod
     def from_measurement(cls, measurement: Any, **extra: Any) -> GeometryTargets:
         """Targets from an :class:`espin.imaging.measurement.SEMMeasurement` (``espin.imaging.measurement.measure(...)``):
-        its fibers table, field of view and shortest chord."""
+        its fibers table, field of view, shortest chord and edge-to-edge statistics."""
         found = {"field_of_view_um": tuple(measurement.field_of_view_um),
                  "min_chord_um": float(measurement.min_chord_um),
                  "source": f"espin measure of {getattr(measurement, 'source', 'an image')}"}
+        found |= {key: getattr(measurement, key, None) for key in _CROSSING_KEYS}
         return cls.from_table(measurement.fibers, **(found | extra))
 
     @classmethod
     def from_folder(cls, folder: str | Path, **extra: Any) -> GeometryTargets:
-        """Targets from a folder of ``espin measure``: ``fibers.csv`` + ``measurement.toml``."""
+        """Targets from a folder of ``espin measure``: ``fibers.csv`` + ``measurement.toml``
+        (its ``[crossing]`` table, when present, gives the edge-to-edge statistics)."""
         folder = Path(folder)
         toml_path = folder / "measurement.toml"
         if not (folder / "fibers.csv").is_file() or not toml_path.is_file():
@@ -345,6 +395,7 @@ class GeometryTargets:
             found = {"field_of_view_um": _field_of_view(meta["field_of_view_um"])}
             if "min_chord_um" in meta:
                 found["min_chord_um"] = _number(meta["min_chord_um"], "min_chord_um")
+            found |= _crossing_table(meta.get("crossing", {}))
         except MeasurementError as err:
             raise MeasurementError(f"{toml_path}: {err}") from None
         return cls.from_csv(folder / "fibers.csv", **(found | extra))
