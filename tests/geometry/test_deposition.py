@@ -226,9 +226,10 @@ def test_straight_fibers_when_no_deviation():
     assert np.allclose(mat.tortuosity, 1.0, atol=1e-12)
 
 
-def test_smooth_walk_deviation_is_stationary_gauss_markov():
+def test_smooth_walk_deviation_is_stationary_and_smooth():
     """The smooth walk's deviation from the mean axis has rms waviness_deg at every segment and
-    correlation exp(-lag l_s / l_c), across the chunks in which the walk is drawn."""
+    the correlation a^k (1 + k (1 - a^2) / (1 + a^2)), a = exp(-l_s / l_c), across the chunks
+    in which the walk is drawn."""
     from espin.geometry.deposition import _SmoothDeviation
 
     rms, length, segment = np.radians(12.0), 20.0, 2.5
@@ -242,9 +243,14 @@ def test_smooth_walk_deviation_is_stationary_gauss_markov():
     phi = np.hstack([first, second])  # mean axis 0: the angles are the deviations
     se = rms / np.sqrt(2 * n)  # standard error of an sd over n normal values
     assert np.all(np.abs(phi.std(axis=0) - rms) < 4 * se)
+    a = np.exp(-segment / length)
     for lag in (1, 5, 11):
         r = np.corrcoef(phi[:, 0], phi[:, lag])[0, 1]
-        assert abs(r - np.exp(-lag * segment / length)) < 4 / np.sqrt(n)
+        assert abs(r - a**lag * (1 + lag * (1 - a**2) / (1 + a**2))) < 4 / np.sqrt(n)
+    # Smooth: the turn between consecutive segments is much smaller than a random walk's
+    # (an AR(1) deviation of the same rms and length turns by rms sqrt(2 (1 - a)) per segment).
+    turn = np.diff(phi, axis=1).std()
+    assert turn < 0.35 * rms * np.sqrt(2 * (1 - a))
     assert stats.normaltest(phi[:, 8]).pvalue > 1e-3
 
 

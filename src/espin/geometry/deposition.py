@@ -5,8 +5,8 @@ of length l_s until a segment leaves the square; that segment is trimmed at the 
 walks set the segment directions (``rve.walk``): the paper's turns each segment from the
 previous one by a uniform random angle in [-theta_max, +theta_max] (the direction drifts
 without bound); the smooth walk keeps the drawn axis as the fiber's mean direction and adds a
-stationary Gauss-Markov deviation of rms ``waviness_deg`` and correlation length
-``waviness_length_ratio`` D (the fiber meanders but keeps its course). Fibers are laid until the layer reaches its target volume fraction; the fiber that
+smooth stationary Gaussian deviation of rms ``waviness_deg`` and correlation length
+``waviness_length_ratio`` D (the fiber bends smoothly but keeps its course). Fibers are laid until the layer reaches its target volume fraction; the fiber that
 crosses the target is kept.
 
 Two seedings choose the start point and the first axis:
@@ -140,49 +140,63 @@ class _PaperTurns:
 
 class _SmoothDeviation:
     """The smooth walk: segment k points along the fiber's mean axis theta plus a deviation
-    phi_k, a stationary Gauss-Markov (Ornstein-Uhlenbeck) sequence of rms ``rms`` [rad] and
-    correlation length ``length`` [um] sampled every segment ``segment`` [um]:
-    phi_k = a phi_(k-1) + rms sqrt(1 - a^2) xi_k, a = exp(-segment / length). The deviation
-    stays bounded, so a fiber keeps its mean direction across the mat. The state of a fiber is
-    (mean axis, last deviation)."""
+    rms * phi_k, phi a stationary Gaussian sequence of unit variance whose correlation at arc
+    lag s = k l_s is a^k (1 + k (1 - a^2) / (1 + a^2)), a = exp(-segment / length) (the
+    Matern-3/2 correlation (1 + s / length) exp(-s / length) as segments shrink): an AR(1)
+    sequence psi filtered once more by the same AR(1), so that the direction turns smoothly
+    (a continuous turning rate), unlike a random walk, and stays within a few rms of the
+    mean axis. The state of a fiber is (mean axis, last psi, last phi).
+    """
 
     def __init__(self, rms: float, length: float, segment: float) -> None:
         self.rms = rms
         self.a = float(np.exp(-segment / length))
+        # phi = gain * sum_j a^j psi_(k-j) has unit variance with this gain; phi and psi
+        # have correlation 1 / sqrt(1 + a^2) when stationary.
+        self.gain = (1.0 - self.a**2) / np.sqrt(1.0 + self.a**2)
+        self.coupling = 1.0 / np.sqrt(1.0 + self.a**2)
+
+    def _stationary(self, rng: np.random.Generator, n: int) -> tuple[np.ndarray, np.ndarray]:
+        psi = rng.normal(0.0, 1.0, n)
+        phi = self.coupling * psi + np.sqrt(1.0 - self.coupling**2) * rng.normal(0.0, 1.0, n)
+        return psi, phi
 
     def start(self, rng: np.random.Generator, start: np.ndarray, theta: np.ndarray,
-              side: float) -> tuple[np.ndarray, np.ndarray]:
-        # The first deviation is drawn from the stationary law, again while the first segment
+              side: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        # The first state is drawn from the stationary law, again while the first segment
         # would point out of the square (then the drawn axis itself, which points in).
-        phi = rng.normal(0.0, self.rms, len(theta))
+        psi, phi = self._stationary(rng, len(theta))
         step = 1e-9 * side
         for _ in range(50):
-            ahead = start + step * np.c_[np.cos(theta + phi), np.sin(theta + phi)]
+            first = theta + self.rms * phi
+            ahead = start + step * np.c_[np.cos(first), np.sin(first)]
             out = ((ahead <= 0.0) | (ahead >= side)).any(axis=1)
             if not out.any():
                 break
-            phi[out] = rng.normal(0.0, self.rms, int(out.sum()))
+            psi[out], phi[out] = self._stationary(rng, int(out.sum()))
         else:
-            phi[out] = 0.0
-        return theta, phi
+            psi[out], phi[out] = 0.0, 0.0
+        return theta, psi, phi
 
-    def directions(self, rng: np.random.Generator, state: tuple[np.ndarray, np.ndarray],
-                   n_steps: int, first: bool) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    def directions(self, rng: np.random.Generator, state: tuple[np.ndarray, np.ndarray, np.ndarray],
+                   n_steps: int, first: bool
+                   ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
         from scipy.signal import lfilter
 
-        mean, last = state
-        kicks = rng.normal(0.0, self.rms * np.sqrt(1.0 - self.a**2), (len(mean), n_steps))
+        mean, psi, phi = state
+        new = n_steps - 1 if first else n_steps  # the first segment takes the drawn state
+        kicks = rng.normal(0.0, np.sqrt(1.0 - self.a**2), (len(mean), new))
+        ar = [1.0, -self.a]
+        psi_k = lfilter([1.0], ar, kicks, axis=1, zi=self.a * psi[:, None])[0]
+        phi_k = lfilter([self.gain], ar, psi_k, axis=1, zi=self.a * phi[:, None])[0]
         if first:
-            kicks[:, 0] = last  # the first segment takes the drawn first deviation
-            carried = np.zeros((len(mean), 1))
-        else:
-            carried = self.a * last[:, None]
-        phi = lfilter([1.0], [1.0, -self.a], kicks, axis=1, zi=carried)[0]
-        return mean[:, None] + phi, (mean, phi[:, -1])
+            psi_k, phi_k = np.c_[psi, psi_k], np.c_[phi, phi_k]
+        return mean[:, None] + self.rms * phi_k, (mean, psi_k[:, -1], phi_k[:, -1])
 
     @staticmethod
-    def keep(state: tuple[np.ndarray, np.ndarray], going: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return state[0][going], state[1][going]
+    def keep(state: tuple[np.ndarray, np.ndarray, np.ndarray],
+             going: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return state[0][going], state[1][going], state[2][going]
 
 
 def _walk_model(rve: RVEConfig) -> _PaperTurns | _SmoothDeviation:
