@@ -157,9 +157,11 @@ def test_image_to_mechanics_end_to_end(tmp_path):
             assert "espin fit" in result.output  # the mechanics must be fitted again
     measured = tomllib.loads((tmp_path / "measured" / "measurement.toml").read_text())
     calibrated = tomllib.loads((tmp_path / "mat.toml").read_text())
-    # the generator gets the measured diameter and a wavy walk (the image's mat had 20 deg turns)
+    # the generator gets the measured diameter and a wavy walk (the image's mat had 20 deg
+    # turns; over its 40 D the smooth walk can look the same, and may be chosen)
     assert calibrated["rve"]["diameter_um"] == pytest.approx(measured["diameter"]["mean_um"], rel=0.05)
-    assert calibrated["rve"]["max_deviation_deg"] > 5.0
+    assert calibrated["rve"].get("max_deviation_deg", 0.0) > 5.0 or \
+        calibrated["rve"].get("waviness_deg", 0.0) > 2.0
     curve = np.genfromtxt(tmp_path / "test" / "curve.csv", delimiter=",", names=True)
     assert curve["stress_MPa"][-1] > 0
 

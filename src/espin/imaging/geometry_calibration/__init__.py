@@ -36,9 +36,8 @@ Method (docs/geometry_calibration.md)
    fitted too: its waviness and correlation length over a grid, then refined one at a time.
    The walk of smaller score is kept. The paper walk, matched to the waviness of short pieces,
    curls at long range; the smooth one keeps each fiber's course.
-3. **Orientation**: uniform, or an axial von Mises fitted to the sample (uniform when a
-   Rayleigh test on the doubled angles does not reject isotropy at 1 %; when ``espin
-   measure``'s rule, the smaller AIC, picks the other model, a warning says so). The deposition walk
+3. **Orientation**: uniform, or an axial von Mises fitted to the sample, the model of smaller
+   AIC (``espin measure``'s rule, so the mat follows what measure reported). The deposition walk
    widens the visible distribution (a fiber forgets its direction over about l_p / 4), so the
    deposition kappa is raised until the visible order parameter, measured in the RVE of the
    written config, matches the target's; where even kappa = 700 cannot, the closest is kept
@@ -83,7 +82,6 @@ from espin.imaging.geometry_calibration.fits import (
 )
 from espin.imaging.geometry_calibration.matching import (
     FIXED_TOLERANCE,
-    ISOTROPY_P_VALUE,
     DistributionMatch,
     _diameter_target,
     crossing_target,
@@ -97,6 +95,7 @@ from espin.imaging.geometry_calibration.options import (
     _diameter_keys,
     _fitted,
     _resolve_base,
+    _targets_section,
     _window,
     _with_section,
 )
@@ -145,7 +144,6 @@ __all__ = [
     # constants (those of the submodules re-exported)
     "SCHEMA",
     "SCHEMA_VERSION",
-    "ISOTROPY_P_VALUE",
     "FIXED_TOLERANCE",
     "TORTUOSITY_MEAN_TOLERANCE",
     "HALFNORM_MEDIAN",
@@ -383,7 +381,9 @@ def calibrate_geometry(
 
     # 5. The written config and its match, measured on mats of that config.
     output = {"window_ratio": float(f"{window / calibrated_d:.6g}")}
-    config = config_from_dict(_with_section(base_config, rve, output), "(calibrated)")
+    config = config_from_dict(
+        _with_section(base_config, rve, output, _targets_section(targets, window, float(min_chord))),
+        "(calibrated)")
     parameters["output.window_ratio"] = output["window_ratio"]
     parameters["fitted"] = _fitted(targets, fit, chosen)
     seen = measurement.measure(_base_rve_data(config), check_side)

@@ -12,13 +12,7 @@ import numpy as np
 from espin.geometry.targets import GeometryTargets
 from espin.imaging.geometry_calibration.fits import _mean_resultant, fit_axial_von_mises
 
-__all__ = ["ISOTROPY_P_VALUE", "DistributionMatch", "FIXED_TOLERANCE", "CrossingTarget", "crossing_target"]
-
-ISOTROPY_P_VALUE = 0.01
-"""A measured orientation sample is taken as uniform unless a Rayleigh test rejects isotropy
-here. ``espin measure`` chooses by AIC, which takes a uniform sample for von Mises about 14 %
-of the time (P(chi2_2 > 4)); here a von Mises target makes the deposition aligned and the
-kappa correction may push it far, so the stricter test is kept and a disagreement is printed."""
+__all__ = ["DistributionMatch", "FIXED_TOLERANCE", "CrossingTarget", "crossing_target"]
 
 FIXED_TOLERANCE = 1e-6
 """Relative tolerance within which a virtual value equals a typed-in fixed value (sd 0)."""
@@ -181,22 +175,14 @@ def _orientation_spec(targets: GeometryTargets) -> tuple[str | dict[str, Any], _
         from espin.imaging.distributions import fit_distributions
 
         mean, kappa, p = fit_axial_von_mises(targets.orientation_deg)
-        spec: str | dict[str, Any] = "uniform"
-        if p < ISOTROPY_P_VALUE:
-            spec = {"von_mises": {"mean_deg": round(mean, 2), "kappa": round(kappa, 4)}}
-        chosen = "von Mises" if spec != "uniform" else "uniform"
-        notes.append(f"orientation sample: Rayleigh p = {p:.3g} -> {chosen}")
-        # espin measure's rule (smaller AIC): say so when it chose the other model.
+        # espin measure's rule (smaller AIC), so that the mat follows what measure reported.
         fitted = fit_distributions(np.empty(0), targets.orientation_deg, np.empty(0))
-        measure_choice = "von Mises" if fitted.orientation_model == "von_mises" else "uniform"
-        if measure_choice != chosen:
-            notes.append(
-                f"warning: espin measure's rule (smaller AIC: uniform "
-                f"{fitted.orientation_aic_uniform:.1f}, von Mises "
-                f"{fitted.orientation_aic_von_mises:.1f}) picks {measure_choice} for this "
-                f"orientation sample; calibrate-geometry uses {chosen} because a Rayleigh test "
-                f"{'does not reject' if chosen == 'uniform' else 'rejects'} isotropy at "
-                f"p < {ISOTROPY_P_VALUE:g} (p = {p:.3g})")
+        spec: str | dict[str, Any] = "uniform"
+        if fitted.orientation_model == "von_mises":
+            spec = {"von_mises": {"mean_deg": round(mean, 2), "kappa": round(kappa, 4)}}
+        notes.append(f"orientation sample: AIC uniform {fitted.orientation_aic_uniform:.1f}, von Mises "
+                     f"{fitted.orientation_aic_von_mises:.1f} (Rayleigh p = {p:.3g}) -> "
+                     f"{'uniform' if spec == 'uniform' else 'von Mises'}")
         return spec, _sample_target("orientation_deg", targets.orientation_deg, targets.source), notes
     if targets.orientation_uniform:
         spec = "uniform"
@@ -249,7 +235,7 @@ class CrossingTarget:
 def crossing_target(targets: GeometryTargets) -> CrossingTarget | None:
     """The targets' long-range shape, or None when they do not carry it (a plain fibers.csv,
     typed-in targets) or no traced fiber crosses the image."""
-    u, s, n = (getattr(targets, key, None) for key in ("u_turn_fraction", "straightness", "n_crossing"))
+    u, s, n = targets.u_turn_fraction, targets.straightness, targets.n_crossing
     if u is None or s is None or not n or not (math.isfinite(u) and math.isfinite(s)):
         return None
     return CrossingTarget(float(u), float(s), int(n))

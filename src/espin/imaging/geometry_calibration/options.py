@@ -162,9 +162,49 @@ def _written_data(config: Config) -> dict[str, Any]:
     return data
 
 
-def _with_section(base: Config, rve: dict[str, Any], output: dict[str, Any]) -> dict[str, Any]:
-    """The base config's given keys with the rve and output keys replaced."""
+def _with_section(base: Config, rve: dict[str, Any], output: dict[str, Any],
+                  targets: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The base config's given keys with the rve and output keys replaced, and its
+    ``[targets]`` replaced by ``targets`` (left out when None: the base's targets describe
+    the base's geometry, not the calibrated one)."""
     data = base.model_dump(mode="json", exclude_none=True, exclude_unset=True)
     data["rve"] = rve
     data["output"] = data.get("output", {}) | output
+    data.pop("targets", None)
+    if targets:
+        data["targets"] = targets
     return data
+
+
+def _targets_section(targets: GeometryTargets, window_um: float, min_chord_um: float) -> dict[str, Any]:
+    """The ``[targets]`` a calibrated config carries: what it was calibrated to, so that
+    ``espin generate`` grades its mats against them (docs/configuration.md).
+
+    Measured samples are written as samples (6 significant digits, as fibers.csv), the piece
+    contour lengths only when they pair one to one with the tortuosity sample; typed-in
+    distributions as distributions; the observation window and shortest chord; and the
+    long-range shape (U-turn fraction, straightness) when measured.
+    """
+    def sample(values: np.ndarray) -> list[float]:
+        return [float(f"{v:.6g}") for v in np.asarray(values, dtype=float)]
+
+    out: dict[str, Any] = {"source": targets.source[:500], "window_um": float(f"{window_um:.6g}"),
+                           "min_chord_um": float(f"{min_chord_um:.6g}")}
+    if targets.diameter_um is not None:
+        out["diameter_um"] = sample(targets.diameter_um)
+    elif targets.diameter_mean_um is not None:
+        out |= {"diameter_mean_um": targets.diameter_mean_um,
+                "diameter_sd_um": targets.diameter_sd_um or 0.0}
+    if targets.orientation_deg is not None:
+        out["orientation_deg"] = [v % 180.0 for v in sample(targets.orientation_deg)]  # 179.9999996 -> 0
+    if targets.tortuosity is not None:
+        out["tortuosity"] = sample(targets.tortuosity)
+        lengths = targets.contour_length_um
+        if lengths is not None and len(lengths) == len(targets.tortuosity):
+            out["contour_length_um"] = sample(lengths)
+    elif targets.tortuosity_scale is not None:
+        out["tortuosity_halfnorm_scale"] = targets.tortuosity_scale
+    for key in ("u_turn_fraction", "straightness"):
+        if getattr(targets, key) is not None:
+            out[key] = float(f"{getattr(targets, key):.6g}")
+    return out
