@@ -35,7 +35,7 @@ from espin.imaging.geometry_calibration import (
 )
 from espin.geometry.pieces import _point_at, window_runs
 
-FAST = {"seeds": 4, "min_portions": 400}
+FAST = {"seeds": 4, "min_portions": 400, "rendered_check": False}
 TRUE_SEGMENT_RATIO, TRUE_DEVIATION_DEG = 5.0, 25.0
 
 
@@ -525,3 +525,66 @@ def test_orientation_follows_espin_measures_rule():
     isotropic = np.degrees(rng.uniform(0.0, np.pi, 150))
     assert fit_distributions(np.empty(0), isotropic, np.empty(0)).orientation_model == "uniform"
     assert calibrate_geometry(GeometryTargets(orientation_deg=isotropic), "plla", **FAST).config.rve.orientation == "uniform"
+
+
+# --------------------------------------------------------------------------------------------
+# which walk; through the tracer
+# --------------------------------------------------------------------------------------------
+def _pieces_and_shape(cfg, window_um: float, min_chord: float) -> GeometryTargets:
+    """Targets an ideal tracer reads on a known mat: pieces with their lengths, and the
+    long-range shape of its window portions."""
+    from espin.geometry.pieces import window_crossings
+
+    mat = deposit(cfg.rve)
+    length, chord, theta = _ideal_tracer_pieces(mat, window_um, min_chord)
+    origin, side = centred_window(mat.size, window_um)
+    shape = window_crossings(window_runs(mat.vertices, mat.fiber_offsets, origin, side), origin, side, min_chord)
+    return GeometryTargets(tortuosity=length / chord, contour_length_um=length,
+                           orientation_deg=np.degrees(theta), field_of_view_um=(window_um, window_um),
+                           min_chord_um=min_chord, n_crossing=shape.n_crossing,
+                           u_turn_fraction=shape.u_turn_fraction, straightness=shape.straightness)
+
+
+def test_the_long_range_shape_chooses_the_smooth_walk_of_a_smooth_mat():
+    """Pieces and long-range shape of a smooth mat (20 deg, 8 D): the smooth walk is chosen and
+    its waviness recovered; without the long-range shape the walks cannot be told apart and
+    the paper walk is kept, as documented."""
+    cfg = load_config("plla", {"rve.size_ratio": 100, "rve.layers": 30, "rve.seed": 7, "rve.walk": "smooth",
+                               "rve.waviness_deg": 20.0, "rve.waviness_length_ratio": 8.0,
+                               "rve.segment_ratio": 2.0})
+    targets = _pieces_and_shape(cfg, cfg.observation_window_um, 2.0)
+    assert targets.n_crossing > 100
+    result = calibrate_geometry(targets, "plla", **FAST)
+    assert result.config.rve.walk == "smooth"
+    assert abs(result.config.rve.waviness_deg - 20.0) < 5.0
+    assert any(n.startswith("walk: paper score") for n in result.search["notes"])
+    no_shape = GeometryTargets(tortuosity=targets.tortuosity, contour_length_um=targets.contour_length_um,
+                               field_of_view_um=targets.field_of_view_um, min_chord_um=2.0)
+    kept = calibrate_geometry(no_shape, "plla", **FAST)
+    assert kept.config.rve.walk == "paper"
+    assert any("no long-range shape" in n for n in kept.search["notes"])
+
+
+def test_tracer_correction_maps_the_sample_quantile_by_quantile():
+    from espin.imaging.geometry_calibration.tracer import TracedRenderings, tracer_corrected
+
+    rng = np.random.default_rng(3)
+    true = 1.0 + np.abs(rng.normal(0.0, 0.05, 4000))
+    traced = TracedRenderings(1, np.empty(0), np.empty(0), true + 0.01, 0, math.nan, math.nan)
+    measured = 1.0 + np.abs(rng.normal(0.0, 0.05, 300)) + 0.01  # read by the same tracer
+    corrected, shift = tracer_corrected(GeometryTargets(tortuosity=measured), traced, true)
+    assert shift == pytest.approx(-0.01, abs=0.003)
+    assert stats.ks_2samp(corrected.tortuosity, true).statistic < 0.1
+    assert corrected.tortuosity.min() >= 1.0
+
+
+def test_rendered_check_measures_the_calibrated_mat_like_the_image(sem_measurement):
+    result = calibrate_geometry(sem_measurement, "plla", seeds=4, min_portions=400)
+    tracer = result.search["tracer"]
+    # The tracer's floor makes short pieces read more tortuous: the correction lowers them.
+    assert tracer["tortuosity_bias"] < 0.0
+    check = tracer["rendered_check"]
+    assert check["renderings"] == 3 and check["fibers"] > 20
+    assert all(0.0 <= check[k] <= 1.0 for k in ("ks_diameter_um", "ks_orientation_deg", "ks_tortuosity"))
+    assert check["target_n_crossing"] == sem_measurement.n_crossing
+    assert "rendered check" in result.format_table() and "tracer" in result.format_table()

@@ -91,6 +91,13 @@ def calibrate_geometry_command(
         typer.Option(help="Raise the deposition kappa of an aligned target so the visible "
                           "orientation matches (the deposition walk widens it)."),
     ] = True,
+    rendered_check: Annotated[
+        bool,
+        typer.Option(help="With the measured image at hand: render the fitted mat like it, "
+                          "measure the renderings like the image, correct the tortuosity target "
+                          "for the tracer's bias and check the calibrated mat the same way "
+                          "(about a minute more)."),
+    ] = True,
     seeds: Annotated[int, typer.Option(help="Mats per evaluation (fixed seeds).")] = 8,
     out: Annotated[
         Path, typer.Option("--out", "-o", help="Where to write. A path ending in .toml is the "
@@ -144,7 +151,8 @@ def calibrate_geometry_command(
             raise ConfigError(str(err)) from None
         base_config = resolve_config(base)
         check_options(fit, segment_ratio, max_deviation_deg, seeds, MIN_PORTIONS, window_um, walk)  # before the claim
-        options = [typed, fit, walk, segment_ratio, max_deviation_deg, window_um, correct_orientation, seeds]
+        options = [typed, fit, walk, segment_ratio, max_deviation_deg, window_um, correct_orientation,
+                   rendered_check, seeds]
         digest = _inputs_digest(base_config, measured, options)
         with claim_output(out, digest, overwrite=overwrite), \
                 console.status("calibrating the deposition") as status:
@@ -154,6 +162,7 @@ def calibrate_geometry_command(
                 correct_orientation=correct_orientation, seeds=seeds,
                 progress=lambda message: status.update(f"calibrating: {message}"),
                 image=measured_image(measured) if measured is not None else None,
+                rendered_check=rendered_check,
             )
             status.update("writing the config and comparison.png")
             files = result.write_files(out)

@@ -112,15 +112,14 @@ from espin.imaging.geometry_calibration.search import (
     SEGMENT_RATIO_MAX_FRACTION,
     SEGMENT_RATIO_MIN,
     VALLEY_SEGMENT_RATIOS,
-    WAVINESS_RANGE_DEG,
     ValleyPoint,
-    WalkScore,
+    WalkFit,
     _correct_kappa,
-    _fit_walk,
+    _fit_walks,
     _Objective,
-    _search_smooth,
-    smooth_walk,
+    _with_walk,
 )
+from espin.imaging.geometry_calibration.tracer import measure_renderings, tracer_corrected
 from espin.imaging.geometry_calibration.virtual import (
     VirtualMeasurement,
     _layers_per_seed,
@@ -193,6 +192,7 @@ def calibrate_geometry(
     min_portions: int = MIN_PORTIONS,
     progress: Callable[[str], None] | None = None,
     image: MeasuredImage | None = None,
+    rendered_check: bool = True,
 ) -> GeometryCalibration:
     """Find deposition parameters whose mat, measured in the same window, matches the targets.
 
@@ -239,6 +239,13 @@ def calibrate_geometry(
         The analysed SEM image the targets were measured on, for ``comparison.png``;
         default: an SEMMeasurement's, or the one a measure folder's ``measurement.toml``
         names (:func:`measured_image`).
+    rendered_check
+        With the image known: render mats of the fitted walk like the image, measure them
+        with ``espin measure``, map the measured tortuosity sample to true tortuosity
+        quantile by quantile and search again
+        (:mod:`~espin.imaging.geometry_calibration.tracer`); then render and measure mats of
+        the calibrated config the same way: ``search["tracer"]["rendered_check"]`` gives
+        their KS distances and long-range shape against the image's.
 
     Returns
     -------
@@ -309,60 +316,61 @@ def calibrate_geometry(
     evaluations = 0
 
     # 3. Tortuosity and long-range shape: the walk.
-    valley: list[ValleyPoint] = []
-    scores: dict[str, WalkScore] = {}
-    chosen: str | None = None  # the walk kept
+    image = image if image is not None else measured_image(targets_or_path)
+    fitted: WalkFit | None = None
+    search_targets = targets  # the tortuosity sample corrected for the tracer's bias
+    tracer: dict[str, Any] = {}
     if targets.has_tortuosity:
-        crossing = crossing_target(targets)
         start = _validated_rve(rve)
         sr = segment_ratio if segment_ratio is not None else start.segment_length_um / calibrated_d
-        objective = _Objective(measurement, rve, search_side, _tortuosity_target(targets),
-                               crossing, sr, progress)
         largest_segment = SEGMENT_RATIO_MAX_FRACTION * window / calibrated_d
         if largest_segment <= SEGMENT_RATIO_MIN:
             raise ConfigError(
                 f"the observation window ({window:.4g} um) is too small to measure tortuosity: "
                 f"it must exceed {SEGMENT_RATIO_MIN / SEGMENT_RATIO_MAX_FRACTION:g} D"
             )
-        models = _walk_models(walk, crossing is not None)
-        if walk == "auto" and crossing is None:
+        if walk == "auto" and crossing_target(targets) is None:
             notes.append("walk: the targets carry no long-range shape (fibers crossing the image "
                          "edge to edge), which alone tells the walks apart: the paper walk is kept")
-        problems: dict[str, str | None] = {}
-        if "paper" in models:
-            dev = max_deviation_deg if max_deviation_deg is not None else \
-                start.max_deviation_deg or WALK_DEFAULTS["paper"]["max_deviation_deg"]
-            sr_p, dev, valley, problems["paper"] = _fit_walk(objective, fit, sr, dev,
-                                                             largest_segment, segment_ratios)
-            scores["paper"] = objective.evaluate(
-                {"walk": "paper", "segment_ratio": sr_p, "max_deviation_deg": dev})
-        if "smooth" in models:
-            fixed_length = None if crossing is not None else \
-                start.waviness_length_ratio or WALK_DEFAULTS["smooth"]["waviness_length_ratio"]
-            sigma, length = _search_smooth(objective, window / calibrated_d, fixed_length)
-            scores["smooth"] = objective.evaluate(smooth_walk(sigma, length, sr))
-            problems["smooth"] = None
-            if sigma >= WAVINESS_RANGE_DEG[1] - 0.5:
-                problems["smooth"] = (f"waviness_deg = {sigma:g} is at the end of its search range "
-                                      f"{WAVINESS_RANGE_DEG}")
-        chosen = min(scores, key=lambda name: scores[name].score)
-        if problems[chosen]:
-            warnings.append(problems[chosen])
-        keys = {k: v for k, v in scores[chosen].walk.items()}
-        other = {k for name, ks in WALK_DEFAULTS.items() if name != chosen for k in ks}
-        rve = {k: v for k, v in rve.items() if k not in other | {"segment_um"}} | keys
-        rve.setdefault("segment_ratio", float(sr))  # the paper walk with fit = deviation
+        dev = max_deviation_deg if max_deviation_deg is not None else \
+            start.max_deviation_deg or WALK_DEFAULTS["paper"]["max_deviation_deg"]
+        length = start.waviness_length_ratio or WALK_DEFAULTS["smooth"]["waviness_length_ratio"]
+
+        def fit_walks(goal: GeometryTargets) -> WalkFit:
+            objective = _Objective(measurement, rve, search_side, _tortuosity_target(goal),
+                                   crossing_target(goal), sr, progress)
+            return _fit_walks(objective, walk, fit, sr, dev, length, largest_segment,
+                              segment_ratios, window / calibrated_d)
+
+        fitted = fit_walks(targets)
+        evaluations += fitted.evaluations
+        if image is not None and rendered_check:
+            # The tracer reads short pieces more tortuous than they are: measure its bias on
+            # renderings of the fitted walk, and search again for the corrected sample.
+            if progress is not None:
+                progress("rendering the fitted walk and measuring it like the image (tracer bias)")
+            draft_rve = _with_walk(rve, fitted)
+            draft = config_from_dict(_with_section(base_config, draft_rve, {}), "(geometry calibration)")
+            search_targets, bias = tracer_corrected(targets, measure_renderings(draft, image),
+                                                    measurement.measure(draft_rve, search_side)["tortuosity"])
+            tracer = {"tortuosity_bias": bias, "first_walk": fitted.scores[fitted.chosen].walk}
+            if bias:
+                fitted = fit_walks(search_targets)
+                evaluations += fitted.evaluations
+        if fitted.problem:
+            warnings.append(fitted.problem)
+        rve = _with_walk(rve, fitted)
+        keys = fitted.scores[fitted.chosen].walk
         parameters |= {f"rve.{k}": v for k, v in keys.items()}
         parameters["rve.segment_ratio"] = float(rve["segment_ratio"])
-        if chosen == "paper":
+        if fitted.chosen == "paper":
             parameters["persistence_ratio"] = persistence_ratio(keys["segment_ratio"],
                                                                 keys["max_deviation_deg"])
-        if len(scores) > 1:
+        if len(fitted.scores) > 1:
             notes.append("walk: " + ", ".join(
                 f"{name} score {sc.score:.3g} (tortuosity KS {sc.ks:.3f}, U-turns "
                 f"{sc.u_turn_fraction:.3f}, straightness {sc.straightness:.4f})"
-                for name, sc in scores.items()) + f" -> {chosen}")
-        evaluations += len(objective.cache)
+                for name, sc in fitted.scores.items()) + f" -> {fitted.chosen}")
 
     # 4. Orientation: correct the deposition kappa for the widening by the walk.
     if targets.has_orientation:
@@ -385,12 +393,12 @@ def calibrate_geometry(
         _with_section(base_config, rve, output, _targets_section(targets, window, float(min_chord))),
         "(calibrated)")
     parameters["output.window_ratio"] = output["window_ratio"]
-    parameters["fitted"] = _fitted(targets, fit, chosen)
+    parameters["fitted"] = _fitted(targets, fit, fitted.chosen if fitted else None)
     seen = measurement.measure(_base_rve_data(config), check_side)
     evaluations += 1
     matches = []
     if targets.has_tortuosity:
-        matches.append(_tortuosity_target(targets).compare(seen["tortuosity"]))
+        matches.append(_tortuosity_target(search_targets).compare(seen["tortuosity"]))
         means = dict((n, (t, v)) for n, t, v in matches[-1].summary)["mean"]
         if abs(means[1] - means[0]) > TORTUOSITY_MEAN_TOLERANCE:
             warnings.append(
@@ -415,7 +423,12 @@ def calibrate_geometry(
             whole = {"mean": float(np.mean(t)), "median": median,
                      "halfnorm_scale_from_median": (median - 1.0) / HALFNORM_MEDIAN,
                      "n": int(len(t))}
+    if image is not None and rendered_check:
+        if progress is not None:
+            progress("rendering the calibrated mat and measuring it like the image")
+        tracer["rendered_check"] = measure_renderings(config, image).check(targets)
     search = {
+        "tracer": tracer or None,
         "window_um": window, "window_source": window_source, "min_chord_um": float(min_chord),
         "seeds": list(seed_list), "layers": layers, "search_side_um": search_side,
         "check_side_um": check_side, "sampling": measurement.sampling,
@@ -427,8 +440,7 @@ def calibrate_geometry(
         log.info("calibration warning: %s", w)
     log.debug("virtual measurement: %s", sampling)
     return GeometryCalibration(config, base_config, targets, parameters, tuple(matches),
-                               tuple(valley), search, tuple(warnings),
-                               image if image is not None else measured_image(targets_or_path))
+                               fitted.valley if fitted else (), search, tuple(warnings), image)
 
 
 def measured_image(source: Any) -> MeasuredImage | None:

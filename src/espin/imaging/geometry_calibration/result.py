@@ -148,6 +148,23 @@ class GeometryCalibration:
                 f"the walk): tortuosity median {whole['median']:.4g} (half-normal scale "
                 f"{whole['halfnorm_scale_from_median']:.3g} from the median), mean "
                 f"{whole['mean']:.4g} (n {whole['n']:,})")
+        tracer = s.get("tracer") or {}
+        if "tortuosity_bias" in tracer:
+            lines.append(f"tracer bias: renderings of the first fitted walk ({_walk_text(tracer['first_walk'])}) "
+                         f"measured like the image against their true pieces map the measured tortuosity to the "
+                         f"true one quantile by quantile (median shift {tracer['tortuosity_bias']:+.4f}); the "
+                         "tortuosity target above is the sample so corrected")
+        check = tracer.get("rendered_check")
+        if check:
+            ks = ", ".join(f"{k.removeprefix('ks_')} {check[k]:.3f}" for k in
+                           ("ks_diameter_um", "ks_orientation_deg", "ks_tortuosity") if check[k] is not None)
+            lines.append(f"rendered check ({check['renderings']} synthetic SEM images of the calibrated "
+                         f"mat measured like the image, {check['fibers']} traced fibers, against the "
+                         f"image's {len(self.targets.tortuosity) if self.targets.tortuosity is not None else '-'}): "
+                         f"KS {ks}; edge to edge {check['n_crossing']} fibers, U-turns "
+                         f"{_fmt(check['u_turn_fraction'])} (image {_fmt(check['target_u_turn_fraction'])} of "
+                         f"{check['target_n_crossing']}), straightness {_fmt(check['straightness'])} "
+                         f"(image {_fmt(check['target_straightness'])})")
         if self.valley:
             lines.append("tortuosity valley (segment length and deviation are only identifiable "
                          "together, through the persistence length)")
@@ -316,3 +333,11 @@ def _match_json(m: DistributionMatch) -> dict[str, Any]:
     out = _finite_or_none(m.__dict__)
     out["summary"] = [{"statistic": n, "target": t, "virtual": v} for n, t, v in m.summary]
     return out
+
+
+def _fmt(x: float | None) -> str:
+    return "-" if x is None else f"{x:.3f}"
+
+
+def _walk_text(walk: dict[str, Any]) -> str:
+    return ", ".join(f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}" for k, v in walk.items())

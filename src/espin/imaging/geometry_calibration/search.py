@@ -288,3 +288,65 @@ def _search_smooth(objective: _Objective, window_ratio: float,
     u, _ = _grid_then_refine(lambda v: objective.smooth(round(sigma, 1), float(f"{math.exp(v):.3g}")),
                              grid[max(j - 1, 0):j + 2], xatol=0.02)
     return round(sigma, 1), float(f"{math.exp(u):.3g}")
+
+
+@dataclass(frozen=True)
+class WalkFit:
+    """The walks fitted and the one kept.
+
+    Attributes
+    ----------
+    scores : dict of WalkScore
+        The best point of each walk fitted, by walk name.
+    chosen : str
+        The walk of smallest score.
+    valley : tuple of ValleyPoint
+        The paper walk's valley (``fit="both"``).
+    problem : str or None
+        A warning about the chosen walk (a result at the end of its range).
+    evaluations : int
+        Walks measured.
+    """
+
+    scores: dict[str, WalkScore]
+    chosen: str
+    valley: tuple[ValleyPoint, ...]
+    problem: str | None
+    evaluations: int
+
+
+def _fit_walks(objective: _Objective, walk: str, fit: str, segment_ratio: float,
+               max_deviation_deg: float, length_ratio: float, largest_segment: float,
+               segment_ratios: tuple[float, ...], window_ratio: float) -> WalkFit:
+    """Fit the walks ``walk`` names (``auto``: both when the objective has the long-range
+    shape, else the paper walk) and keep the one of smallest score.
+
+    The paper walk searches what ``fit`` says from (``segment_ratio``,
+    ``max_deviation_deg``); the smooth walk its waviness and correlation length, or only the
+    waviness at ``length_ratio`` when the objective has no long-range shape.
+    """
+    models = ("paper", "smooth") if walk == "auto" and objective.crossing is not None else \
+        ("paper",) if walk == "auto" else (walk,)
+    scores: dict[str, WalkScore] = {}
+    problems: dict[str, str | None] = {}
+    valley: list[ValleyPoint] = []
+    if "paper" in models:
+        sr, dev, valley, problems["paper"] = _fit_walk(objective, fit, segment_ratio, max_deviation_deg,
+                                                       largest_segment, segment_ratios)
+        scores["paper"] = objective.evaluate({"walk": "paper", "segment_ratio": sr, "max_deviation_deg": dev})
+    if "smooth" in models:
+        fixed = None if objective.crossing is not None else length_ratio
+        sigma, length = _search_smooth(objective, window_ratio, fixed)
+        scores["smooth"] = objective.evaluate(smooth_walk(sigma, length, segment_ratio))
+        problems["smooth"] = None
+        if sigma >= WAVINESS_RANGE_DEG[1] - 0.5:
+            problems["smooth"] = f"waviness_deg = {sigma:g} is at the end of its search range {WAVINESS_RANGE_DEG}"
+    chosen = min(scores, key=lambda name: scores[name].score)
+    return WalkFit(scores, chosen, tuple(valley), problems[chosen], len(objective.cache))
+
+
+def _with_walk(rve: dict[str, Any], fitted: WalkFit) -> dict[str, Any]:
+    """``rve`` keys with the chosen walk's keys, the other walk's (and ``segment_um``) removed."""
+    keys = fitted.scores[fitted.chosen].walk
+    other = {k for name, names in WALK_DEFAULTS.items() if name != fitted.chosen for k in names}
+    return {k: v for k, v in rve.items() if k not in other | {"segment_um"}} | keys
