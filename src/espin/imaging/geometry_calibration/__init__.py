@@ -169,13 +169,6 @@ Fit = Literal["deviation", "segment", "both"]
 Walk = Literal["auto", "paper", "smooth"]
 
 
-def _walk_models(walk: str, long_range: bool) -> tuple[str, ...]:
-    """The walks fitted: both for ``auto`` when the targets carry the long-range shape."""
-    if walk == "auto":
-        return ("paper", "smooth") if long_range else ("paper",)
-    return (walk,)
-
-
 def calibrate_geometry(
     targets_or_path: GeometryTargets | str | Path | Any,
     base: Config | str | Path | None = None,
@@ -317,6 +310,12 @@ def calibrate_geometry(
 
     # 3. Tortuosity and long-range shape: the walk.
     image = image if image is not None else measured_image(targets_or_path)
+    if image is None and targets.contour_length_um is not None:
+        notes.append("no measured image at hand (a fibers.csv, or the image named in "
+                     "measurement.toml was not found): no tracer correction, rendered check or "
+                     "comparison.png; the fitted walk is wavier than the image's (docs/geometry_calibration.md)")
+    if walk != "auto" and not targets.has_tortuosity:
+        notes.append(f"walk = {walk} is not used: the targets have no tortuosity to fit a walk to")
     fitted: WalkFit | None = None
     search_targets = targets  # the tortuosity sample corrected for the tracer's bias
     tracer: dict[str, Any] = {}
@@ -332,9 +331,10 @@ def calibrate_geometry(
         if walk == "auto" and crossing_target(targets) is None:
             notes.append("walk: the targets carry no long-range shape (fibers crossing the image "
                          "edge to edge), which alone tells the walks apart: the paper walk is kept")
-        dev = max_deviation_deg if max_deviation_deg is not None else \
-            start.max_deviation_deg or WALK_DEFAULTS["paper"]["max_deviation_deg"]
-        length = start.waviness_length_ratio or WALK_DEFAULTS["smooth"]["waviness_length_ratio"]
+        dev = next(d for d in (max_deviation_deg, start.max_deviation_deg,
+                               WALK_DEFAULTS["paper"]["max_deviation_deg"]) if d is not None)
+        length = next(r for r in (start.waviness_length_ratio,
+                                  WALK_DEFAULTS["smooth"]["waviness_length_ratio"]) if r is not None)
 
         def fit_walks(goal: GeometryTargets) -> WalkFit:
             objective = _Objective(measurement, rve, search_side, _tortuosity_target(goal),
@@ -354,7 +354,7 @@ def calibrate_geometry(
             search_targets, bias = tracer_corrected(targets, measure_renderings(draft, image),
                                                     measurement.measure(draft_rve, search_side)["tortuosity"])
             tracer = {"tortuosity_bias": bias, "first_walk": fitted.scores[fitted.chosen].walk}
-            if bias:
+            if not np.array_equal(search_targets.tortuosity, targets.tortuosity):
                 fitted = fit_walks(search_targets)
                 evaluations += fitted.evaluations
         if fitted.problem:
@@ -390,7 +390,7 @@ def calibrate_geometry(
     # 5. The written config and its match, measured on mats of that config.
     output = {"window_ratio": float(f"{window / calibrated_d:.6g}")}
     config = config_from_dict(
-        _with_section(base_config, rve, output, _targets_section(targets, window, float(min_chord))),
+        _with_section(base_config, rve, output, _targets_section(search_targets, window, float(min_chord), tracer.get("tortuosity_bias"))),
         "(calibrated)")
     parameters["output.window_ratio"] = output["window_ratio"]
     parameters["fitted"] = _fitted(targets, fit, fitted.chosen if fitted else None)

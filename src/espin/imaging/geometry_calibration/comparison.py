@@ -69,25 +69,18 @@ class MeasuredView:
 
 def render_like(config: Config, shape: tuple[int, int], um_per_px: float, seed: int = 0) -> np.ndarray:
     """A synthetic SEM image of a mat of ``config``, of ``shape`` (rows, cols) pixels of
-    ``um_per_px``, centred in the mat: its top :data:`RENDERED_LAYERS` layers.
-
-    Raises
-    ------
-    ConfigError
-        If the field of view is larger than the config's layer.
-    """
-    from espin.core.errors import ConfigError
+    ``um_per_px``: :data:`RENDERED_LAYERS` layers deposited like the config's (on a layer
+    enlarged to the field of view if it is smaller), the window centred."""
     from espin.geometry.deposition import deposit
     from espin.imaging.synthetic import render_sem
 
-    n_px = max(shape)
-    side = n_px * um_per_px
-    if side > config.rve.side_um:
-        raise ConfigError(f"the image's field of view ({side:.4g} um) is larger than the "
-                          f"calibrated layer ({config.rve.side_um:.4g} um): no rendering")
-    mat = deposit(config.rve)
-    rendered = render_sem(mat, um_per_px=um_per_px, side_um=side,
-                          layers=min(RENDERED_LAYERS, mat.n_layers), seed=seed)
+    side = max(shape) * um_per_px
+    # Only the statistics of the layers matter: the drawn layers alone, on a layer at least
+    # as large as the field of view.
+    layers = min(RENDERED_LAYERS, config.rve.layers)
+    rve = config.rve.model_copy(update={"size_um": max(side, config.rve.side_um), "size_ratio": None,
+                                        "layers": layers})
+    rendered = render_sem(deposit(rve), um_per_px=um_per_px, side_um=side, layers=layers, seed=seed)
     return rendered.image[:shape[0], :shape[1]]
 
 

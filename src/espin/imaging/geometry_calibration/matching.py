@@ -179,7 +179,7 @@ def _orientation_spec(targets: GeometryTargets) -> tuple[str | dict[str, Any], _
         fitted = fit_distributions(np.empty(0), targets.orientation_deg, np.empty(0))
         spec: str | dict[str, Any] = "uniform"
         if fitted.orientation_model == "von_mises":
-            spec = {"von_mises": {"mean_deg": round(mean, 2), "kappa": round(kappa, 4)}}
+            spec = {"von_mises": {"mean_deg": round(mean, 2) % 180.0, "kappa": round(kappa, 4)}}
         notes.append(f"orientation sample: AIC uniform {fitted.orientation_aic_uniform:.1f}, von Mises "
                      f"{fitted.orientation_aic_von_mises:.1f} (Rayleigh p = {p:.3g}) -> "
                      f"{'uniform' if spec == 'uniform' else 'von Mises'}")

@@ -10,7 +10,7 @@ import numpy as np
 
 from espin.core.config import Config
 from espin.core.errors import ConfigError
-from espin.geometry.targets import GeometryTargets
+from espin.geometry.targets import GeometryTargets, MeasurementError
 from espin.imaging.geometry_calibration.fits import truncated_normal_parameters
 
 
@@ -98,7 +98,8 @@ def _diameter_keys(targets: GeometryTargets, base: Config) -> tuple[dict[str, An
     note = None
     if sample is not None and sd > 0.0:
         log_likelihood = _diameter_log_likelihoods(sample, mean, sd, explicit_min)
-        family = max(log_likelihood, key=log_likelihood.get)
+        if max(log_likelihood.values()) > -math.inf:  # else the normal's error below
+            family = max(log_likelihood, key=log_likelihood.get)
         note = ("diameter family: " + ", ".join(f"{name} log-likelihood {value:.1f}"
                                                  for name, value in log_likelihood.items())
                 + f" -> {family}")
@@ -117,13 +118,20 @@ def _diameter_log_likelihoods(sample: np.ndarray, mean: float, sd: float,
 
     from espin.geometry.deposition import lognormal_diameters
 
-    mu, sigma = truncated_normal_parameters(mean, sd, lower)
-    low_n = 0.1 * mu if lower is None else lower
-    normal = stats.truncnorm((low_n - mu) / sigma, np.inf, loc=mu, scale=sigma)
-    low_l = 0.1 * mean if lower is None else lower
-    lognormal = lognormal_diameters(mean, sd)
-    return {"normal": float(np.sum(normal.logpdf(sample))),
-            "lognormal": float(np.sum(lognormal.logpdf(sample)) - len(sample) * np.log(lognormal.sf(low_l)))}
+    out = {"normal": -math.inf, "lognormal": -math.inf}  # -inf: no such law a config accepts
+    try:
+        mu, sigma = truncated_normal_parameters(mean, sd, lower)
+    except MeasurementError:
+        mu, sigma = math.nan, math.nan
+    if sigma <= mu:  # rve.diameter_sd_um <= rve.diameter_um
+        low = 0.1 * mu if lower is None else lower
+        normal = stats.truncnorm((low - mu) / sigma, np.inf, loc=mu, scale=sigma)
+        out["normal"] = float(np.sum(normal.logpdf(sample)))
+    if sd <= mean:
+        low = 0.1 * mean if lower is None else lower
+        lognormal = lognormal_diameters(mean, sd)
+        out["lognormal"] = float(np.sum(lognormal.logpdf(sample)) - len(sample) * np.log(lognormal.sf(low)))
+    return out
 
 
 def _fitted(targets: GeometryTargets, fit: str, walk: str | None) -> list[str]:
@@ -176,19 +184,27 @@ def _with_section(base: Config, rve: dict[str, Any], output: dict[str, Any],
     return data
 
 
-def _targets_section(targets: GeometryTargets, window_um: float, min_chord_um: float) -> dict[str, Any]:
+def _targets_section(targets: GeometryTargets, window_um: float, min_chord_um: float,
+                     tortuosity_shift: float | None = None) -> dict[str, Any]:
     """The ``[targets]`` a calibrated config carries: what it was calibrated to, so that
-    ``espin generate`` grades its mats against them (docs/configuration.md).
+    ``espin generate`` grades its mats against them (docs/configuration.md). With
+    ``tortuosity_shift`` the tortuosity sample is the tracer-corrected one (``espin
+    generate`` measures true pieces, not traced ones), and the source says so.
 
     Measured samples are written as samples (6 significant digits, as fibers.csv), the piece
     contour lengths only when they pair one to one with the tortuosity sample; typed-in
-    distributions as distributions; the observation window and shortest chord; and the
-    long-range shape (U-turn fraction, straightness) when measured.
+    diameter and tortuosity laws as laws (a typed-in orientation law is the config's own
+    ``rve.orientation``, which generate grades against anyway); the observation window and
+    shortest chord; and the long-range shape (U-turn fraction, straightness) when measured.
     """
     def sample(values: np.ndarray) -> list[float]:
         return [float(f"{v:.6g}") for v in np.asarray(values, dtype=float)]
 
-    out: dict[str, Any] = {"source": targets.source[:500], "window_um": float(f"{window_um:.6g}"),
+    source = targets.source[:300]
+    if tortuosity_shift is not None:
+        source += (f"; tortuosity corrected for the SEM tracer (quantile map, median shift "
+                   f"{tortuosity_shift:+.4f})")
+    out: dict[str, Any] = {"source": source[:500], "window_um": float(f"{window_um:.6g}"),
                            "min_chord_um": float(f"{min_chord_um:.6g}")}
     if targets.diameter_um is not None:
         out["diameter_um"] = sample(targets.diameter_um)

@@ -148,7 +148,7 @@ class _Objective:
                               "max_deviation_deg": max_deviation_deg}).score
 
     def smooth(self, waviness_deg: float, waviness_length_ratio: float) -> float:
-        """Score of the smooth walk, with segments of :func:`smooth_segment_ratio`."""
+        """Score of the smooth walk, with segments of :func:`smooth_walk`."""
         return self.evaluate(smooth_walk(waviness_deg, waviness_length_ratio,
                                          self.segment_ratio)).score
 
@@ -339,8 +339,12 @@ def _fit_walks(objective: _Objective, walk: str, fit: str, segment_ratio: float,
         sigma, length = _search_smooth(objective, window_ratio, fixed)
         scores["smooth"] = objective.evaluate(smooth_walk(sigma, length, segment_ratio))
         problems["smooth"] = None
+        lengths = [r for r in WAVINESS_LENGTH_RATIOS if r <= 4.0 * window_ratio]
         if sigma >= WAVINESS_RANGE_DEG[1] - 0.5:
             problems["smooth"] = f"waviness_deg = {sigma:g} is at the end of its search range {WAVINESS_RANGE_DEG}"
+        elif fixed is None and lengths and (length <= lengths[0] or length >= lengths[-1]):
+            problems["smooth"] = (f"waviness_length_ratio = {length:g} is at the end of its search range "
+                                  f"[{lengths[0]:g}, {lengths[-1]:g}]")
     chosen = min(scores, key=lambda name: scores[name].score)
     return WalkFit(scores, chosen, tuple(valley), problems[chosen], len(objective.cache))
 
