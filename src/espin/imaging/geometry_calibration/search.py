@@ -42,7 +42,7 @@ VALLEY_SEGMENT_RATIOS = (1.0, 2.0, 3.0, 5.0, 8.0, 12.0)
 """Segment lengths [D] at which ``fit="both"`` searches the deviation."""
 WAVINESS_RANGE_DEG = (0.0, 45.0)
 """Search range of ``rve.waviness_deg`` [deg] (the smooth walk)."""
-WAVINESS_GRID_STEP_DEG = 2.5
+WAVINESS_GRID_STEP_DEG = 5.0
 WAVINESS_LENGTH_RATIOS = (2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0)
 """Correlation lengths [D] of the smooth walk's grid (those longer than four windows are
 skipped: they look straight in the window)."""
