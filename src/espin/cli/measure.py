@@ -19,7 +19,9 @@ __all__ = ["register"]
 def measure(
     image: Annotated[Path, typer.Argument(help="SEM image: TIFF (palette, 16-bit), PNG or JPEG.")],
     um_per_px: Annotated[
-        Optional[float], typer.Option(help="Pixel size, um per pixel (or give the scale bar).")
+        Optional[float], typer.Option(help="Pixel size, um per pixel (or give the scale bar; with "
+                                           "neither: the pixel size in the TIFF's FEI, Zeiss or "
+                                           "ImageJ metadata, never its dpi).")
     ] = None,
     scale_bar_um: Annotated[
         Optional[float],
@@ -61,7 +63,8 @@ def measure(
     Writes fibers.csv (one row per traced fiber, with the image edges its ends lie on),
     measurement.toml (scale, field of view, counts, fitted distributions, U-turn fraction and
     straightness of the fibers traced edge to edge), histograms.png and overlay.png, and
-    run.json.
+    run.json. The scale: --um-per-px, else the scale bar, else the pixel size the microscope
+    wrote into the TIFF (FEI, Zeiss tags; an ImageJ description with a length unit).
     """
     from rich.console import Console
     from rich.table import Table

@@ -1,7 +1,8 @@
 """Measuring an SEM image of a fiber mat: :func:`measure` and its result.
 
-Pipeline (one module per step): read the image and its scale (:mod:`espin.imaging.image`,
-:mod:`espin.imaging.scale`) -> fiber pixels (:mod:`espin.imaging.segment`) -> fibers traced through
+Pipeline (one module per step): read the image and its scale (:mod:`espin.imaging.image`;
+``um_per_px``, else the scale bar :mod:`espin.imaging.scale`, else the microscope's TIFF tags
+:mod:`espin.imaging.metadata`) -> fiber pixels (:mod:`espin.imaging.segment`) -> fibers traced through
 crossings (:mod:`espin.imaging.trace`) -> local widths (:mod:`espin.imaging.widths`) -> per-fiber
 diameter, orientation and tortuosity as the paper defines them (section 2.2: contour over
 end-to-end length, orientation of the end-to-end line) -> fitted distributions
@@ -34,6 +35,7 @@ from espin.geometry.fibers_csv import EDGE_NAMES, FIBER_COLUMNS, write_fibers_cs
 from espin.geometry.pieces import CrossingStatistics, border_edges, crossing_statistics
 from espin.imaging.distributions import FittedDistributions, fit_distributions
 from espin.imaging.image import as_grey, parse_rows, read_image, row_slice
+from espin.imaging.metadata import MetadataScale, read_pixel_size
 from espin.imaging.orientation import image_angle_deg, structure_tensor_orientation
 from espin.imaging.scale import ScaleBar, detect_scale_bar
 from espin.imaging.segment import MIN_WIDTH_PX, segment_fibers
@@ -41,7 +43,7 @@ from espin.imaging.trace import trace_fibers
 from espin.imaging.widths import WidthSamples, fiber_diameters, local_widths
 
 __all__ = ["SEMMeasurement", "measure", "measurement_digest", "SCHEMA", "MEASURE_OUTPUTS",
-           "EDGE_NEAR", "EDGE_REACH"]
+           "EDGE_NEAR", "EDGE_REACH", "SCALE_AGREEMENT"]
 
 SCHEMA = "espin.sem.measurement/1"
 """Schema of ``measurement.toml``."""
@@ -66,6 +68,10 @@ a fifth of the ends of fibers reaching the edge were pulled back. A distance alo
 them from the ends of a fiber running along the edge: with 1 w, 3 of 89 edge-to-edge traces
 on straight fibers were U-turns, and curling fibers (40 deg, 100 D window) read a U-turn
 fraction of 0.33 against a true 0.20; with this rule 0 of 107 and 0.21 (12 images each)."""
+
+SCALE_AGREEMENT = 0.02
+"""A given scale (``um_per_px`` or the scale bar) and the pixel size of the image's metadata
+that differ by more than this fraction are noted in the result (the given one is used)."""
 
 Rows = tuple[int, int] | str
 
@@ -123,6 +129,14 @@ class SEMMeasurement:
         The detected scale bar, when the scale came from one.
     scale_bar_um : float or None [um]
         Its length as given.
+    scale_source : str
+        Where ``um_per_px`` came from: ``"um_per_px"`` (given), ``"scale_bar"`` or
+        ``"metadata"`` (the image's TIFF tags, :mod:`espin.imaging.metadata`).
+    metadata : MetadataScale or None
+        The pixel size the image's tags record, and the tag (used or not).
+    scale_note : str
+        Why the metadata's pixel size was not used although it differs from the given scale,
+        or why the metadata was not read; "" if nothing to note.
     source : str
         The image file (or ``"array"``).
     inputs_digest : str
@@ -150,6 +164,9 @@ class SEMMeasurement:
     scale_bar_um: float | None
     source: str
     inputs_digest: str
+    scale_source: str
+    metadata: MetadataScale | None
+    scale_note: str
 
     def summary(self) -> dict[str, Any]:
         """The summary written to ``measurement.toml`` (units in the key names)."""
@@ -157,7 +174,12 @@ class SEMMeasurement:
 
         f = self.fibers
         fits = self.fits
-        scale: dict[str, Any] = {"source": "scale_bar" if self.scale_bar else "um_per_px"}
+        scale: dict[str, Any] = {"source": self.scale_source}
+        if self.metadata is not None:
+            scale |= {"metadata_tag": self.metadata.source,
+                      "metadata_um_per_px": self.metadata.um_per_px}
+        if self.scale_note:
+            scale["note"] = self.scale_note
         if self.scale_bar is not None:
             scale |= {"scale_bar_um": self.scale_bar_um, "scale_bar_px": self.scale_bar.length_px,
                       "scale_bar_kind": self.scale_bar.kind,
@@ -207,9 +229,7 @@ class SEMMeasurement:
                   f"von Mises, mean {fits.orientation_mean_deg:.1f} deg, "
                   f"kappa {fits.orientation_kappa:.3g}")
         return [
-            ("scale", f"{self.um_per_px:.5g} um/px" + (
-                f" (bar {self.scale_bar.length_px:.1f} px = {self.scale_bar_um:g} um)"
-                if self.scale_bar else "")),
+            ("scale", f"{self.um_per_px:.5g} um/px" + self._scale_text()),
             ("field of view",
              f"{self.field_of_view_um[0]:.4g} x {self.field_of_view_um[1]:.4g} um"),
             ("fibers traced", f"{len(f)} (end-to-end >= {self.min_chord_um:.3g} um, median "
@@ -223,6 +243,15 @@ class SEMMeasurement:
                            "fibers across the image: espin calibrate-geometry)"),
             ("edge to edge", self._crossing_text()),
         ]
+
+    def _scale_text(self) -> str:
+        if self.scale_bar is not None:
+            text = f" (bar {self.scale_bar.length_px:.1f} px = {self.scale_bar_um:g} um)"
+        elif self.scale_source == "metadata" and self.metadata is not None:
+            text = f" ({self.metadata.source})"
+        else:
+            text = ""
+        return text + (f"; {self.scale_note}" if self.scale_note else "")
 
     def _crossing_text(self) -> str:
         if self.n_crossing == 0:
@@ -295,7 +324,11 @@ def measure(
     image : str, Path or (rows, cols[, channels]) array
         A TIFF (palette and 16-bit included), PNG or JPEG file, or an image array.
     um_per_px : float [um / px], optional
-        Pixel size. Give this, or ``scale_bar_um`` with ``scale_bar_rows``.
+        Pixel size. Give this, or ``scale_bar_um`` with ``scale_bar_rows``; with neither, the
+        pixel size recorded in the TIFF file's microscope tags (FEI, Zeiss) or ImageJ
+        description is used (:mod:`espin.imaging.metadata`; never its dpi). A given scale
+        always wins; one that differs from the metadata by more than
+        :data:`SCALE_AGREEMENT` is noted in the result.
     scale_bar_um : float [um], optional
         Length of the scale bar printed on the image (of the span of its tick marks).
     scale_bar_rows : "START:STOP" or (start, stop), optional
@@ -321,15 +354,17 @@ def measure(
     Raises
     ------
     ConfigError
-        An option is missing, contradictory or out of range (checked before any work).
+        An option is missing, contradictory or out of range, or there is no scale (no option
+        and no metadata); checked before any work.
     SEMError
-        The image is unreadable, the scale bar is not in the given rows, or there are no fibers.
+        The image is unreadable, the scale bar is not in the given rows, the metadata records
+        non-square pixels (without a given scale), or there are no fibers.
     """
-    digest = measurement_digest(
-        image, um_per_px=um_per_px, scale_bar_um=scale_bar_um, scale_bar_rows=scale_bar_rows,
+    digest, metadata, note = _checked_inputs(image, dict(
+        um_per_px=um_per_px, scale_bar_um=scale_bar_um, scale_bar_rows=scale_bar_rows,
         crop_rows=crop_rows, crop_bottom_px=crop_bottom_px, width_px=width_px,
         max_bend_deg=max_bend_deg, min_length_diameters=min_length_diameters,
-    )
+    ))
     bar_rows = parse_rows(scale_bar_rows, "scale_bar_rows") if scale_bar_rows is not None else None
     keep_rows = parse_rows(crop_rows, "crop_rows") if crop_rows is not None else None
     if isinstance(image, (str, Path)):
@@ -357,14 +392,22 @@ def measure(
                           "must be at least 16")
 
     bar = detect_scale_bar(grey, bar_slice) if bar_slice is not None else None
-    scale = float(um_per_px) if bar is None else float(scale_bar_um) / bar.length_px
+    if bar is not None:
+        scale, scale_source = float(scale_bar_um) / bar.length_px, "scale_bar"
+    elif um_per_px is not None:
+        scale, scale_source = float(um_per_px), "um_per_px"
+    else:  # checked: the metadata holds a pixel size
+        scale, scale_source = metadata.um_per_px, "metadata"
     analysed = grey[crop_rows_slice]
     if width_px is not None and width_px > min(analysed.shape) / 4:
         raise ConfigError(f"width_px = {width_px:g} is more than a quarter of the analysed image "
                           f"({analysed.shape[1]} x {analysed.shape[0]} px): fibers that wide cannot be "
                           "traced; give the typical fiber width in pixels, or leave it out to estimate it")
-    return _measure_grey(analysed, scale, width_px, max_bend_deg, min_length_diameters, bar,
-                         scale_bar_um, source, (crop_rows_slice.start, crop_rows_slice.stop), digest)
+    scale_fields = {"scale_bar": bar, "scale_bar_um": None if bar is None else float(scale_bar_um),
+                    "scale_source": scale_source, "metadata": metadata,
+                    "scale_note": note or _scale_note(scale, scale_source, metadata)}
+    return _measure_grey(analysed, scale, width_px, max_bend_deg, min_length_diameters, source,
+                         (crop_rows_slice.start, crop_rows_slice.stop), digest, scale_fields)
 
 
 def measurement_digest(image: str | Path | np.ndarray, **options: Any) -> str:
@@ -381,11 +424,22 @@ def measurement_digest(image: str | Path | np.ndarray, **options: Any) -> str:
     Raises
     ------
     ConfigError
-        An option is missing, contradictory or out of range.
+        An option is missing, contradictory or out of range, or there is no scale: no option
+        gives one and the image's metadata records no pixel size.
     SEMError
-        The image file does not exist or cannot be read.
+        The image file does not exist or cannot be read, or (without a given scale) its
+        metadata records non-square pixels.
     """
+    return _checked_inputs(image, options)[0]
+
+
+def _checked_inputs(image: str | Path | np.ndarray,
+                    options: dict[str, Any]) -> tuple[str, MetadataScale | None, str]:
+    """:func:`measurement_digest`, with the image's metadata pixel size and a note on why the
+    metadata was not read (see :func:`_image_metadata`)."""
     _check_options(**options)
+    given = options["um_per_px"] is not None or options["scale_bar_um"] is not None
+    metadata, note = _image_metadata(image, given)
     if isinstance(image, (str, Path)):
         digest = hashlib.sha256(_file_digest(Path(image)))
     else:
@@ -393,7 +447,45 @@ def measurement_digest(image: str | Path | np.ndarray, **options: Any) -> str:
         digest = hashlib.sha256(f"{array.shape} {array.dtype}".encode())
         digest.update(array.tobytes())
     digest.update(repr(sorted(options.items())).encode())
-    return digest.hexdigest()
+    return digest.hexdigest(), metadata, note
+
+
+def _image_metadata(image: str | Path | np.ndarray,
+                    given: bool) -> tuple[MetadataScale | None, str]:
+    """The pixel size the image file's tags record (:func:`espin.imaging.metadata.read_pixel_size`)
+    and a note.
+
+    With a given scale, the metadata is only compared with it: an error reading it (non-square
+    pixels, an unreadable file) becomes the note. Without one, that error is raised, and no
+    pixel size in the metadata is the "no scale" :class:`ConfigError`.
+    """
+    is_file = isinstance(image, (str, Path)) and Path(image).is_file()
+    if given:
+        try:
+            return (read_pixel_size(image) if is_file else None), ""
+        except SEMError as err:
+            return None, f"the image's metadata is not used: {err}"
+    metadata = read_pixel_size(image) if is_file else None
+    if metadata is None:
+        where = ("no pixel size in the image's metadata (FEI or Zeiss microscope tags, an "
+                 "ImageJ description with a length unit; the dpi of a TIFF is not one)"
+                 if isinstance(image, (str, Path)) else "an image array has no metadata")
+        raise ConfigError("no scale: give um_per_px, or scale_bar_um (the bar's length in um) "
+                          f"with scale_bar_rows (START:STOP, the image rows that hold it); {where}")
+    return metadata, ""
+
+
+def _scale_note(um_per_px: float, scale_source: str, metadata: MetadataScale | None) -> str:
+    """A note when the given scale and the metadata's pixel size differ by more than
+    :data:`SCALE_AGREEMENT`; "" otherwise."""
+    if metadata is None or scale_source == "metadata":
+        return ""
+    off = abs(metadata.um_per_px - um_per_px) / um_per_px
+    if off <= SCALE_AGREEMENT:
+        return ""
+    given = "the scale bar" if scale_source == "scale_bar" else "um_per_px"
+    return (f"the image's metadata ({metadata.source}) gives {metadata.um_per_px:.5g} um/px, "
+            f"{off:.1%} off the {um_per_px:.5g} um/px of {given}, which is used")
 
 
 def _file_digest(path: Path) -> bytes:
@@ -413,9 +505,11 @@ def _file_digest(path: Path) -> bytes:
 
 
 def _measure_grey(grey: np.ndarray, um_per_px: float, width_px: float | None,
-                  max_bend_deg: float, min_length_diameters: float, bar: ScaleBar | None,
-                  scale_bar_um: float | None, source: str, rows: tuple[int, int],
-                  inputs_digest: str) -> SEMMeasurement:
+                  max_bend_deg: float, min_length_diameters: float, source: str,
+                  rows: tuple[int, int], inputs_digest: str,
+                  scale_fields: dict[str, Any]) -> SEMMeasurement:
+    """Measure an analysed grey image; ``scale_fields`` are the :class:`SEMMeasurement` fields
+    that say where ``um_per_px`` came from (``scale_bar`` ... ``scale_note``)."""
     seg = segment_fibers(grey, width_px)
     traced = trace_fibers(seg.mask, seg.width_px, max_bend_deg)
     crossings = np.concatenate([traced.junctions, traced.shared])
@@ -463,8 +557,7 @@ def _measure_grey(grey: np.ndarray, um_per_px: float, width_px: float | None,
         straightness=edge_to_edge.straightness,
         min_chord_um=min_chord_px * um_per_px, typical_width_px=typical, image=grey, rows=rows,
         paths_px=[paths[i] for i in kept], width_samples=samples, junctions_px=traced.junctions,
-        scale_bar=bar, scale_bar_um=None if bar is None else float(scale_bar_um), source=source,
-        inputs_digest=inputs_digest,
+        source=source, inputs_digest=inputs_digest, **scale_fields,
     )
 
 
@@ -543,10 +636,7 @@ def _check_options(um_per_px: float | None, scale_bar_um: float | None, scale_ba
         raise ConfigError(f"scale_bar_um must be a number in [1e-6, 1e6] um, got {scale_bar_um!r}")
     if um_per_px is not None and (scale_bar_um is not None or scale_bar_rows is not None):
         raise ConfigError("give um_per_px, or scale_bar_um with scale_bar_rows, not both")
-    if um_per_px is None:
-        if scale_bar_um is None and scale_bar_rows is None:
-            raise ConfigError("no scale: give um_per_px, or scale_bar_um (the bar's length in um) "
-                              "with scale_bar_rows (START:STOP, the image rows that hold it)")
+    if um_per_px is None and (scale_bar_um is not None or scale_bar_rows is not None):
         if scale_bar_um is None:
             raise ConfigError("scale_bar_rows needs scale_bar_um (the bar's length in um)")
         if scale_bar_rows is None:
