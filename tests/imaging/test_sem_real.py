@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from espin.imaging.image import read_image
@@ -80,3 +81,18 @@ def test_stable_under_crop_and_rescale(which, plga, nano):
         turn = (other.dominant_direction_deg - base.dominant_direction_deg + 90) % 180 - 90
         assert abs(turn) < 5.0
         assert len(other.fibers) > 0.5 * len(base.fibers)
+
+
+def test_data_bar_found_without_crop_options(plga, nano):
+    # PLGA-1500_1: Hitachi text and tick marks overlaid on the bottom rows (ticks in rows
+    # 897-914, 17 px high): the bar starts at row 880, and the measurement is the one of the
+    # rows the scale bar's rows leave (0:880).
+    found = measure(PLGA, um_per_px=plga.um_per_px)
+    assert found.data_bar is not None
+    assert found.data_bar.describe() == "bottom rows 880-960 (overlaid text)"
+    assert found.rows == plga.rows == (0, 880)
+    pd.testing.assert_frame_equal(found.fibers, plga.fibers)
+    assert (found.dominant_direction_deg, found.coherency) == (plga.dominant_direction_deg,
+                                                               plga.coherency)
+    assert (found.n_crossing, found.straightness) == (plga.n_crossing, plga.straightness)
+    assert nano.data_bar is None and nano.rows == (0, 512)  # no data bar: nothing cropped

@@ -39,6 +39,11 @@ def measure(
     crop_bottom_px: Annotated[
         Optional[int], typer.Option(help="Leave out this many rows at the bottom (a data bar).")
     ] = None,
+    detect_data_bar: Annotated[
+        bool, typer.Option(help="Without --crop-rows, --crop-bottom-px or --scale-bar-rows, find "
+                                "the microscope's data bar (a separate band, or text overlaid "
+                                "on the image, at the bottom or top) and leave it out.")
+    ] = True,
     width_px: Annotated[
         Optional[float], typer.Option(help="Typical fiber width in pixels (>= 3); default: "
                                            "estimated.")
@@ -64,7 +69,8 @@ def measure(
     measurement.toml (scale, field of view, counts, fitted distributions, U-turn fraction and
     straightness of the fibers traced edge to edge), histograms.png and overlay.png, and
     run.json. The scale: --um-per-px, else the scale bar, else the pixel size the microscope
-    wrote into the TIFF (FEI, Zeiss tags; an ImageJ description with a length unit).
+    wrote into the TIFF (FEI, Zeiss tags; an ImageJ description with a length unit). With no
+    rows given, the data bar is found and left out (--no-detect-data-bar: not).
     """
     from rich.console import Console
     from rich.table import Table
@@ -80,6 +86,7 @@ def measure(
         "um_per_px": um_per_px, "scale_bar_um": scale_bar_um, "scale_bar_rows": scale_bar_rows,
         "crop_rows": crop_rows, "crop_bottom_px": crop_bottom_px, "width_px": width_px,
         "max_bend_deg": max_bend_deg, "min_length_diameters": min_length_diameters,
+        "detect_data_bar": detect_data_bar,
     }
     try:
         digest = measurement_digest(image, **options)  # checks the options and the file first

@@ -2,7 +2,8 @@
 
 Pipeline (one module per step): read the image and its scale (:mod:`espin.imaging.image`;
 ``um_per_px``, else the scale bar :mod:`espin.imaging.scale`, else the microscope's TIFF tags
-:mod:`espin.imaging.metadata`) -> fiber pixels (:mod:`espin.imaging.segment`) -> fibers traced through
+:mod:`espin.imaging.metadata`), leave out the data bar (the rows given, else the one found by
+:mod:`espin.imaging.databar`) -> fiber pixels (:mod:`espin.imaging.segment`) -> fibers traced through
 crossings (:mod:`espin.imaging.trace`) -> local widths (:mod:`espin.imaging.widths`) -> per-fiber
 diameter, orientation and tortuosity as the paper defines them (section 2.2: contour over
 end-to-end length, orientation of the end-to-end line) -> fitted distributions
@@ -33,6 +34,7 @@ from espin.core.errors import ConfigError, SEMError
 from espin.core.output_folder import OutputFolder
 from espin.geometry.fibers_csv import EDGE_NAMES, FIBER_COLUMNS, write_fibers_csv
 from espin.geometry.pieces import CrossingStatistics, border_edges, crossing_statistics
+from espin.imaging.databar import DataBar, detect_data_bar
 from espin.imaging.distributions import FittedDistributions, fit_distributions
 from espin.imaging.image import as_grey, parse_rows, read_image, row_slice
 from espin.imaging.metadata import MetadataScale, read_pixel_size
@@ -137,6 +139,10 @@ class SEMMeasurement:
     scale_note : str
         Why the metadata's pixel size was not used although it differs from the given scale,
         or why the metadata was not read; "" if nothing to note.
+    data_bar : DataBar or None
+        The data bar found and left out (:func:`espin.imaging.databar.detect_data_bar`), None
+        when none was found or the rows were given (``crop_rows``, ``crop_bottom_px``,
+        ``scale_bar_rows``) or detection was off.
     source : str
         The image file (or ``"array"``).
     inputs_digest : str
@@ -167,6 +173,7 @@ class SEMMeasurement:
     scale_source: str
     metadata: MetadataScale | None
     scale_note: str
+    data_bar: DataBar | None = None
 
     def summary(self) -> dict[str, Any]:
         """The summary written to ``measurement.toml`` (units in the key names)."""
@@ -195,7 +202,8 @@ class SEMMeasurement:
             "min_chord_um": self.min_chord_um,
             "image": {"rows_analysed": list(self.rows),
                       "size_px": [int(self.image.shape[1]), int(self.image.shape[0])],
-                      "typical_width_px": self.typical_width_px},
+                      "typical_width_px": self.typical_width_px,
+                      "data_bar": None if self.data_bar is None else self.data_bar.describe()},
             "scale": scale,
             "counts": {"fibers": len(f), "width_samples": len(self.widths_um),
                        "junctions": len(self.junctions_px)},
@@ -228,8 +236,11 @@ class SEMMeasurement:
         orient = ("uniform" if fits.orientation_model == "uniform" else
                   f"von Mises, mean {fits.orientation_mean_deg:.1f} deg, "
                   f"kappa {fits.orientation_kappa:.3g}")
+        bar = ([] if self.data_bar is None else
+               [("data bar", f"{self.data_bar.describe()}, left out (found)")])
         return [
             ("scale", f"{self.um_per_px:.5g} um/px" + self._scale_text()),
+            *bar,
             ("field of view",
              f"{self.field_of_view_um[0]:.4g} x {self.field_of_view_um[1]:.4g} um"),
             ("fibers traced", f"{len(f)} (end-to-end >= {self.min_chord_um:.3g} um, median "
@@ -316,6 +327,7 @@ def measure(
     width_px: float | None = None,
     max_bend_deg: float = 35.0,
     min_length_diameters: float = 3.0,
+    detect_data_bar: bool = True,
 ) -> SEMMeasurement:
     """Measure fiber diameters, orientations and tortuosities on an SEM image.
 
@@ -346,6 +358,10 @@ def measure(
     min_length_diameters : float
         Traced fibers whose end-to-end length is below this many typical diameters are dropped
         (an analyst does not measure stubs), in [1, 100].
+    detect_data_bar : bool
+        With none of ``crop_rows``, ``crop_bottom_px`` and ``scale_bar_rows``, find the
+        microscope's data bar (a separate band or text overlaid on the image, at the bottom or
+        the top: :func:`espin.imaging.databar.detect_data_bar`) and leave it out.
 
     Returns
     -------
@@ -364,6 +380,7 @@ def measure(
         um_per_px=um_per_px, scale_bar_um=scale_bar_um, scale_bar_rows=scale_bar_rows,
         crop_rows=crop_rows, crop_bottom_px=crop_bottom_px, width_px=width_px,
         max_bend_deg=max_bend_deg, min_length_diameters=min_length_diameters,
+        detect_data_bar=detect_data_bar,
     ))
     bar_rows = parse_rows(scale_bar_rows, "scale_bar_rows") if scale_bar_rows is not None else None
     keep_rows = parse_rows(crop_rows, "crop_rows") if crop_rows is not None else None
@@ -372,7 +389,7 @@ def measure(
     else:
         grey, source = as_grey(np.asarray(image), source="image array"), "array"
     n_rows = grey.shape[0]
-    bar_slice = crop_rows_slice = None
+    bar_slice = crop_rows_slice = data_bar = None
     if bar_rows is not None:
         bar_slice = row_slice(bar_rows, n_rows, "scale_bar_rows")
     if keep_rows is not None:
@@ -385,6 +402,9 @@ def measure(
     elif bar_slice is not None:
         in_bottom = bar_slice.start >= n_rows / 2
         crop_rows_slice = slice(0, bar_slice.start) if in_bottom else slice(bar_slice.stop, n_rows)
+    elif crop_bottom_px is None and detect_data_bar:
+        found_rows, data_bar = _find_data_bar(grey)
+        crop_rows_slice = slice(*found_rows)
     if crop_rows_slice is None:
         crop_rows_slice = slice(0, n_rows)
     if crop_rows_slice.stop - crop_rows_slice.start < 16:
@@ -405,9 +425,19 @@ def measure(
                           "traced; give the typical fiber width in pixels, or leave it out to estimate it")
     scale_fields = {"scale_bar": bar, "scale_bar_um": None if bar is None else float(scale_bar_um),
                     "scale_source": scale_source, "metadata": metadata,
-                    "scale_note": note or _scale_note(scale, scale_source, metadata)}
+                    "scale_note": note or _scale_note(scale, scale_source, metadata),
+                    "data_bar": data_bar}
     return _measure_grey(analysed, scale, width_px, max_bend_deg, min_length_diameters, source,
                          (crop_rows_slice.start, crop_rows_slice.stop), digest, scale_fields)
+
+
+def _find_data_bar(grey: np.ndarray) -> tuple[tuple[int, int], DataBar | None]:
+    """The rows to analyse without the data bar :func:`espin.imaging.databar.detect_data_bar`
+    finds, and the bar; all rows and None when what would be left is under 16 rows."""
+    rows, bar = detect_data_bar(grey)
+    if rows[1] - rows[0] < 16:
+        return (0, grey.shape[0]), None
+    return rows, bar
 
 
 def measurement_digest(image: str | Path | np.ndarray, **options: Any) -> str:
@@ -419,7 +449,8 @@ def measurement_digest(image: str | Path | np.ndarray, **options: Any) -> str:
     image
         The image file or array given to :func:`measure`.
     **options
-        Every option of :func:`measure` (``um_per_px`` ... ``min_length_diameters``).
+        Every option of :func:`measure` (``um_per_px`` ... ``min_length_diameters``;
+        ``detect_data_bar`` may be left out, default True).
 
     Raises
     ------
@@ -437,6 +468,7 @@ def _checked_inputs(image: str | Path | np.ndarray,
                     options: dict[str, Any]) -> tuple[str, MetadataScale | None, str]:
     """:func:`measurement_digest`, with the image's metadata pixel size and a note on why the
     metadata was not read (see :func:`_image_metadata`)."""
+    options = {"detect_data_bar": True, **options}
     _check_options(**options)
     given = options["um_per_px"] is not None or options["scale_bar_um"] is not None
     metadata, note = _image_metadata(image, given)
@@ -446,7 +478,9 @@ def _checked_inputs(image: str | Path | np.ndarray,
         array = np.asarray(image)
         digest = hashlib.sha256(f"{array.shape} {array.dtype}".encode())
         digest.update(array.tobytes())
-    digest.update(repr(sorted(options.items())).encode())
+    # detect_data_bar is recorded only when off: the digests of earlier runs stay valid
+    recorded = {k: v for k, v in options.items() if k != "detect_data_bar" or not v}
+    digest.update(repr(sorted(recorded.items())).encode())
     return digest.hexdigest(), metadata, note
 
 
@@ -509,7 +543,8 @@ def _measure_grey(grey: np.ndarray, um_per_px: float, width_px: float | None,
                   rows: tuple[int, int], inputs_digest: str,
                   scale_fields: dict[str, Any]) -> SEMMeasurement:
     """Measure an analysed grey image; ``scale_fields`` are the :class:`SEMMeasurement` fields
-    that say where ``um_per_px`` came from (``scale_bar`` ... ``scale_note``)."""
+    that say where ``um_per_px`` came from (``scale_bar`` ... ``scale_note``) and the data
+    bar left out (``data_bar``)."""
     seg = segment_fibers(grey, width_px)
     traced = trace_fibers(seg.mask, seg.width_px, max_bend_deg)
     crossings = np.concatenate([traced.junctions, traced.shared])
@@ -628,7 +663,8 @@ def _end_on_edge(oriented: np.ndarray, lower: np.ndarray, upper: np.ndarray,
 
 def _check_options(um_per_px: float | None, scale_bar_um: float | None, scale_bar_rows: Any,
                    crop_rows: Any, crop_bottom_px: int | None, width_px: float | None,
-                   max_bend_deg: float, min_length_diameters: float) -> None:
+                   max_bend_deg: float, min_length_diameters: float,
+                   detect_data_bar: bool) -> None:
     """Every option error, before any work (ConfigError naming the parameter)."""
     if um_per_px is not None and not (_finite(um_per_px) and 1e-6 <= um_per_px <= 1e3):
         raise ConfigError(f"um_per_px must be a number in [1e-6, 1000] (1 pm to 1 mm per pixel), got {um_per_px!r}")
@@ -655,6 +691,8 @@ def _check_options(um_per_px: float | None, scale_bar_um: float | None, scale_ba
         raise ConfigError(f"max_bend_deg must be in (0, 90], got {max_bend_deg!r}")
     if not (_finite(min_length_diameters) and 1 <= min_length_diameters <= 100):
         raise ConfigError(f"min_length_diameters must be in [1, 100], got {min_length_diameters!r}")
+    if not isinstance(detect_data_bar, (bool, np.bool_)):
+        raise ConfigError(f"detect_data_bar must be True or False, got {detect_data_bar!r}")
 
 
 def _finite(x: Any) -> bool:

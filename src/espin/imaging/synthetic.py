@@ -20,6 +20,12 @@ Image model (all documented parameters of :func:`render_sem`)
    upper-left corner to ``1 - illumination`` at the lower-right one.
 5. Detector noise: Gaussian, standard deviation ``noise_sd`` (top-fiber brightness = 1);
    the image is clipped to [0, 1].
+6. Optionally a microscope's data bar (``data_bar``), ``data_bar_fraction`` of the rows at
+   the bottom or the top: a line of 11 tick marks (a Hitachi scale bar) next to the image,
+   as far from the bar's edge as they are high, and a line of text (Pillow's default font,
+   "SE 15.0kV x2.00k 30.0um") beyond it, white (1.0). Either a separate band (black
+   background, the fibers hidden) or overlaid on the image (Hitachi; each glyph outlined in
+   black, 1 px). The ground truth stays that of the whole window.
 
 Image axes: column j grows with x, row i grows downwards (y decreases), so angles measured on
 the image counter-clockwise from +x (y up) equal the mat's angles.
@@ -30,6 +36,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from PIL import Image, ImageDraw, ImageFont
 from numpy.typing import ArrayLike
 from scipy import ndimage
 
@@ -41,6 +48,9 @@ __all__ = ["SyntheticSEM", "render_sem"]
 
 _EDGE_BRIGHTENING = 0.15
 _MAX_PAIRS = 4_000_000  # (segment, pixel) pairs evaluated at once while rasterizing
+_DATA_BAR_KINDS = ("band", "overlaid")
+_DATA_BAR_TEXT = "SE 15.0kV x2.00k 30.0um"
+_N_TICKS = 11
 
 
 @dataclass(frozen=True, eq=False)
@@ -66,6 +76,8 @@ class SyntheticSEM:
     visible : VisibleFibers
         Fiber portions of the drawn layers inside the window (``visible.fiber`` are mat
         indices): contour length, chord, tortuosity and orientation (rad) of each.
+    data_bar_rows : tuple[int, int] or None
+        Rows (start, stop) of the drawn data bar, None without one.
     """
 
     image: np.ndarray
@@ -76,6 +88,7 @@ class SyntheticSEM:
     fiber: np.ndarray
     diameter_um: np.ndarray
     visible: VisibleFibers
+    data_bar_rows: tuple[int, int] | None = None
 
 
 def render_sem(
@@ -93,6 +106,9 @@ def render_sem(
     background: float = 0.08,
     min_chord_um: float | None = None,
     seed: int = 0,
+    data_bar: str | None = None,
+    data_bar_side: str = "bottom",
+    data_bar_fraction: float = 0.07,
 ) -> SyntheticSEM:
     """Render the top layers of a mat as an SEM-like grey image, with its ground truth.
 
@@ -126,6 +142,12 @@ def render_sem(
         (what :func:`espin.imaging.measurement.measure` keeps by default).
     seed : int
         Seed of the noise.
+    data_bar : {"band", "overlaid"}, optional
+        Draw a microscope's data bar: a separate black band, or text overlaid on the image.
+    data_bar_side : {"bottom", "top"}
+        Where the data bar is.
+    data_bar_fraction : float
+        Height of the data bar over the image's, in [0.02, 0.25] (at least 12 rows).
 
     Returns
     -------
@@ -140,6 +162,7 @@ def render_sem(
     pixel = diameter / 8.0 if um_per_px is None else float(um_per_px)
     _check_options(side, pixel, layers, noise_sd, blur_px, depth_blur_px, depth_dimming,
                    illumination, background, mat.n_layers)
+    _check_data_bar(data_bar, data_bar_side, data_bar_fraction)
     n_px = max(int(round(side / pixel)), 1)
     pixel = side / n_px
     drawn = np.arange(mat.n_layers - 1, mat.n_layers - 1 - layers, -1)
@@ -159,11 +182,14 @@ def render_sem(
     rng = np.random.default_rng(seed)
     canvas += rng.normal(0.0, noise_sd, canvas.shape) if noise_sd > 0 else 0.0
     image = np.clip(canvas, 0.0, 1.0)
+    bar_rows = None
+    if data_bar is not None:
+        bar_rows = _draw_data_bar(image, data_bar, data_bar_side, data_bar_fraction)
 
     visible, fiber, diam = _ground_truth(mat, drawn, origin, side,
                                          3.0 * diameter if min_chord_um is None else min_chord_um)
     return SyntheticSEM(image=image, um_per_px=pixel, origin=origin, side=side, layers=drawn,
-                        fiber=fiber, diameter_um=diam, visible=visible)
+                        fiber=fiber, diameter_um=diam, visible=visible, data_bar_rows=bar_rows)
 
 
 def _check_options(side: float, pixel: float, layers: int, noise_sd: float, blur_px: float,
@@ -183,6 +209,60 @@ def _check_options(side: float, pixel: float, layers: int, noise_sd: float, blur
     for name, ok, allowed in checks:
         if not ok:
             raise ConfigError(f"render_sem: {name} must be {allowed}")
+
+
+def _check_data_bar(kind: str | None, side: str, fraction: float) -> None:
+    if kind is not None and kind not in _DATA_BAR_KINDS:
+        raise ConfigError(f"render_sem: data_bar must be one of {_DATA_BAR_KINDS} or None, got {kind!r}")
+    if side not in ("bottom", "top"):
+        raise ConfigError(f"render_sem: data_bar_side must be 'bottom' or 'top', got {side!r}")
+    if not 0.02 <= fraction <= 0.25:
+        raise ConfigError(f"render_sem: data_bar_fraction must be in [0.02, 0.25], got {fraction!r}")
+
+
+def _draw_data_bar(image: np.ndarray, kind: str, side: str, fraction: float) -> tuple[int, int]:
+    """Draw a data bar into ``image`` (in place) and return its rows (start, stop)."""
+    n_rows, n_cols = image.shape
+    height = min(max(int(round(fraction * n_rows)), 12), n_rows)
+    start = n_rows - height if side == "bottom" else 0
+    ink = _data_bar_ink(height, n_cols, side)
+    band = image[start:start + height]
+    if kind == "band":
+        band[:] = 0.0
+    else:
+        band[ndimage.binary_dilation(ink, np.ones((3, 3), dtype=bool))] = 0.0
+    band[ink] = 1.0
+    return start, start + height
+
+
+def _data_bar_ink(height: int, n_cols: int, side: str) -> np.ndarray:
+    """The white pixels (height, n_cols) of a data bar: a line of tick marks ``tick`` rows high,
+    ``tick`` rows from the bar's edge towards the image, and a line of text beyond it."""
+    ink = np.zeros((height, n_cols), dtype=bool)
+    tick = max(5, int(round(0.22 * height)))
+    tick_width = max(1, tick // 4)
+    spacing = max(int(0.4 * n_cols / (_N_TICKS - 1)), tick_width + 3)
+    ticks = slice(tick, 2 * tick) if side == "bottom" else slice(height - 2 * tick, height - tick)
+    for k in range(_N_TICKS):
+        left = int(0.55 * n_cols) + k * spacing
+        ink[ticks, left:left + tick_width] = True
+    gap = max(1, tick // 2)
+    text = _text_ink(height - 1 - 2 * tick - gap, n_cols // 2)
+    text_top = 2 * tick + gap if side == "bottom" else 1
+    ink[text_top:text_top + text.shape[0], 2:2 + text.shape[1]] = text
+    return ink
+
+
+def _text_ink(rows: int, cols: int) -> np.ndarray:
+    """:data:`_DATA_BAR_TEXT` in Pillow's default font, at most ``rows`` x ``cols`` px, as
+    a boolean array cropped to its ink rows."""
+    size = max(int(rows / 0.8), 6)
+    font = ImageFont.load_default(size=size)
+    canvas = Image.new("L", (cols, 2 * size), 0)
+    ImageDraw.Draw(canvas).text((0, 0), _DATA_BAR_TEXT, fill=255, font=font)
+    ink = np.asarray(canvas) >= 128
+    used = np.flatnonzero(ink.any(axis=1))
+    return ink[used[0]:used[0] + min(rows, used[-1] + 1 - used[0])] if len(used) else ink[:0]
 
 
 def _rasterize_layer(mat: FiberMat, layer: int, origin: np.ndarray, side: float, pixel: float,
