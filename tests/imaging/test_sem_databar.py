@@ -9,7 +9,6 @@ import tomllib
 import numpy as np
 import pandas as pd
 import pytest
-import typer
 from typer.testing import CliRunner
 
 import espin.geometry.rve
@@ -85,17 +84,12 @@ def test_measure_leaves_out_the_data_bar_found(with_bar):
         measure(with_bar.image, um_per_px=with_bar.um_per_px, detect_data_bar="no")
 
 
-def test_cli_and_python_agree_on_the_data_bar(with_bar, tmp_path):
+def test_cli_and_python_agree_on_the_data_bar(with_bar, tmp_path, measure_app):
     from PIL import Image
 
-    from espin.cli.measure import register
-
-    app = typer.Typer()
-    register(app)
-    app.command("noop")(lambda: None)  # a second command keeps "measure" a subcommand
     path = tmp_path / "bar.png"
     Image.fromarray(np.round(with_bar.image * 255).astype(np.uint8)).save(path)
-    run = CliRunner().invoke(app, ["measure", str(path), "--um-per-px", str(with_bar.um_per_px),
+    run = CliRunner().invoke(measure_app, ["measure", str(path), "--um-per-px", str(with_bar.um_per_px),
                                    "-o", str(tmp_path / "res"), "--no-figures"])
     assert run.exit_code == 0, run.output
     python = measure(path, um_per_px=with_bar.um_per_px)
@@ -105,7 +99,7 @@ def test_cli_and_python_agree_on_the_data_bar(with_bar, tmp_path):
     assert summary["image"]["rows_analysed"] == list(python.rows)
     cli_fibers = pd.read_csv(tmp_path / "res" / "fibers.csv")
     np.testing.assert_allclose(cli_fibers["diameter_um"], python.fibers["diameter_um"], rtol=1e-5)
-    off = CliRunner().invoke(app, ["measure", str(path), "--um-per-px", str(with_bar.um_per_px),
+    off = CliRunner().invoke(measure_app, ["measure", str(path), "--um-per-px", str(with_bar.um_per_px),
                                    "-o", str(tmp_path / "off"), "--no-figures",
                                    "--no-detect-data-bar", "-q"])
     assert off.exit_code == 0, off.output

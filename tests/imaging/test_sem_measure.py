@@ -7,7 +7,6 @@ import tomllib
 import numpy as np
 import pandas as pd
 import pytest
-import typer
 from typer.testing import CliRunner
 
 import espin.geometry.rve
@@ -142,21 +141,16 @@ def test_orientation_model_selection_by_aic():
     assert np.trapezoid(aligned.orientation_pdf(grid), grid) == pytest.approx(1.0, rel=1e-3)
 
 
-def test_cli_measure(synthetic, tmp_path):
+def test_cli_measure(synthetic, tmp_path, measure_app):
     from PIL import Image
 
-    from espin.cli.measure import register
-
-    app = typer.Typer()
-    register(app)
-    app.command("noop")(lambda: None)  # a second command keeps "measure" a subcommand
     path = tmp_path / "mat.png"
     Image.fromarray(np.round(synthetic.image * 255).astype(np.uint8)).save(path)
     out = tmp_path / "res"
-    run = CliRunner().invoke(app, ["measure", str(path), "--um-per-px",
+    run = CliRunner().invoke(measure_app, ["measure", str(path), "--um-per-px",
                                    str(synthetic.um_per_px), "-o", str(out)])
     assert run.exit_code == 0, run.output
     assert "diameter" in run.output and "tortuosity" in run.output
     assert len(pd.read_csv(out / "fibers.csv")) > 5
-    bad = CliRunner().invoke(app, ["measure", str(path)])
+    bad = CliRunner().invoke(measure_app, ["measure", str(path)])
     assert bad.exit_code == 2 and "no scale" in bad.output

@@ -196,17 +196,11 @@ def test_imagej_micro_sign_from_parsed_tags():
     assert pixel_size_from_tags(values).um_per_px == pytest.approx(0.1)
 
 
-def test_cli_measure_with_the_metadata_scale(fei_tiff, tmp_path):
-    import typer
+def test_cli_measure_with_the_metadata_scale(fei_tiff, tmp_path, measure_app):
     from typer.testing import CliRunner
 
-    from espin.cli.measure import register
-
-    app = typer.Typer()
-    register(app)
-    app.command("noop")(lambda: None)  # a second command keeps "measure" a subcommand
     out = tmp_path / "res"
-    run = CliRunner().invoke(app, ["measure", str(fei_tiff), "-o", str(out), "--no-figures"])
+    run = CliRunner().invoke(measure_app, ["measure", str(fei_tiff), "-o", str(out), "--no-figures"])
     assert run.exit_code == 0, run.output
     assert "FEI tag 34682 [Scan] PixelWidth" in run.output
     scale = tomllib.loads((out / "measurement.toml").read_text())["scale"]
@@ -214,5 +208,5 @@ def test_cli_measure_with_the_metadata_scale(fei_tiff, tmp_path):
     dpi = tmp_path / "dpi.tif"
     tifffile.imwrite(dpi, np.zeros((64, 64), np.uint8), resolution=(256, 256),
                      resolutionunit="INCH")
-    bad = CliRunner().invoke(app, ["measure", str(dpi), "-o", str(tmp_path / "bad")])
+    bad = CliRunner().invoke(measure_app, ["measure", str(dpi), "-o", str(tmp_path / "bad")])
     assert bad.exit_code == 2 and "no scale" in bad.output and "metadata" in bad.output
