@@ -12,7 +12,8 @@ synthetic SEM images at the image's pixel size and field of view
 * the **tracer correction** (:func:`tracer_corrected`): the measured tortuosity sample mapped
   quantile by quantile from what the tracer reads on the renderings to the true tortuosity
   of the same mats' pieces, the target of a second search. Straightness needs none: through
-  the tracer the calibrated mats read within 0.01 of the images (docs/geometry_calibration.md);
+  the tracer the calibrated mats read within 0.02 of the two real images
+  (docs/geometry_calibration.md);
 * the **rendered check** (:meth:`TracedRenderings.check`): the renderings' traced samples
   against the image's (KS of diameter, orientation and tortuosity; U-turn fraction and
   straightness), whether the calibrated mat looks like the image through the same instrument.
