@@ -59,3 +59,17 @@ def write_case_file(path: Path, contents: object) -> Path:
     elif contents is not None:
         contents(path)
     return path
+
+
+@pytest.fixture
+def measure_app():
+    """A typer app with the ``measure`` command (and a second one, which keeps ``measure`` a
+    subcommand), for CliRunner."""
+    import typer
+
+    from espin.cli.measure import register
+
+    app = typer.Typer()
+    register(app)
+    app.command("noop")(lambda: None)
+    return app
