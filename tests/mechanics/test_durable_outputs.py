@@ -27,6 +27,14 @@ def _rows(folder):
     return (folder / "curve.csv").read_text().splitlines()
 
 
+def _rows_so_far(folder):
+    """The curve's lines, none if it is not there (or removed while being read)."""
+    try:
+        return _rows(folder)
+    except FileNotFoundError:
+        return []
+
+
 def _interrupt_at(index: int):
     """An on_step callback that stops the run (as Ctrl-C would) when step ``index`` arrives."""
 
@@ -40,6 +48,7 @@ def _interrupt_at(index: int):
 def _run_and_kill(folder, steps: int, after_rows: int, overwrite: bool = False) -> None:
     """Start a simulate in another process, SIGKILL it once its curve.csv has ``after_rows`` steps."""
     earlier = read_manifest(folder) if folder.exists() else None
+    earlier_rows = _rows_so_far(folder)
     code = (f"import espin; espin.simulate('plla', {str(folder)!r}, overwrite={overwrite}, "
             f"loading__steps={steps}, solver__time_rtol='off', output__figures=False, "
             + ", ".join(f"{k}={v!r}" for k, v in TINY.items()) + ")")
@@ -48,7 +57,9 @@ def _run_and_kill(folder, steps: int, after_rows: int, overwrite: bool = False) 
     try:
         while time.monotonic() < deadline:
             started = (folder / MANIFEST).exists() and read_manifest(folder) != earlier
-            if started and (folder / "curve.csv").exists() and len(_rows(folder)) > after_rows:
+            rows = _rows_so_far(folder) if started else []
+            # the new run's curve: the earlier run's stays until the new one has cleared it
+            if len(rows) > after_rows and rows[1:after_rows + 1] != earlier_rows[1:after_rows + 1]:
                 break
             assert process.poll() is None, "the run ended before it could be killed"
             time.sleep(0.02)
