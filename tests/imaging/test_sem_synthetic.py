@@ -11,6 +11,7 @@ by image, aligned mats within 0.015, and straight fibers read a median tortuosit
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 import pytest
 
 import espin.geometry.rve
@@ -52,6 +53,33 @@ def test_rendered_image_and_ground_truth():
     # edges) and a one-layer render has no grey level above the top fibers'.
     clean = render_sem(mat, side_um=60 * D, layers=1, noise_sd=0, illumination=0)
     assert 0.95 < clean.image.max() <= 1.0
+
+
+def test_label_names_the_fiber_seen_at_each_pixel():
+    """Without noise, blur or shading, a pixel is as bright as the depth of its labelled fiber
+    says, and its centre lies within that fiber's radius of its centre line."""
+    mat = _mat(2, rve__max_deviation_deg=20.0)
+    image = render_sem(mat, side_um=30 * D, layers=2, noise_sd=0, blur_px=0, depth_blur_px=0,
+                       illumination=0, background=0.0, depth_dimming=0.5)
+    label = image.label
+    depth = image.depth(label.ravel()).reshape(label.shape)
+    assert set(np.unique(depth)) == {-1, 0, 1}
+    assert np.all(image.image[ndimage.binary_erosion(depth == -1)] == 0.0)  # the background
+    inner = ndimage.binary_erosion(depth == 0, iterations=2) & (image.image > 0)
+    assert np.all(image.image[inner] >= 0.9)  # the top layer: 1 (edges 1.15, notches anti-aliased)
+    lower = ndimage.binary_erosion(depth == 1, iterations=2)
+    assert np.all(image.image[lower] <= 0.5 * 1.15 + 1e-9)  # one layer down: half as bright
+    # the label's fiber covers the pixel centre
+    rows, cols = np.nonzero(label >= 0)
+    pick = np.random.default_rng(0).choice(len(rows), 300, replace=False)
+    for r, c in zip(rows[pick], cols[pick]):
+        f = label[r, c]
+        xy = image.origin + np.array([(c + 0.5) * image.um_per_px, image.side - (r + 0.5) * image.um_per_px])
+        v = mat.vertices[mat.fiber_offsets[f]:mat.fiber_offsets[f + 1]]
+        a, b = v[:-1], v[1:]
+        t = np.clip(np.einsum("ij,ij->i", xy - a, b - a) / np.einsum("ij,ij->i", b - a, b - a), 0, 1)
+        distance = np.min(np.hypot(*(a + t[:, None] * (b - a) - xy).T))
+        assert distance <= mat.fiber_diameter[f] / 2 + 0.5 * image.um_per_px
 
 
 def test_render_options_are_checked():

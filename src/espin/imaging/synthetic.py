@@ -76,6 +76,13 @@ class SyntheticSEM:
     visible : VisibleFibers
         Fiber portions of the drawn layers inside the window (``visible.fiber`` are mat
         indices): contour length, chord, tortuosity and orientation (rad) of each.
+    label : (rows, cols) int64
+        Mat index of the fiber seen at each pixel: the fiber of the highest drawn layer whose
+        body covers at least half the pixel (the nearest one where fibers of that layer
+        overlap); -1 where no drawn fiber does (the background). The data bar does not
+        change it.
+    fiber_layer : (n_mat_fibers,) int64
+        Layer of every fiber of the mat (:attr:`espin.geometry.mat.FiberMat.fiber_layer`).
     data_bar_rows : tuple[int, int] or None
         Rows (start, stop) of the drawn data bar, None without one.
     """
@@ -88,7 +95,27 @@ class SyntheticSEM:
     fiber: np.ndarray
     diameter_um: np.ndarray
     visible: VisibleFibers
+    label: np.ndarray
+    fiber_layer: np.ndarray
     data_bar_rows: tuple[int, int] | None = None
+
+    def depth(self, fiber: np.ndarray) -> np.ndarray:
+        """Depth of mat fibers below the top drawn layer (0 = top, 1 = the next, ...; -1 for a
+        fiber of no drawn layer, or a negative index such as the background's label).
+
+        Parameters
+        ----------
+        fiber : (n,) int
+            Mat fiber indices.
+
+        Returns
+        -------
+        (n,) int64
+        """
+        fiber = np.asarray(fiber, dtype=np.int64)
+        layer = self.fiber_layer[np.clip(fiber, 0, None)]
+        depth = self.layers[0] - layer
+        return np.where((fiber >= 0) & (depth < len(self.layers)), depth, -1)
 
 
 def render_sem(
@@ -168,8 +195,10 @@ def render_sem(
     drawn = np.arange(mat.n_layers - 1, mat.n_layers - 1 - layers, -1)
 
     canvas = np.full((n_px, n_px), float(background))
+    label = np.full((n_px, n_px), -1, dtype=np.int64)
     for depth in range(layers - 1, -1, -1):
-        cover, shade = _rasterize_layer(mat, int(drawn[depth]), origin, side, pixel, n_px)
+        cover, shade, seen = _rasterize_layer(mat, int(drawn[depth]), origin, side, pixel, n_px)
+        label = np.where(seen >= 0, seen, label)
         sigma = blur_px + depth * depth_blur_px
         brightness = (1.0 - depth_dimming) ** depth
         alpha = ndimage.gaussian_filter(cover, sigma) if sigma > 0 else cover
@@ -189,7 +218,8 @@ def render_sem(
     visible, fiber, diam = _ground_truth(mat, drawn, origin, side,
                                          3.0 * diameter if min_chord_um is None else min_chord_um)
     return SyntheticSEM(image=image, um_per_px=pixel, origin=origin, side=side, layers=drawn,
-                        fiber=fiber, diameter_um=diam, visible=visible, data_bar_rows=bar_rows)
+                        fiber=fiber, diameter_um=diam, visible=visible, data_bar_rows=bar_rows,
+                        label=label, fiber_layer=np.asarray(mat.fiber_layer, dtype=np.int64))
 
 
 def _check_options(side: float, pixel: float, layers: int, noise_sd: float, blur_px: float,
@@ -266,8 +296,10 @@ def _text_ink(rows: int, cols: int) -> np.ndarray:
 
 
 def _rasterize_layer(mat: FiberMat, layer: int, origin: np.ndarray, side: float, pixel: float,
-                     n_px: int) -> tuple[np.ndarray, np.ndarray]:
-    """Coverage (0-1, anti-aliased) and profile shade of one layer's fibers on the pixel grid.
+                     n_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Coverage (0-1, anti-aliased), profile shade and fiber label (mat index of the nearest
+    fiber where it covers at least half the pixel, else -1) of one layer's fibers on the
+    pixel grid.
 
     Every (segment, nearby pixel) pair is evaluated at once, in chunks: the signed distance
     from the pixel centre to the fiber surface, d - D_f / 2, is reduced by minimum per pixel.
@@ -293,6 +325,8 @@ def _rasterize_layer(mat: FiberMat, layer: int, origin: np.ndarray, side: float,
 
     surface = np.full(n_px * n_px, np.inf)
     relative = np.full(n_px * n_px, np.inf)
+    nearest = np.full(n_px * n_px, -1, dtype=np.int64)
+    owner = mat.segment_fiber[chosen][inside]
     ends = np.cumsum(count)
     start = 0
     while start < len(count):
@@ -306,12 +340,19 @@ def _rasterize_layer(mat: FiberMat, layer: int, origin: np.ndarray, side: float,
         row = lo[pair, 1] + k // extent[pair, 0]
         d = _point_segment_distance(np.column_stack([col, row]), a[pair], b[pair])
         flat = row * n_px + col
-        np.minimum.at(surface, flat, d - radius[pair])
+        gap = d - radius[pair]
+        # the fiber nearest to each pixel of this chunk, kept where it beats the earlier chunks'
+        order = np.lexsort((gap, flat))
+        first = order[np.r_[True, flat[order][1:] != flat[order][:-1]]]
+        better = gap[first] < surface[flat[first]]
+        nearest[flat[first][better]] = owner[pair[first][better]]
+        np.minimum.at(surface, flat, gap)
         np.minimum.at(relative, flat, d / radius[pair])
         start = stop
     cover = np.clip(0.5 - surface, 0.0, 1.0).reshape(n_px, n_px)
     rho = np.minimum(relative, 1.0).reshape(n_px, n_px)
-    return cover, 1.0 + _EDGE_BRIGHTENING * rho**4
+    label = np.where(cover >= 0.5, nearest.reshape(n_px, n_px), -1)
+    return cover, 1.0 + _EDGE_BRIGHTENING * rho**4, label
 
 
 def _point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
