@@ -128,14 +128,14 @@ def save_overlay(m: MeasuredImage, path: str | Path) -> Path:
     ticks = np.stack([s.point[pick] - half, s.point[pick] + half], axis=1)[:, :, ::-1]
     ax.add_collection(LineCollection(ticks, colors="white", linewidths=0.6, alpha=0.8))
     if len(m.junctions_px):
-        ax.plot(m.junctions_px[:, 1], m.junctions_px[:, 0], ".", color="C3", ms=2)
+        ax.plot(m.junctions_px[:, 1], m.junctions_px[:, 0], ".", color="C3", ms=4)
     ax.set(xlim=(-0.5, cols - 0.5), ylim=(rows - 0.5, -0.5))
     ax.axis("off")
     _add_scale_bar(ax, m.um_per_px, cols, fontsize)
     key = [Line2D([], [], color="C0", lw=1.2, label="traced fiber centre line (one colour each)"),
            Line2D([], [], color="C1", lw=2.4, label="traced from edge to edge of the image"),
            Line2D([], [], color="white", lw=1.2, label=f"measured width (every {_TICK_EVERY}th sample)"),
-           Line2D([], [], color="C3", ls="", marker=".", ms=7, label="junction (crossing)")]
+           Line2D([], [], color="C3", ls="", marker=".", ms=6, label="junction (crossing)")]
     ax_key.legend(handles=key, loc="center", ncol=2, frameon=False, labelcolor="white",
                   fontsize=fontsize, handlelength=2.5, columnspacing=2.0)
     return save_figure(fig, path, dpi=100)

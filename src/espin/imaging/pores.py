@@ -97,6 +97,8 @@ class PoreStructure:
             "pore_diameter_median_um": self.pore_diameter_median_um,
             "pore_diameter_mean_um": _mean(d),
             "pore_diameter_p10_um": _quantile(d, 0.1), "pore_diameter_p90_um": _quantile(d, 0.9),
+            "pore_area_mean_um2": _mean(np.pi / 4.0 * d**2),
+            "pore_area_median_um2": _median(np.pi / 4.0 * d**2),
             "pore_inscribed_median_um": self.pore_inscribed_median_um,
             "pore_inscribed_max_um": float(i.max()) if len(i) else math.nan,
             "area_um2": self.area_um2,
