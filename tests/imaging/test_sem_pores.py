@@ -109,3 +109,27 @@ def test_local_orientation_of_stripes(angle_deg):
                                                  (0.5, 0.1), (1000.0, 200.0)])
 def test_scale_bar_is_a_round_fifth_of_the_width(width_um, expected):
     assert scale_bar_um(width_um) == pytest.approx(expected)
+
+
+def test_orientation_map_colours_horizontal_red_and_vertical_cyan(tmp_path):
+    from types import SimpleNamespace
+
+    from matplotlib.colors import rgb_to_hsv
+    from PIL import Image
+
+    from espin.imaging.figures import save_orientation_map
+
+    image = np.full((200, 200), 0.1)
+    image[40:52] = 0.9  # a horizontal band
+    image[:, 140:152] = 0.9  # a vertical one
+    m = SimpleNamespace(image=image, um_per_px=0.1, typical_width_px=12.0,
+                        dominant_direction_deg=45.0, coherency=0.1)
+    path = save_orientation_map(m, tmp_path / "map.png")
+    rgb = np.asarray(Image.open(path).convert("RGB"), dtype=float)[:1000] / 255.0  # the image part
+    hsv = rgb_to_hsv(rgb)
+    scale = 1000 / 200  # drawn at 1000 px
+    horizontal = hsv[int(46 * scale), int(60 * scale)]
+    vertical = hsv[int(120 * scale), int(146 * scale)]
+    assert min(horizontal[0], 1 - horizontal[0]) < 0.03 and horizontal[1] > 0.8  # red, saturated
+    assert abs(vertical[0] - 0.5) < 0.03 and vertical[1] > 0.8  # cyan
+    assert hsv[int(150 * scale), int(60 * scale), 2] < 0.2  # the dark background stays dark

@@ -25,7 +25,8 @@ __all__ = ["register"]
 def measure(
     images: Annotated[list[Path], typer.Argument(
         help="SEM image: TIFF (palette, 16-bit), PNG or JPEG; or a folder of them (.tif, .tiff, "
-             ".png, .jpg, .jpeg), or several: a batch.", show_default=False)],
+             ".png, .jpg, .jpeg), or several: a batch.", metavar="IMAGE_OR_FOLDER",
+        show_default=False)],
     um_per_px: Annotated[
         Optional[float], typer.Option(help="Pixel size, um per pixel (or give the scale bar; with "
                                            "neither: the pixel size in the TIFF's FEI, Zeiss or "
