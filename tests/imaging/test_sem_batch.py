@@ -29,7 +29,7 @@ def folder(tmp_path_factory):
     for seed in (1, 2, 3):
         mat = espin.geometry.rve.generate("plla", rve__size_ratio=40, rve__layers=2, rve__seed=seed,
                                           rve__max_deviation_deg=20.0).mat
-        rendered = render_sem(mat, side_um=30 * D, layers=2, seed=seed)
+        rendered = render_sem(mat, side_um=24 * D, layers=2, seed=seed)
         Image.fromarray(np.round(rendered.image * 255).astype(np.uint8)).save(path / f"mat{seed}.png")
     (path / "broken.tif").write_bytes(b"not an image")
     (path / "notes.txt").write_text("not measured: not an image suffix")
@@ -62,7 +62,7 @@ def test_images_csv_has_a_row_per_image_and_the_failure(batch, folder):
         assert row["diameter_mean_um"] == pytest.approx(_population(fibers).mean(), rel=1e-5)
         assert row["tortuosity_mean"] == pytest.approx(fibers["tortuosity"].mean(), rel=1e-5)
         assert 0.2 < row["porosity"] < 0.95 and row["n_junctions"] > 0
-        assert row["rows_analysed"] == "0:240"
+        assert row["rows_analysed"] == "0:192"
         assert json.loads((out / row["folder"] / "run.json").read_text())["status"] == "complete"
     assert not (out / "broken").exists()
     assert json.loads((out / "run.json").read_text())["status"] == "complete"
