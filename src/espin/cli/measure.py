@@ -192,15 +192,16 @@ def _batch_tables(batch: BatchMeasurement) -> list[Any]:
 
     images = Table(title=f"{len(batch.images)} images, {batch.n_failed} not measured",
                    box=box.SIMPLE_HEAD)
-    for column in ("image", "fibers", "D\n[µm]", "dir\n[°]", "coh.", "tort.", "poros.",
-                   "pore\n[µm]", "junct.\n/µm²"):
-        images.add_column(column, justify="left" if column == "image" else "right",
-                          overflow="fold")
-    for _, r in batch.images.iterrows():
+    names = [Path(f).name for f in batch.images["file"]]
+    images.add_column("image", overflow="fold", min_width=min(30, max(map(len, names))))
+    for column in ("fibers", "D\n[µm]", "dir\n[°]", "coh.", "tort.", "poros.", "pore\n[µm]",
+                   "junct.\n/µm²"):
+        images.add_column(column, justify="right", overflow="fold")
+    for name, (_, r) in zip(names, batch.images.iterrows()):
         if r["status"] != "ok":
-            images.add_row(f"{Path(r['file']).name} [red](not measured)[/red]")
+            images.add_row(f"{name} [red](not measured)[/red]")
             continue
-        images.add_row(Path(r["file"]).name, str(r["n_fibers"]),
+        images.add_row(name, str(r["n_fibers"]),
                        f"{r['diameter_mean_um']:.3g}",
                        f"{r['dominant_direction_deg']:.0f}", f"{r['coherency']:.2f}",
                        f"{r['tortuosity_mean']:.3f}", f"{r['porosity']:.2f}",

@@ -5,7 +5,7 @@ The overlay draws every traced fiber (its centre line, one colour per fiber; twi
 for a fiber traced from edge to edge of the image) and, at every fourth width sample, a white
 tick across the fiber as long as the width measured there, on the analysed image: a user sees
 at a glance what was traced and measured. A legend below the image says so, and a scale bar
-(a round length, about a fifth of the image width) sits in its lower right corner.
+(a round length, at most a fifth of the image width) sits in its lower right corner.
 
 The orientation map is OrientationJ's colour survey: hue = the local fiber direction of the
 structure tensor (:func:`espin.imaging.orientation.local_orientation`, window sigma w / 2),
