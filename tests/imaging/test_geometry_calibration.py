@@ -261,8 +261,13 @@ def test_calibration_from_an_espin_measure_folder(sem_measurement, tmp_path):
     direct = calibrate_geometry(sem_measurement, "plla", **FAST)
     assert result.config.rve.max_deviation_deg == pytest.approx(
         direct.config.rve.max_deviation_deg, abs=0.5)
+    # The diameter target is the fully visible fibers' (fibers.csv's visible column); the
+    # deeper, partly hidden fibers' diameters are left out.
+    visible = sem_measurement.fibers["visible"]
+    assert 0 < visible.sum() < len(visible)
     assert result.config.rve.diameter_um == pytest.approx(
-        float(sem_measurement.fibers["diameter_um"].mean()), rel=1e-3)
+        float(sem_measurement.fibers.loc[visible, "diameter_um"].mean()), rel=1e-3)
+    assert result.config.rve.diameter_um == pytest.approx(direct.config.rve.diameter_um, rel=1e-3)
 
 
 def test_comparison_shows_the_image_beside_a_rendering_at_its_scale(sem_measurement, tmp_path):

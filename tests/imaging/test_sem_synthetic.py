@@ -95,8 +95,13 @@ def test_mean_diameter_within_10_percent_or_1_px(wavy):
         true = float(np.mean(image.diameter_um))
         tolerance = max(0.10 * true, image.um_per_px)
         assert abs(np.median(m.widths_um) - true) <= tolerance
-        # Per-fiber diameters undo the blur of deeper fibers: tighter than the criterion.
-        assert abs(m.fits.diameter_mean_um - true) <= 0.07 * true
+        # The primary diameter, the visible (top) fibers' mean: the criterion. Fewer fibers
+        # than all (23-25 of 46-49), so two fused pairs of top fibers read as one fiber
+        # (0.85 and 0.93 um on mat 1) raise it by 4 %: +10.6 % = 0.85 px on mat 1.
+        assert abs(m.fits.diameter_mean_um - true) <= tolerance
+        # Per-fiber diameters of all fibers undo the blur of deeper fibers: tighter than the
+        # criterion.
+        assert abs(m.diameter_all.mean_um - true) <= 0.07 * true
 
 
 def test_mean_tortuosity_within_0_02_on_wavy_mats(wavy):

@@ -5,8 +5,11 @@ profile fitted to the fiber's median profile), ``orientation_deg`` (axis of the 
 line, [0, 180)), ``tortuosity`` (contour / end-to-end, >= 1), ``contour_length_um``,
 ``end_to_end_um``, ``start_edge`` and ``end_edge`` (the edge of the analysed image that the
 fiber's first / last end lies on: ``bottom``, ``right``, ``top`` or ``left``; empty for an end
-inside the image). An empty number cell is a value that was not measured (e.g. a fiber whose
-every width sample was next to a crossing).
+inside the image), ``visible`` (``True`` for a fully visible top fiber, ``False`` for a partly
+hidden deeper one: :mod:`espin.imaging.visibility`; the diameter sample of a table with this
+column is its visible fibers'). An empty number cell is a value that was not measured (e.g. a
+fiber whose every width sample was next to a crossing). Tables written before the
+``visible`` column existed are read without it (every fiber's diameter counts).
 A table made by hand needs only one of ``diameter_um``, ``orientation_deg``, ``tortuosity``.
 """
 
@@ -20,7 +23,8 @@ import pandas as pd
 from espin.core.atomic import atomic_write
 from espin.core.errors import SEMError
 
-__all__ = ["FIBER_COLUMNS", "EDGE_COLUMNS", "EDGE_NAMES", "read_fibers_csv", "write_fibers_csv"]
+__all__ = ["FIBER_COLUMNS", "EDGE_COLUMNS", "EDGE_NAMES", "VISIBLE_COLUMN", "read_fibers_csv",
+           "write_fibers_csv"]
 
 EDGE_COLUMNS = ("start_edge", "end_edge")
 """Text columns: the image edge each end of a fiber lies on (empty: inside the image)."""
@@ -28,7 +32,9 @@ EDGE_NAMES = ("bottom", "right", "top", "left")
 """Edge names, in the order of :func:`espin.geometry.pieces.border_edges` (0 = bottom)."""
 _NUMBER_COLUMNS = ("diameter_um", "orientation_deg", "tortuosity", "contour_length_um",
                    "end_to_end_um")
-FIBER_COLUMNS = ("fiber", *_NUMBER_COLUMNS, *EDGE_COLUMNS)
+VISIBLE_COLUMN = "visible"
+"""Boolean column: a fully visible top fiber (True) or a partly hidden deeper one (False)."""
+FIBER_COLUMNS = ("fiber", *_NUMBER_COLUMNS, *EDGE_COLUMNS, VISIBLE_COLUMN)
 """Columns of ``fibers.csv``, in order."""
 
 _MEASURED = ("diameter_um", "orientation_deg", "tortuosity")
@@ -61,15 +67,15 @@ def read_fibers_csv(path: str | Path) -> pd.DataFrame:
     -------
     pandas.DataFrame
         The known columns present (others are dropped), as float (``fiber`` as int, the edge
-        columns as text); empty number cells are NaN, empty edge cells "". A missing ``fiber``
-        column is numbered 0, 1, ...
+        columns as text, ``visible`` as bool); empty number cells are NaN, empty edge cells "".
+        A missing ``fiber`` column is numbered 0, 1, ...
 
     Raises
     ------
     SEMError
         Unreadable file, none of the measured columns, a non-numeric cell, a value outside
-        its range or an unknown edge name (the message names the column, the first bad row and
-        the range).
+        its range, an unknown edge name or a ``visible`` cell that is not true or false (the
+        message names the column, the first bad row and the range).
     """
     path = Path(path)
     if not path.is_file():
@@ -89,6 +95,8 @@ def read_fibers_csv(path: str | Path) -> pd.DataFrame:
     for column in EDGE_COLUMNS:
         if column in raw.columns:
             out[column] = _checked_edges(raw[column], column, path)
+    if VISIBLE_COLUMN in raw.columns:
+        out[VISIBLE_COLUMN] = _checked_flags(raw[VISIBLE_COLUMN], path)
     if "fiber" in raw.columns:
         out.insert(0, "fiber", _checked_ids(raw["fiber"], path))
     else:
@@ -123,6 +131,17 @@ def _checked_edges(values: pd.Series, column: str, path: Path) -> pd.Series:
         raise SEMError(f"fibers table {str(path)!r}: column {column}, data row {row + 1}: "
                        f"{values.iloc[row]!r} is not an edge ({', '.join(EDGE_NAMES)} or empty)")
     return names
+
+
+def _checked_flags(values: pd.Series, path: Path) -> pd.Series:
+    words = values.astype(str).str.strip().str.lower()
+    truth = {"true": True, "1": True, "1.0": True, "false": False, "0": False, "0.0": False}
+    bad = ~words.isin(tuple(truth))
+    if bad.any():
+        row = int(np.flatnonzero(bad.to_numpy())[0])
+        raise SEMError(f"fibers table {str(path)!r}: column {VISIBLE_COLUMN}, data row {row + 1}: "
+                       f"{values.iloc[row]!r} is not True or False")
+    return words.map(truth).astype(bool)
 
 
 def _checked_ids(values: pd.Series, path: Path) -> pd.Series:

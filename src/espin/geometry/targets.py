@@ -5,7 +5,9 @@ The targets come from SEM images, one row per traced fiber, as written by ``espi
 * ``fibers.csv`` (read by :func:`espin.geometry.fibers_csv.read_fibers_csv`) with any of the columns
   ``diameter_um``, ``orientation_deg`` (axis in [0, 180) deg), ``tortuosity`` (contour /
   end-to-end length, >= 1), and optionally ``contour_length_um`` and ``end_to_end_um``
-  (tortuosity is their ratio when the ``tortuosity`` column is absent). Other columns are
+  (tortuosity is their ratio when the ``tortuosity`` column is absent), and ``visible``
+  (``espin measure``: the diameter target is then the fully visible fibers' diameters; the
+  orientation and tortuosity stay those of all fibers). Other columns are
   ignored; empty cells are fibers where that quantity was not measured, and a column with no
   value at all is skipped (with a note). The contour lengths of the measured pieces are kept:
   the virtual mat is then measured on pieces of the same lengths (length-matched sampling,
@@ -36,6 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from espin.core.errors import InputError
+from espin.geometry.fibers_csv import VISIBLE_COLUMN
 
 __all__ = ["MeasurementError", "GeometryTargets", "MIN_SAMPLE_SIZE", "equivalent_square_side"]
 
@@ -88,6 +91,22 @@ def _number(value: Any, name: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise MeasurementError(f"{name} must be a number, got {value!r}")
     return float(value)
+
+
+def _visible_diameters(diameter: np.ndarray, visible: Any) -> tuple[np.ndarray, str]:
+    """The diameters of the fully visible fibers (the others NaN: a partly hidden fiber reads
+    narrower, docs/sem.md), and a note; all of them when no fiber is visible."""
+    try:
+        flags = np.asarray(visible, dtype=bool)
+    except (TypeError, ValueError):
+        raise MeasurementError(f"column {VISIBLE_COLUMN} must hold True or False") from None
+    measured = np.isfinite(diameter)
+    if not (flags & measured).any():
+        return diameter, (f"diameter: no fiber is marked {VISIBLE_COLUMN}; the diameters of all "
+                          f"{int(measured.sum())} fibers are the target")
+    return np.where(flags, diameter, np.nan), (
+        f"diameter: the {int((flags & measured).sum())} fully visible fibers of "
+        f"{int(measured.sum())} measured (column {VISIBLE_COLUMN})")
 
 
 def _field_of_view(value: Any) -> tuple[float, float]:
@@ -328,6 +347,10 @@ class GeometryTargets:
                 notes.append(f"column {name} has no values: skipped")
                 continue
             values[name] = column
+        if "diameter_um" in values and VISIBLE_COLUMN in table.columns:
+            values["diameter_um"], note = _visible_diameters(values["diameter_um"],
+                                                             table[VISIBLE_COLUMN])
+            notes.append(note)
         if "tortuosity" not in values and all(c in values for c in LENGTH_COLUMNS):
             with np.errstate(divide="ignore", invalid="ignore"):
                 values["tortuosity"] = values["contour_length_um"] / values["end_to_end_um"]

@@ -6,9 +6,11 @@ Pipeline (one module per step): read the image and its scale (:mod:`espin.imagin
 :mod:`espin.imaging.databar`) -> fiber pixels (:mod:`espin.imaging.segment`) -> fibers traced through
 crossings (:mod:`espin.imaging.trace`) -> local widths (:mod:`espin.imaging.widths`) -> per-fiber
 diameter, orientation and tortuosity as the paper defines them (section 2.2: contour over
-end-to-end length, orientation of the end-to-end line) -> fitted distributions
-(:mod:`espin.imaging.distributions`) and the image's structure-tensor orientation
-(:mod:`espin.imaging.orientation`).
+end-to-end length, orientation of the end-to-end line) -> fully visible (top) fibers against
+partly hidden deeper ones (:mod:`espin.imaging.visibility`) -> fitted distributions
+(:mod:`espin.imaging.distributions`; the diameter of the visible fibers is the primary one,
+the hidden ones' and all fibers' are reported besides) and the image's structure-tensor
+orientation (:mod:`espin.imaging.orientation`).
 
 Long-range shape: the edge of the analysed image each traced fiber's ends lie on, and of the
 fibers traced from edge to edge the fraction that leave through the edge they entered (U-turn
@@ -35,13 +37,15 @@ from espin.core.output_folder import OutputFolder
 from espin.geometry.fibers_csv import EDGE_NAMES, FIBER_COLUMNS, write_fibers_csv
 from espin.geometry.pieces import CrossingStatistics, border_edges, crossing_statistics
 from espin.imaging.databar import DataBar, detect_data_bar
-from espin.imaging.distributions import FittedDistributions, fit_distributions
+from espin.imaging.distributions import (DiameterFits, FittedDistributions, fit_diameter_families,
+                                         fit_distributions)
 from espin.imaging.image import as_grey, parse_rows, read_image, row_slice
 from espin.imaging.metadata import MetadataScale, read_pixel_size
 from espin.imaging.orientation import image_angle_deg, structure_tensor_orientation
 from espin.imaging.scale import ScaleBar, detect_scale_bar
 from espin.imaging.segment import MIN_WIDTH_PX, segment_fibers
 from espin.imaging.trace import trace_fibers
+from espin.imaging.visibility import Visibility, fiber_visibility
 from espin.imaging.widths import WidthSamples, fiber_diameters, local_widths
 
 __all__ = ["SEMMeasurement", "measure", "measurement_digest", "SCHEMA", "MEASURE_OUTPUTS",
@@ -90,7 +94,9 @@ class SEMMeasurement:
         ``orientation_deg`` (end-to-end axis, [0, 180)), ``tortuosity`` (contour /
         end-to-end, >= 1), ``contour_length_um``, ``end_to_end_um``, ``start_edge`` and
         ``end_edge`` (edge of the analysed image that the first / last end lies on:
-        ``bottom``, ``right``, ``top``, ``left``, or "" inside the image).
+        ``bottom``, ``right``, ``top``, ``left``, or "" inside the image), ``visible`` (bool:
+        a fully visible top fiber, :mod:`espin.imaging.visibility`; the primary diameter
+        population).
     widths_um : (n,) float64 [um]
         All local width samples.
     um_per_px : float [um / px]
@@ -102,7 +108,15 @@ class SEMMeasurement:
     coherency : float
         Structure-tensor coherency, 0 (isotropic) to 1 (parallel).
     fits : FittedDistributions
-        Normal diameter, uniform or von Mises orientation (AIC), half-normal tortuosity.
+        Diameter of the visible fibers (normal, lognormal and two-normal mixture, chosen by
+        BIC; ``diameter_mean_um`` and ``diameter_sd_um`` are the normal's), uniform or von
+        Mises orientation (AIC) and half-normal tortuosity of all fibers.
+    diameter_hidden : DiameterFits
+        The same diameter fits for the fibers not visible (partly hidden, deeper).
+    diameter_all : DiameterFits
+        And for all fibers.
+    visibility : Visibility
+        Features and class of each fiber of ``fibers`` (same order).
     n_crossing : int
         Traced fibers whose two ends lie on edges of the analysed image (``start_edge`` and
         ``end_edge`` of ``fibers`` both set).
@@ -118,6 +132,8 @@ class SEMMeasurement:
         Fiber width that scaled the filters.
     image : (rows, cols) float64
         The analysed grey image (cropped).
+    mask : (rows, cols) bool
+        Fiber pixels of the analysed image (:attr:`espin.imaging.segment.Segmentation.mask`).
     rows : tuple[int, int]
         Rows of the original image that were analysed (start, stop).
     paths_px : list of (n_i, 2) float64 [px]
@@ -156,12 +172,16 @@ class SEMMeasurement:
     dominant_direction_deg: float
     coherency: float
     fits: FittedDistributions
+    diameter_hidden: DiameterFits
+    diameter_all: DiameterFits
+    visibility: Visibility
     n_crossing: int
     u_turn_fraction: float
     straightness: float
     min_chord_um: float
     typical_width_px: float
     image: np.ndarray
+    mask: np.ndarray
     rows: tuple[int, int]
     paths_px: list[np.ndarray]
     width_samples: WidthSamples
@@ -206,12 +226,15 @@ class SEMMeasurement:
                       "data_bar": None if self.data_bar is None else self.data_bar.describe()},
             "scale": scale,
             "counts": {"fibers": len(f), "width_samples": len(self.widths_um),
-                       "junctions": len(self.junctions_px)},
-            "diameter": {"distribution": "normal", "mean_um": fits.diameter_mean_um,
-                         "sd_um": fits.diameter_sd_um,
-                         "median_um": _nan_stat(np.nanmedian, f["diameter_um"]),
-                         "local_mean_um": _nan_stat(np.mean, self.widths_um),
-                         "local_sd_um": _nan_stat(np.std, self.widths_um)},
+                       "junctions": len(self.junctions_px),
+                       "visible": int(f["visible"].sum()), "hidden": int((~f["visible"]).sum())},
+            "diameter": {"population": "visible", **fits.diameter.summary(),
+                         "visibility_rule": self.visibility.rule,
+                         "brightness_threshold": self.visibility.threshold},
+            "diameter_hidden": {"population": "hidden", **self.diameter_hidden.summary()},
+            "diameter_all": {"population": "all", **self.diameter_all.summary(),
+                             "local_mean_um": _nan_stat(np.mean, self.widths_um),
+                             "local_sd_um": _nan_stat(np.std, self.widths_um)},
             "orientation": {"dominant_direction_deg": self.dominant_direction_deg,
                             "coherency": self.coherency,
                             "selection": "AIC",
@@ -245,8 +268,11 @@ class SEMMeasurement:
              f"{self.field_of_view_um[0]:.4g} x {self.field_of_view_um[1]:.4g} um"),
             ("fibers traced", f"{len(f)} (end-to-end >= {self.min_chord_um:.3g} um, median "
                               f"{_nan_stat(np.median, f['end_to_end_um']):.3g} um)"),
-            ("diameter", f"{fits.diameter_mean_um:.4g} +- {fits.diameter_sd_um:.3g} um (normal, "
-                         f"per fiber; {len(self.widths_um)} local widths)"),
+            ("diameter", self._diameter_text(fits.diameter, "visible fibers")),
+            ("  hidden fibers", self._diameter_text(self.diameter_hidden, "partly hidden, deeper")),
+            ("  all fibers", f"mean {self.diameter_all.mean_um:.4g} +- "
+                             f"{self.diameter_all.sd_um:.3g} um ({self.diameter_all.n}; "
+                             f"{len(self.widths_um)} local widths)"),
             ("orientation", f"dominant {self.dominant_direction_deg:.1f} deg, coherency "
                             f"{self.coherency:.3f}; fibers: {orient} (AIC)"),
             ("tortuosity", f"mean {_nan_stat(np.mean, f['tortuosity']):.4f}; half-normal loc 1, "
@@ -254,6 +280,22 @@ class SEMMeasurement:
                            "fibers across the image: espin calibrate-geometry)"),
             ("edge to edge", self._crossing_text()),
         ]
+
+    @staticmethod
+    def _diameter_text(fits: DiameterFits, population: str) -> str:
+        if fits.n == 0:
+            return f"none ({population})"
+        text = (f"{fits.mean_um:.4g} +- {fits.sd_um:.3g} um, median {fits.median_um:.4g} "
+                f"({fits.n} {population}")
+        if not fits.chosen:
+            return text + ")"
+        if fits.chosen == "mixture" and fits.mixture is not None:
+            m = fits.mixture
+            family = (f"mixture {m.weight:.2f} x {m.mean_1:.3g} +- {m.sd_1:.2g} and "
+                      f"{1 - m.weight:.2f} x {m.mean_2:.3g} +- {m.sd_2:.2g}")
+        else:
+            family = fits.chosen
+        return text + f"; {family} by BIC)"
 
     def _scale_text(self) -> str:
         if self.scale_bar is not None:
@@ -567,6 +609,9 @@ def _measure_grey(grey: np.ndarray, um_per_px: float, width_px: float | None,
     renumber[kept] = np.arange(len(kept))
     on_kept = renumber[samples.fiber] >= 0
     samples = samples.subset(on_kept, renumber[samples.fiber[on_kept]])
+    visibility = fiber_visibility(grey, [paths[i] for i in kept], samples, traced.junctions,
+                                  crossings, seg.width_px)
+    visible = visibility.visible & np.isfinite(diameter_px)
     contour_px = np.maximum(contour[kept], chord[kept])
     edges, edge_to_edge = _edge_crossings([paths[i] for i in kept], contour_px, grey.shape,
                                           seg.width_px)
@@ -580,17 +625,22 @@ def _measure_grey(grey: np.ndarray, um_per_px: float, width_px: float | None,
         "end_to_end_um": chord[kept] * um_per_px,
         "start_edge": names[edges[:, 0]],
         "end_edge": names[edges[:, 1]],
+        "visible": visible,
     }, columns=list(FIBER_COLUMNS))
     direction, coherency = structure_tensor_orientation(seg.flat)
-    fits = fit_distributions(fibers["diameter_um"].to_numpy(), fibers["orientation_deg"].to_numpy(),
+    diameter_um = fibers["diameter_um"].to_numpy()
+    fits = fit_distributions(diameter_um[visible], fibers["orientation_deg"].to_numpy(),
                              fibers["tortuosity"].to_numpy())
     return SEMMeasurement(
         fibers=fibers, widths_um=samples.width_px * um_per_px, um_per_px=um_per_px,
         field_of_view_um=(grey.shape[1] * um_per_px, grey.shape[0] * um_per_px),
         dominant_direction_deg=direction, coherency=coherency, fits=fits,
+        diameter_hidden=fit_diameter_families(diameter_um[~visible]),
+        diameter_all=fit_diameter_families(diameter_um), visibility=visibility,
         n_crossing=edge_to_edge.n_crossing, u_turn_fraction=edge_to_edge.u_turn_fraction,
         straightness=edge_to_edge.straightness,
-        min_chord_um=min_chord_px * um_per_px, typical_width_px=typical, image=grey, rows=rows,
+        min_chord_um=min_chord_px * um_per_px, typical_width_px=typical, image=grey,
+        mask=seg.mask, rows=rows,
         paths_px=[paths[i] for i in kept], width_samples=samples, junctions_px=traced.junctions,
         source=source, inputs_digest=inputs_digest, **scale_fields,
     )

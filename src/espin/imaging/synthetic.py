@@ -39,6 +39,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 from numpy.typing import ArrayLike
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from espin.core.errors import ConfigError
 from espin.geometry.mat import FiberMat
@@ -116,6 +117,38 @@ class SyntheticSEM:
         layer = self.fiber_layer[np.clip(fiber, 0, None)]
         depth = self.layers[0] - layer
         return np.where((fiber >= 0) & (depth < len(self.layers)), depth, -1)
+
+    def followed(self, paths: list[np.ndarray], junctions: np.ndarray,
+                 away_px: float) -> np.ndarray:
+        """The mat fiber each traced centre line follows: the most frequent ``label`` at its
+        points at least ``away_px`` from every junction (at all its points if none is).
+
+        Parameters
+        ----------
+        paths : list of (n_i, 2) float64 [px]
+            Centre lines (row, col) on this image.
+        junctions : (m, 2) float64 [px]
+            Junction centres (row, col): near them the label is the crossing fiber's.
+        away_px : float [px]
+            Points closer than this to a junction are left out (e.g. a fiber width).
+
+        Returns
+        -------
+        (n,) int64
+            Mat fiber indices (-1: the background, a path off every fiber); their
+            :meth:`depth` is the truth of a visibility classification.
+        """
+        tree = cKDTree(junctions) if len(junctions) else None
+        out = np.full(len(paths), -1, dtype=np.int64)
+        for i, path in enumerate(paths):
+            if len(path) == 0:
+                continue
+            far = path if tree is None else path[tree.query(path)[0] >= away_px]
+            pixel = np.clip(np.round(far if len(far) else path).astype(np.int64), 0,
+                            np.array(self.label.shape) - 1)
+            values, counts = np.unique(self.label[pixel[:, 0], pixel[:, 1]], return_counts=True)
+            out[i] = values[np.argmax(counts)]
+        return out
 
 
 def render_sem(

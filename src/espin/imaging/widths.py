@@ -22,7 +22,7 @@ import numpy as np
 from scipy import ndimage, optimize, special
 from scipy.spatial import cKDTree
 
-__all__ = ["WidthSamples", "fiber_diameters", "local_widths"]
+__all__ = ["WidthSamples", "fiber_diameters", "local_widths", "sample_counts"]
 
 _MIN_CONTRAST = 0.1  # peak minus background, in units of the flattened image (0-1)
 _PROFILE_STEP = 0.25  # px
@@ -93,6 +93,27 @@ def local_widths(flat: np.ndarray, paths: list[np.ndarray], junctions: np.ndarra
     ok = ok_r & ok_l & (width > 0)
     return WidthSamples(fiber=fiber[ok], point=point[ok], normal=normal[ok], width_px=width[ok],
                         centre_px=0.5 * (right - left)[ok] * _PROFILE_STEP)
+
+
+def sample_counts(paths: list[np.ndarray], junctions: np.ndarray, width_px: float) -> np.ndarray:
+    """Number of points of each fiber where :func:`local_widths` looks for a width (valid or
+    not: every ``max(1, w / 4)`` px, away from junctions and ends).
+
+    Parameters
+    ----------
+    paths : list of (n_i, 2) float64 [px]
+        Fiber centre lines (row, col), one point per pixel of arc length.
+    junctions : (n_junctions, 2) float64 [px]
+        As given to :func:`local_widths`.
+    width_px : float [px]
+        Typical fiber width w.
+
+    Returns
+    -------
+    (len(paths),) int64
+    """
+    fiber, _, _ = _sample_points(paths, junctions, float(width_px))
+    return np.bincount(fiber, minlength=len(paths)).astype(np.int64)
 
 
 def fiber_diameters(flat: np.ndarray, samples: WidthSamples, n_fibers: int,
