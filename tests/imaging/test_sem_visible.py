@@ -22,7 +22,7 @@ from espin.geometry.targets import GeometryTargets
 from espin.imaging.distributions import fit_diameter_families, fit_normal_mixture
 from espin.imaging.measurement import measure
 from espin.imaging.synthetic import render_sem
-from espin.imaging.visibility import SINGLE_THRESHOLD, classify
+from espin.imaging.visibility import MIN_EDGE_CONTRAST, SINGLE_THRESHOLD, classify
 
 D = 0.45  # um, plla diameter
 RENDERINGS = [
@@ -63,7 +63,7 @@ def test_one_population_keeps_the_fixed_threshold():
     rng = np.random.default_rng(0)
     bright = rng.normal(0.93, 0.04, 40)
     features = {"brightness": bright, "edge_sigma_px": np.ones(40), "occluded": np.zeros(40),
-                "both_edges": np.ones(40)}
+                "both_edges": np.ones(40), "edge_contrast": np.full(40, 0.8)}
     found = classify(features)
     assert found.threshold == SINGLE_THRESHOLD and found.rule.startswith("one population")
     assert found.visible.all()
@@ -74,8 +74,11 @@ def test_one_population_keeps_the_fixed_threshold():
     assert found.rule.startswith("two populations") and 0.65 < found.threshold < 0.85
     assert found.visible[:40].all() and not found.visible[40:].any()
     # A fiber covered at most of its crossings is hidden however bright.
-    covered = features | {"occluded": np.r_[np.ones(3), np.zeros(37)]}
-    assert classify(covered).visible.sum() == 37
+    covered = features | {"occluded": np.r_[np.ones(3), np.full(2, 0.5), np.zeros(35)]}
+    assert classify(covered).visible.sum() == 37  # more than half: 1, not 0.5
+    # And one without a free edge (a trace along the rim of a wider fiber).
+    rim = features | {"edge_contrast": np.r_[np.full(4, MIN_EDGE_CONTRAST - 0.01), np.full(36, 0.8)]}
+    assert classify(rim).visible.sum() == 36
 
 
 def test_mixture_recovers_two_populations_and_bic_chooses():

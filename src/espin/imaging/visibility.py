@@ -12,13 +12,18 @@ edge. Per traced fiber, :func:`fiber_features` measures:
   samples within a quarter of the image diagonal, so that uneven illumination cancels);
 - ``edge_sigma_px``: the blur of its edges [px], sigma of the Gaussian-blurred step whose
   steepest slope is that of its median profile (1 / (sqrt(2 pi) sigma) for a unit step);
+- ``edge_contrast``: how free its weaker edge is: the drop of its profile from the plateau
+  to the lowest level within w / 2 beyond that edge, over the plateau above the dark level
+  (median along the fiber; 1 with background on both sides, near 0 for a trace along the
+  rim of a wider fiber or between two fibers lying side by side);
 - ``occluded``: of the junctions on its path, the fraction where the image is
   :data:`OCCLUSION_RATIO` times as bright as its own plateau or more (a brighter fiber covers
   it there);
 - ``both_edges``: the fraction of its width sample points where both edges were found.
 
-The rule (:func:`classify`): a fiber is visible when its brightness is at least a threshold
-and it is covered at no more than half of its junctions (:data:`OCCLUDED_FRACTION`). The
+The rule (:func:`classify`): a fiber is visible when its brightness is at least a threshold,
+both its edges are free (edge contrast at least :data:`MIN_EDGE_CONTRAST`) and it is covered
+at no more than half of its junctions (:data:`OCCLUDED_FRACTION`). The
 threshold comes from the image: a mixture of two normals is fitted to ln brightness
 (:func:`espin.imaging.distributions.fit_normal_mixture`); when it has a smaller BIC than one
 normal, its components are :data:`MIN_SEPARATION` times apart or more and the smaller holds
@@ -27,11 +32,14 @@ mean of their two levels; else it shows one, and the threshold is :data:`SINGLE_
 
 Why these features and these numbers (benchmarks/bench_sem_visible.py: 14 renderings of
 virtual mats, 570 traced fibers of the top layer or the one below; docs/sem.md): brightness
-is 0.942 +- 0.048 on the top layer (5th-95th percentile 0.85-1.00) and 0.581 +- 0.074 one
-layer down (0.47-0.67): the two differ by 5.8 pooled standard deviations. Edge blur (1.41 +-
-0.15 against 1.74 +- 0.22 px) differs by 1.7, the fraction of both edges found (0.97 against
-0.93) by less than 1, so both are reported, not used. The covered fraction is 0.01 +- 0.07 on
-top fibers and 0.52 +- 0.39 below: half of the deeper fibers show no covered junction (their
+is 0.945 +- 0.044 on the top layer (5th-95th percentile 0.86-1.00) and 0.585 +- 0.072 one
+layer down (0.48-0.68): the two differ by 6.0 pooled standard deviations. Edge blur (1.42 +-
+0.14 against 1.74 +- 0.22 px) differs by 1.7, the fraction of both edges found (0.97 against
+0.93) by less than 1, so both are reported, not used. Edge contrast (0.76 +- 0.13 against
+0.70 +- 0.17) does not tell the layers apart either; it removes what is no whole fiber of the
+top: on PLGA-1500_1, where brightness does not separate the layers, the 13 traces it removes
+are mostly rims of thick fibers read as 1-um fibers. The covered fraction is 0.004 +- 0.036 on
+top fibers and 0.52 +- 0.40 below: half of the deeper fibers show no covered junction (their
 crossings are traced as their ends), so it can only veto. The threshold sits in the middle
 (in ln) of the two levels rather than where the fitted components are equally likely: the
 top component is narrow (sd 0.03-0.05 in ln) and top fibers in a shaded corner or under
@@ -53,7 +61,7 @@ from espin.imaging.distributions import MIN_COMPONENT, fit_normal_mixture
 from espin.imaging.widths import WidthSamples, sample_counts
 
 __all__ = ["Visibility", "classify", "fiber_features", "fiber_visibility", "OCCLUSION_RATIO",
-           "OCCLUDED_FRACTION", "MIN_SEPARATION", "SINGLE_THRESHOLD"]
+           "OCCLUDED_FRACTION", "MIN_EDGE_CONTRAST", "MIN_SEPARATION", "SINGLE_THRESHOLD"]
 
 OCCLUSION_RATIO = 1.25
 """A junction at least this many times brighter (above the dark level) than a fiber's plateau
@@ -66,16 +74,24 @@ the benchmark's renderings brightness alone decides (the veto changed none of 57
 it is the analyst's rule where brightness does not separate the layers."""
 MIN_SEPARATION = 1.2
 """The two components of ln brightness must be this factor apart to be two populations: on
-the benchmark's renderings the layer below was 1.45-1.77 times dimmer than the top (1.45-1.49
+the benchmark's renderings the layer below was 1.44-1.75 times dimmer than the top (1.44-1.47
 with a dimming of 0.25 per layer), while the two components fitted to one population (images
-where no deeper fiber was traced) were 1.12-1.14 apart, and BIC alone preferred them on one."""
+where no deeper fiber was traced) were 1.11-1.13 apart, and BIC alone preferred them on both."""
+MIN_EDGE_CONTRAST = 0.3
+"""Both edges free: beside its weaker edge a visible fiber's profile drops by at least this
+fraction of its plateau (above the dark level). On the benchmark's renderings top fibers
+dropped by 0.76 +- 0.13, at least 0.425 (a deeper fiber touching one edge, 0.65 as bright:
+0.35 before blur); on PLGA-1500_1 the traces along one bright rim of a thick fiber dropped by
+0.08-0.22, and top fibers lying side by side with another by 0.17-0.29 (an analyst skips
+both: an edge between two fibers is not a free edge)."""
 SINGLE_THRESHOLD = 0.7
 """Brightness below which a fiber is hidden when the image shows one population: below the
-top layer's 5th percentile (0.85; its lowest of 342 values were 0.68, 0.75, 0.76) and above
-the 95th percentile of the layer below (0.67)."""
+top layer's 5th percentile (0.86; its lowest of 342 values were 0.70, 0.76, 0.77) and at
+the 95th percentile of the layer below (0.68)."""
 _REFERENCE_QUANTILE = 90.0  # percentile of the plateaus around a sample: the brightest fibers
 _REFERENCE_RADIUS = 0.25  # of the image diagonal
 _DARK_PERCENTILE = 0.5
+_STEP = 0.25  # px, between the points of a profile
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,6 +106,9 @@ class Visibility:
         Plateau over the brightest fibers' around it, both above the dark level (1: as bright).
     edge_sigma_px : (n,) float64 [px]
         Blur of its edges.
+    edge_contrast : (n,) float64
+        Drop from its plateau to the lower level beside its weaker edge, over the plateau
+        above the dark level (1: background on both sides; 0: no edge).
     occluded : (n,) float64
         Fraction of its crossings where a brighter fiber covers it (NaN with no crossing).
     both_edges : (n,) float64
@@ -103,6 +122,7 @@ class Visibility:
     visible: np.ndarray
     brightness: np.ndarray
     edge_sigma_px: np.ndarray
+    edge_contrast: np.ndarray
     occluded: np.ndarray
     both_edges: np.ndarray
     threshold: float
@@ -133,36 +153,27 @@ def fiber_features(grey: np.ndarray, paths: list[np.ndarray], samples: WidthSamp
     Returns
     -------
     dict of (n,) float64
-        ``brightness``, ``edge_sigma_px``, ``occluded``, ``both_edges``.
+        ``brightness``, ``edge_sigma_px``, ``edge_contrast``, ``occluded``, ``both_edges``.
     """
     n, w = len(paths), float(width_px)
     smooth = ndimage.gaussian_filter(grey, max(1.0, w / 8.0))
     dark = float(np.percentile(smooth, _DARK_PERCENTILE))
-    plateau = _plateaus(smooth, samples, w) - dark
-    brightness = np.full(n, np.nan)
-    own = np.full(n, np.nan)
-    if len(plateau):
-        reference = _reference(plateau, samples.point, math.hypot(*grey.shape) * _REFERENCE_RADIUS)
-        relative = plateau / np.maximum(reference, 1e-12)
-        for f in np.unique(samples.fiber):
-            mine = samples.fiber == f
-            brightness[f] = np.median(relative[mine])
-            own[f] = np.median(plateau[mine])
     counts = sample_counts(paths, crossings, w)
     found = np.bincount(samples.fiber, minlength=n)
     with np.errstate(divide="ignore", invalid="ignore"):
         both = np.where(counts > 0, found / counts, np.nan)
-    return {"brightness": brightness, "edge_sigma_px": _edge_sigma(smooth, samples, n, w),
+    if len(samples.fiber) == 0:
+        nothing = np.full(n, np.nan)
+        return {"brightness": nothing, "edge_sigma_px": nothing, "edge_contrast": nothing,
+                "occluded": nothing, "both_edges": both}
+    sides, top = _side_profiles(smooth, samples, w)
+    plateau = top[:len(samples.fiber)] - dark
+    reference = _reference(plateau, samples.point, math.hypot(*grey.shape) * _REFERENCE_RADIUS)
+    own = _per_fiber(plateau, samples.fiber, n)
+    return {"brightness": _per_fiber(plateau / np.maximum(reference, 1e-12), samples.fiber, n),
+            "edge_sigma_px": _edge_sigma(sides, top, samples.fiber, n),
+            "edge_contrast": _edge_contrast(sides, top, dark, samples.fiber, n),
             "occluded": _occluded(smooth - dark, paths, junctions, own, w), "both_edges": both}
-
-
-def _plateaus(smooth: np.ndarray, samples: WidthSamples, w: float) -> np.ndarray:
-    """Mean of the image over the middle half of each sample's width (across its centre)."""
-    centre = samples.point + samples.centre_px[:, None] * samples.normal
-    t = np.linspace(-0.25, 0.25, 5)[None, :] * samples.width_px[:, None]
-    coords = centre[:, None, :] + t[:, :, None] * samples.normal[:, None, :]
-    values = ndimage.map_coordinates(smooth, coords.reshape(-1, 2).T, order=1, mode="nearest")
-    return values.reshape(len(centre), -1).mean(axis=1)
 
 
 def _reference(plateau: np.ndarray, point: np.ndarray, radius: float) -> np.ndarray:
@@ -173,38 +184,65 @@ def _reference(plateau: np.ndarray, point: np.ndarray, radius: float) -> np.ndar
     return np.array([np.percentile(plateau[i], _REFERENCE_QUANTILE) for i in near])
 
 
-def _edge_sigma(smooth: np.ndarray, samples: WidthSamples, n: int, w: float) -> np.ndarray:
-    """Blur sigma [px] of each fiber's edges: 1 / (sqrt(2 pi) s), s the steepest slope of the
-    median of its profiles, each scaled from its background (0) to its plateau (1)."""
-    out = np.full(n, np.nan)
-    if len(samples.fiber) == 0:
-        return out
-    step = 0.25
-    t = np.arange(-int(np.ceil(1.5 * w / step)), int(np.ceil(1.5 * w / step)) + 1) * step
+def _side_profiles(smooth: np.ndarray, samples: WidthSamples,
+                   w: float) -> tuple[np.ndarray, np.ndarray]:
+    """Each sample's profile folded onto its two sides (t >= 0 from its centre, every 0.25 px,
+    +inf beyond half its width + w / 2: the next fiber), and its plateau (mean over the middle
+    half of its width).
+
+    Returns
+    -------
+    sides : (2 n_samples, k) float64
+        The right sides of all samples, then the left ones.
+    top : (2 n_samples,) float64
+        The plateau of the sample of each side.
+    """
+    reach = 0.5 * samples.width_px + 0.5 * w
+    t = np.arange(int(np.ceil(reach.max() / _STEP)) + 1) * _STEP
+    t = np.concatenate([-t[:0:-1], t])
     centre = samples.point + samples.centre_px[:, None] * samples.normal
     coords = centre[:, None, :] + t[None, :, None] * samples.normal[:, None, :]
     profile = ndimage.map_coordinates(smooth, coords.reshape(-1, 2).T, order=1,
                                       mode="nearest").reshape(len(centre), len(t))
     middle = np.abs(t)[None, :] <= 0.25 * samples.width_px[:, None]
-    outer = np.abs(t)[None, :] <= 0.5 * samples.width_px[:, None] + 0.5 * w  # not the next fiber
-    top = np.where(middle, profile, np.nan)
-    with np.errstate(invalid="ignore"):
-        top = np.nanmean(top, axis=1)
+    top = np.nanmean(np.where(middle, profile, np.nan), axis=1)
+    inside = np.where(np.abs(t)[None, :] <= reach[:, None], profile, np.inf)
     half = len(t) // 2
-    # each side folded onto t >= 0: the slope of the outer edge
-    inside = np.where(outer, profile, np.inf)
-    sides = np.concatenate([inside[:, half:], inside[:, half::-1]])
+    return np.concatenate([inside[:, half:], inside[:, half::-1]]), np.concatenate([top, top])
+
+
+def _edge_contrast(sides: np.ndarray, top: np.ndarray, dark: float,
+                   fiber: np.ndarray, n: int) -> np.ndarray:
+    """Median over each fiber's samples of the weaker side's drop from the plateau to that
+    side's lowest level, over the plateau above the dark level."""
+    drop = (top - sides.min(axis=1)) / np.maximum(top - dark, 1e-12)
+    weaker = np.minimum(*drop.reshape(2, -1))
+    return _per_fiber(weaker, fiber, n)
+
+
+def _edge_sigma(sides: np.ndarray, top: np.ndarray, fiber: np.ndarray, n: int) -> np.ndarray:
+    """Blur sigma [px] of each fiber's edges: 1 / (sqrt(2 pi) s), s the steepest slope of the
+    median of its sides, each scaled from its lowest level (0) to the plateau (1)."""
+    out = np.full(n, np.nan)
     base = sides.min(axis=1)
-    scale = np.maximum(np.concatenate([top, top]) - base, 1e-12)
+    scale = np.maximum(top - base, 1e-12)
     unit = np.where(np.isfinite(sides), (sides - base[:, None]) / scale[:, None], np.nan)
-    fibers = np.concatenate([samples.fiber, samples.fiber])
-    for f in np.unique(fibers):
-        with warnings.catch_warnings():  # offsets beyond every profile's reach are NaN
+    both = np.concatenate([fiber, fiber])
+    for f in np.unique(fiber):
+        with warnings.catch_warnings():  # offsets beyond every side's reach are NaN
             warnings.simplefilter("ignore", RuntimeWarning)
-            median = np.nanmedian(unit[fibers == f], axis=0)
-        slope = -np.nanmin(np.diff(median)) / step
+            median = np.nanmedian(unit[both == f], axis=0)
+        slope = -np.nanmin(np.diff(median)) / _STEP
         if slope > 0:
             out[f] = 1.0 / (math.sqrt(2.0 * math.pi) * slope)
+    return out
+
+
+def _per_fiber(values: np.ndarray, fiber: np.ndarray, n: int) -> np.ndarray:
+    """Median of sample values per fiber (NaN for a fiber without samples)."""
+    out = np.full(n, np.nan)
+    for f in np.unique(fiber):
+        out[f] = np.median(values[fiber == f])
     return out
 
 
@@ -243,10 +281,12 @@ def classify(features: dict[str, np.ndarray]) -> Visibility:
     threshold, rule = _threshold(brightness[np.isfinite(brightness)])
     occluded = np.asarray(features["occluded"], dtype=float)
     covered = np.isfinite(occluded) & (occluded > OCCLUDED_FRACTION)
+    contrast = np.asarray(features["edge_contrast"], dtype=float)
     with np.errstate(invalid="ignore"):
-        visible = (brightness >= threshold) & ~covered
+        visible = (brightness >= threshold) & (contrast >= MIN_EDGE_CONTRAST) & ~covered
     return Visibility(visible=visible, brightness=brightness,
                       edge_sigma_px=np.asarray(features["edge_sigma_px"], dtype=float),
+                      edge_contrast=contrast,
                       occluded=occluded, both_edges=np.asarray(features["both_edges"], dtype=float),
                       threshold=threshold, rule=rule)
 
