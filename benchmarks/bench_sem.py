@@ -43,7 +43,7 @@ def synthetic_accuracy() -> None:
             v = image.visible
             true_dir = np.degrees(np.angle(np.sum(v.contour_length * np.exp(2j * v.orientation))) / 2)
             turn = (m.dominant_direction_deg - true_dir + 90) % 180 - 90
-            d_err = m.fits.diameter_mean_um / np.mean(image.diameter_um) - 1
+            d_err = m.diameter_all.mean_um / np.mean(image.diameter_um) - 1  # all fibers
             chords = (np.median(m.fibers["end_to_end_um"]) / D, np.median(v.chord_length) / D)
             print(f"{label} | {seed} | {len(m.fibers)} / {len(v)} | {100 * d_err:+.1f} % | "
                   f"{m.fibers['tortuosity'].mean():.4f} / {v.tortuosity.mean():.4f} | "
@@ -73,12 +73,12 @@ def real_images() -> None:
     runs.append(("nanofiber cropped", measure(grey[16:-16, 32:-32], um_per_px=0.05), 0))
     runs.append(("nanofiber x0.8", measure(rescale(grey, 0.8, anti_aliasing=True),
                                            um_per_px=0.05 / 0.8), 0))
-    print("\nimage | um/px | fibers | diameter mean +- sd [um] | median local width [um] | "
+    print("\nimage | um/px | fibers | diameter mean +- sd, all fibers [um] | median local width [um] | "
           "tortuosity mean | half-normal scale | dominant [deg] | coherency | orientation fit | time [s]")
     for label, m, elapsed in runs:
         f = m.fits
-        print(f"{label} | {m.um_per_px:.5f} | {len(m.fibers)} | {f.diameter_mean_um:.3f} +- "
-              f"{f.diameter_sd_um:.3f} | {np.median(m.widths_um):.3f} | "
+        print(f"{label} | {m.um_per_px:.5f} | {len(m.fibers)} | {m.diameter_all.mean_um:.3f} +- "
+              f"{m.diameter_all.sd_um:.3f} | {np.median(m.widths_um):.3f} | "
               f"{m.fibers['tortuosity'].mean():.4f} | {f.tortuosity_scale:.4f} | "
               f"{m.dominant_direction_deg:.1f} | {m.coherency:.3f} | {f.orientation_model} | "
               f"{elapsed:.2f}")
