@@ -304,6 +304,11 @@ class FiberConfig(_Section):
     """Initial resistance to flow b_p [MPa], in [1e-6, 1e6]."""
     hardening_exponent: Annotated[float, Field(ge=0.0, le=100.0)] = 0.5
     """Post-yield hardening exponent c_p, in [0, 100]."""
+    bending_modulus_MPa: Annotated[float, Field(ge=0.0, le=MAX_MODULUS_MPA)] = 0.0
+    """Modulus E of an opt-in bending stiffness E I (I = pi D^4 / 64) of each fiber across its
+    nodes [MPa], in [0, 1e6]; 0 (default): no bending, the paper's model. The physical value
+    is the fiber's Young's modulus (E_t); it makes compression-dominated states (lateral
+    ``free``, large prescribed contraction) solvable (docs/model.md section 3)."""
 
     @model_validator(mode="after")
     def _check(self) -> FiberConfig:

@@ -10,6 +10,8 @@ the element exerts on e1 is +T a), and the 2 x 2 stiffness block is
     k = (dT/dl) a (x) a + (T / l) (I - a (x) a),
 
 entering the 4 x 4 element matrix as [[k, -k], [-k, k]] (paper 3.1.4; docs/model.md section 4).
+With fiber bending on (:mod:`espin.mechanics.bending`), each joint's 6 x 6 matrix over its
+three nodes is summed into the same pattern.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from espin.geometry.network import Network
+from espin.mechanics.bending import FiberJoints
 
 __all__ = ["Kinematics", "SparsePattern", "NetworkAssembler"]
 
@@ -54,7 +57,7 @@ class SparsePattern:
     slot : (n_entries,) int64
         Position in ``matrix.data`` of each kept element-matrix entry.
     entry : (n_entries,) int64
-        Which of the (n_elements * 16) element-matrix entries are kept.
+        Which of the element-matrix entries (n_elements * 16, then n_joints * 36) are kept.
     """
 
     matrix: sp.csr_matrix
@@ -62,7 +65,7 @@ class SparsePattern:
     entry: np.ndarray
 
     def fill(self, values: np.ndarray) -> sp.csr_matrix:
-        """Sum flattened element matrices (n_elements * 16,) into a copy of the pattern."""
+        """Sum flattened element (and joint) matrices into a copy of the pattern."""
         data = np.bincount(self.slot, values[self.entry], minlength=self.matrix.nnz)
         out = self.matrix.copy()
         out.data = data
@@ -87,10 +90,13 @@ class NetworkAssembler:
     ----------
     network
         The network; node positions X are taken relative to its centre.
+    joints
+        The fiber joints whose bending springs enter the tangents (None: no bending).
     """
 
-    def __init__(self, network: Network) -> None:
+    def __init__(self, network: Network, joints: FiberJoints | None = None) -> None:
         self.network = network
+        self.joints = joints
         self.n_inner_dof = 2 * network.n_inner
         self.n_dof = 2 * network.n_nodes
         nodes = network.element_nodes
@@ -98,6 +104,9 @@ class NetworkAssembler:
         self._dof = dof
         self._rows = np.repeat(dof, 4, axis=1).ravel()
         self._cols = np.tile(dof, (1, 4)).ravel()
+        if joints is not None:
+            self._rows = np.concatenate([self._rows, np.repeat(joints.dof, 6, axis=1).ravel()])
+            self._cols = np.concatenate([self._cols, np.tile(joints.dof, (1, 6)).ravel()])
         self._patterns: dict[str, SparsePattern] = {}
         self.reference = network.node_position - network.centre
         """(n_nodes, 2) float64 [um]: X relative to the RVE centre."""
@@ -124,7 +133,8 @@ class NetworkAssembler:
         """(n_dof,) gradient of the stored energy: -T a at e1, +T a at e2, summed per DOF.
 
         At equilibrium its inner part vanishes; its border part is the force that the
-        surroundings exert on the border nodes.
+        surroundings exert on the border nodes. Without the joints' part
+        (:meth:`espin.mechanics.bending.FiberJoints.gradient`).
         """
         ta = force[:, None] * kin.unit
         values = np.concatenate([-ta, ta], axis=1).ravel()
@@ -159,7 +169,17 @@ class NetworkAssembler:
             self._patterns[part] = _pattern(r - shift[0], c - shift[1], keep, shape)
         return self._patterns[part]
 
-    def tangent(self, part: str, axial: np.ndarray, transverse: np.ndarray, kin: Kinematics) -> sp.csr_matrix:
+    def _values(self, axial: np.ndarray, transverse: np.ndarray, kin: Kinematics,
+                joint_blocks: np.ndarray | None) -> np.ndarray:
+        """Element matrices, then the joints' (zero where none are given)."""
+        values = self._element_blocks(axial, transverse, kin)
+        if self.joints is None:
+            return values
+        joint = np.zeros(36 * len(self.joints.stiffness)) if joint_blocks is None else joint_blocks.ravel()
+        return np.concatenate([values, joint])
+
+    def tangent(self, part: str, axial: np.ndarray, transverse: np.ndarray, kin: Kinematics,
+                joint_blocks: np.ndarray | None = None) -> sp.csr_matrix:
         """Assemble one block of the stiffness matrix (see :meth:`pattern`).
 
         Parameters
@@ -172,12 +192,16 @@ class NetworkAssembler:
             T / l of each element (the geometric stiffness; callers may clip it).
         kin
             Current element geometry.
+        joint_blocks : (n_joints, 6, 6) float64 [uN/um], optional
+            The joints' matrices (:meth:`espin.mechanics.bending.FiberJoints.blocks`), with
+            bending on.
         """
-        return self.pattern(part).fill(self._element_blocks(axial, transverse, kin))
+        return self.pattern(part).fill(self._values(axial, transverse, kin, joint_blocks))
 
     def tangents(
-        self, parts: tuple[str, ...], axial: np.ndarray, transverse: np.ndarray, kin: Kinematics
+        self, parts: tuple[str, ...], axial: np.ndarray, transverse: np.ndarray, kin: Kinematics,
+        joint_blocks: np.ndarray | None = None,
     ) -> list[sp.csr_matrix]:
         """Several blocks of the stiffness matrix from one evaluation of the element matrices."""
-        blocks = self._element_blocks(axial, transverse, kin)
-        return [self.pattern(part).fill(blocks) for part in parts]
+        values = self._values(axial, transverse, kin, joint_blocks)
+        return [self.pattern(part).fill(values) for part in parts]

@@ -147,21 +147,22 @@ def _record(index, solver: EquilibriumSolver, result: StepResult, strain, counts
     law = result.law
     is_yielded = yielded(law.plastic_stretch, threshold)
     F = result.state.F
+    positions = solver.asm.positions(result.state.inner, F)
     return StepRecord(
         index=index,
         time=result.state.time,
         strain=strain,
         F=F,
-        P=nominal_stress(network, result.force, result.kinematics),
+        P=nominal_stress(network, result.force, result.kinematics, solver.joints, positions),
         P_paper=paper_stress(network, law.stress, result.kinematics),
-        cauchy=cauchy_stress(network, result.force, result.kinematics, F),
+        cauchy=cauchy_stress(network, result.force, result.kinematics, F, solver.joints, positions),
         recruited_fraction=float(volume[law.recruited].sum() / volume.sum()),
         yielded_fraction=float(volume[is_yielded].sum() / volume.sum()),
         iterations=counts[0],
         factorizations=counts[1],
         substeps=counts[2],
         residual=result.residual,
-        positions=solver.asm.positions(result.state.inner, F),
+        positions=positions,
         stress=law.stress,
         plastic_stretch=law.plastic_stretch,
         recruited=law.recruited,
@@ -221,7 +222,7 @@ def run_program(
     if program.test == "uniaxial" and len(program.free_directions):
         log.warning(FREE_LATERAL_NOTE)
     law = FiberLaw.from_config(config.fiber)
-    solver = EquilibriumSolver(network, law, config.solver, linear_solver)
+    solver = EquilibriumSolver(network, law, config.solver, linear_solver, config.fiber.bending_modulus_MPa)
     n_inner = network.n_inner
     directions = program.free_directions
     limit = solver.iteration_limit(len(directions))

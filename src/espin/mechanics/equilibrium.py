@@ -22,6 +22,9 @@ consistent tangent. Newton's method with:
   on that derivative along the line (never as a difference of two large totals);
 * convergence when max |g_I| <= rtol max_e |T_e| + atol E_t mean(A_e) and, under mixed
   control, |P : G_k| <= rtol max |P| + atol E_t phi (phi: fiber volume over V0);
+* with fiber bending on (``fiber.bending_modulus_MPa`` > 0, :mod:`espin.mechanics.bending`),
+  the joints' springs add to Phi, its gradient and its Hessian (the clipped tangent keeps
+  their positive semi-definite part);
 * when Newton fails, a continuation in the slack modulus before the driver cuts the step:
   the step is solved with E_b raised 100-fold (capped at E_t / 2), then 10-fold, then with
   the true E_b, each solve starting from the equilibrium of the one before. Slack and
@@ -47,6 +50,7 @@ from espin.core.config import SolverConfig
 from espin.core.errors import SolverError
 from espin.geometry.network import Network
 from espin.mechanics.assembly import Kinematics, NetworkAssembler
+from espin.mechanics.bending import FiberJoints, fiber_joints
 from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
 from espin.mechanics.linear_solvers import Factorization
 
@@ -142,6 +146,7 @@ class _Point:
 
     z: np.ndarray
     F: np.ndarray
+    x: np.ndarray  # node positions
     kin: Kinematics
     stretch: np.ndarray
     law: LawState
@@ -211,14 +216,20 @@ class EquilibriumSolver:
     linear_solver
         Object with ``factorize(K) -> factorization``; the factorization has ``solve(b)``
         and ``n_negative`` (int, or None when the backend cannot tell).
+    bending_modulus_MPa
+        E of the fibers' bending stiffness across their nodes [MPa]; 0: none
+        (:mod:`espin.mechanics.bending`).
     """
 
-    def __init__(self, network: Network, law: FiberLaw, config: SolverConfig, linear_solver) -> None:
+    def __init__(self, network: Network, law: FiberLaw, config: SolverConfig, linear_solver,
+                 bending_modulus_MPa: float = 0.0) -> None:
         self.network = network
         self.law = law
         self.config = config
         self.linear = linear_solver
-        self.asm = NetworkAssembler(network)
+        self.joints: FiberJoints | None = (fiber_joints(network, bending_modulus_MPa)
+                                           if bending_modulus_MPa > 0 else None)
+        self.asm = NetworkAssembler(network, self.joints)
         self.l0 = network.element_length
         self.area = network.element_area
         self.tortuosity = network.element_tortuosity
@@ -258,8 +269,10 @@ class EquilibriumSolver:
                                None if near is None else near.law.plastic_stretch)
         force, stiffness = axial_force_and_stiffness(law, self.area, self.l0)
         gradient = self.asm.gradient(force, kin)
+        if self.joints is not None:
+            gradient += self.joints.gradient(x, self.asm.n_dof)
         residual = np.concatenate([gradient[:n], step.modes @ gradient[n:]])
-        return _Point(z, F, kin, stretch, law, force, stiffness, gradient, residual)
+        return _Point(z, F, x, kin, stretch, law, force, stiffness, gradient, residual)
 
     def _converged(self, p: _Point, n_free: int) -> tuple[bool, float]:
         n = 2 * self.n_inner
@@ -288,12 +301,18 @@ class EquilibriumSolver:
             return np.maximum(stiffness, 0.0), np.maximum(transverse, 0.0)
         return stiffness, transverse
 
+    def _joint_blocks(self, x: np.ndarray, clipped: bool) -> np.ndarray | None:
+        """The joints' Hessians (their positive semi-definite part if ``clipped``); None
+        without bending."""
+        return None if self.joints is None else self.joints.blocks(x, exact=not clipped)
+
     def _hessian(self, p: _Point, step: _Step, clipped: bool) -> sp.csr_matrix:
         axial, transverse = self._stiffness(p.force, p.stiffness, p.kin, clipped)
+        joints = self._joint_blocks(p.x, clipped)
         modes = step.modes
         if not len(modes):
-            return self.asm.tangent("II", axial, transverse, p.kin)
-        K_II, K_IB, K_BB = self.asm.tangents(("II", "IB", "BB"), axial, transverse, p.kin)
+            return self.asm.tangent("II", axial, transverse, p.kin, joints)
+        K_II, K_IB, K_BB = self.asm.tangents(("II", "IB", "BB"), axial, transverse, p.kin, joints)
         coupling = sp.csr_matrix(K_IB @ modes.T)
         corner = modes @ (K_BB @ modes.T)
         return sp.bmat([[K_II, coupling], [coupling.T, sp.csr_matrix(corner)]], format="csr")
@@ -505,7 +524,9 @@ class EquilibriumSolver:
         kin = result.kinematics
         _, stiffness = axial_force_and_stiffness(result.law, self.area, self.l0)
         axial, transverse = self._stiffness(result.force, stiffness, kin, clipped=False)
-        K_II, K_IB, K_BB = self.asm.tangents(("II", "IB", "BB"), axial, transverse, kin)
+        x = self.asm.positions(result.state.inner, result.state.F)
+        K_II, K_IB, K_BB = self.asm.tangents(("II", "IB", "BB"), axial, transverse, kin,
+                                             self._joint_blocks(x, clipped=False))
         # Border motion for a unit F_kL: x_b = e_k X_bL, flattened like the border DOF.
         X = self.border_reference
         modes = np.zeros((4, 2 * len(X)))

@@ -7,6 +7,11 @@ Reference volume V0 = L^2 N_l D. Index convention P_iJ: i spatial, J reference.
 * The paper's Eq. 17: (1 / V0) sum_e t_e A_e L0_e a_e (x) a_e (fiber volume A L0). It differs
   from P F^T by the factor L0 / l per element.
 * In-plane Cauchy stress at unchanged thickness: (1 / (det F V0)) sum_e T_e l_e a_e (x) a_e.
+
+With fiber bending on (:mod:`espin.mechanics.bending`), the joints' forces g_n add
+(1 / V0) sum_n g_n (x) X_n to P and (1 / (det F V0)) sum_n g_n (x) x_n to the Cauchy stress:
+both sums together are the border reactions' virial, exact in equilibrium. The paper's Eq. 17
+counts the fibers' axial stresses only.
 """
 
 from __future__ import annotations
@@ -15,13 +20,19 @@ import numpy as np
 
 from espin.geometry.network import Network
 from espin.mechanics.assembly import Kinematics
+from espin.mechanics.bending import FiberJoints
 
 __all__ = ["nominal_stress", "paper_stress", "cauchy_stress"]
 
 
-def nominal_stress(network: Network, force: np.ndarray, kin: Kinematics) -> np.ndarray:
-    """(2, 2) nominal stress P [MPa] from element forces T [uN] (docs/model.md section 5)."""
-    return np.einsum("e,ei,eJ->iJ", force, kin.unit, network.element_vector) / network.reference_volume
+def nominal_stress(network: Network, force: np.ndarray, kin: Kinematics,
+                   joints: FiberJoints | None = None, x: np.ndarray | None = None) -> np.ndarray:
+    """(2, 2) nominal stress P [MPa] from element forces T [uN] (docs/model.md section 5),
+    plus the fiber joints' part at node positions ``x`` [um] with bending on."""
+    virial = np.einsum("e,ei,eJ->iJ", force, kin.unit, network.element_vector)
+    if joints is not None:
+        virial = virial + joints.virial(x, network.node_position)
+    return virial / network.reference_volume
 
 
 def paper_stress(network: Network, stress: np.ndarray, kin: Kinematics) -> np.ndarray:
@@ -30,7 +41,12 @@ def paper_stress(network: Network, stress: np.ndarray, kin: Kinematics) -> np.nd
     return np.einsum("e,ei,ej->ij", weight, kin.unit, kin.unit) / network.reference_volume
 
 
-def cauchy_stress(network: Network, force: np.ndarray, kin: Kinematics, F: np.ndarray) -> np.ndarray:
-    """(2, 2) in-plane Cauchy stress [MPa] at unchanged thickness."""
+def cauchy_stress(network: Network, force: np.ndarray, kin: Kinematics, F: np.ndarray,
+                  joints: FiberJoints | None = None, x: np.ndarray | None = None) -> np.ndarray:
+    """(2, 2) in-plane Cauchy stress [MPa] at unchanged thickness, plus the fiber joints'
+    part at node positions ``x`` [um] with bending on."""
     weight = force * kin.length
-    return np.einsum("e,ei,ej->ij", weight, kin.unit, kin.unit) / (np.linalg.det(F) * network.reference_volume)
+    virial = np.einsum("e,ei,ej->ij", weight, kin.unit, kin.unit)
+    if joints is not None:
+        virial = virial + joints.virial(x, x)
+    return virial / (np.linalg.det(F) * network.reference_volume)

@@ -1,0 +1,145 @@
+"""Bending of fibers across their nodes: an opt-in rotational spring at every fiber joint.
+
+In the paper's model a fiber is a chain of axial elements pinned at its cross-links, so a
+compressed chain resists nothing but its slack modulus and buckles freely: states dominated by
+compression (lateral contraction, lateral ``free``) are nearly mechanisms. With
+``fiber.bending_modulus_MPa`` = E > 0 every joint of one fiber (the node b between its
+consecutive elements a-b and b-c) carries a rotational spring
+
+    W = k (1 - cos(theta - theta_0)),    k = E I / lbar,    I = pi D^4 / 64,
+
+theta the turning angle from a-b to b-c (counter-clockwise), theta_0 its as-deposited value,
+lbar the mean contour length of the two elements and D their mean diameter. For small angle
+changes W = k / 2 (theta - theta_0)^2, the discrete elastic rod, whose energy tends to
+E I / 2 * integral of the curvature change squared as the elements shrink; the cosine keeps W
+smooth and bounded when a joint folds over (a squared angle would jump where the angle wraps
+at +-pi). The physical value of E is the fiber's Young's modulus (E_t for a fiber
+whose taut modulus is its material's); 0 switches the term off (the paper's model). The spring
+is elastic (no plastic flow), acts at fixed theta_0 and adds no term at cross-links between
+two fibers (they stay pin joints). docs/model.md section 3.
+
+With u = x_b - x_a and v = x_c - x_b, theta = angle(v) - angle(u) and, with perp(w) = (-w_y,
+w_x), d theta / d x_a = perp(u) / |u|^2, d theta / d x_c = perp(v) / |v|^2 and d theta / d x_b
+= -(d theta / d x_a + d theta / d x_c). With Delta = theta - theta_0, the joint's gradient is
+k sin(Delta) d theta/dx and its Hessian k cos(Delta) (d theta/dx)(d theta/dx)^T (positive
+semi-definite where |Delta| < pi / 2) plus k sin(Delta) d^2 theta / dx^2.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from espin.geometry.network import Network
+
+__all__ = ["FiberJoints", "fiber_joints"]
+
+_ROTATE = np.array([[0.0, -1.0], [1.0, 0.0]])  # perp(w) = R w
+# node coordinates (a, b, c) -> u = x_b - x_a and v = x_c - x_b
+_U = np.hstack([-np.eye(2), np.eye(2), np.zeros((2, 2))])
+_V = np.hstack([np.zeros((2, 2)), -np.eye(2), np.eye(2)])
+
+
+@dataclass(frozen=True, eq=False)
+class FiberJoints:
+    """The joints of every fiber of a network and their rotational springs.
+
+    Attributes
+    ----------
+    nodes : (n_joints, 3) int64
+        Nodes (a, b, c) of each joint: the fiber runs a -> b -> c.
+    stiffness : (n_joints,) float64 [uN um]
+        k = E I / lbar (twice the energy per squared radian of a small angle change).
+    reference_angle : (n_joints,) float64 [rad]
+        Turning angle theta_0 in the reference state, in (-pi, pi].
+    """
+
+    nodes: np.ndarray
+    stiffness: np.ndarray
+    reference_angle: np.ndarray
+
+    @property
+    def dof(self) -> np.ndarray:
+        """(n_joints, 6) int64: DOF (x, y) of a, b and c."""
+        return np.stack([2 * self.nodes, 2 * self.nodes + 1], axis=2).reshape(-1, 6)
+
+    def _geometry(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Angle change theta - theta_0 (wrapped to (-pi, pi]), u, v, and d theta / d(x_a, x_b, x_c)."""
+        u = x[self.nodes[:, 1]] - x[self.nodes[:, 0]]
+        v = x[self.nodes[:, 2]] - x[self.nodes[:, 1]]
+        theta = np.arctan2(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0], np.einsum("ij,ij->i", u, v))
+        change = np.angle(np.exp(1j * (theta - self.reference_angle)))
+        du = (u @ _ROTATE.T) / np.einsum("ij,ij->i", u, u)[:, None]  # -d theta / du
+        dv = (v @ _ROTATE.T) / np.einsum("ij,ij->i", v, v)[:, None]  # d theta / dv
+        return change, u, v, np.hstack([du, -du - dv, dv])
+
+    def energy(self, x: np.ndarray) -> float:
+        """Stored bending energy [uN um] at node positions ``x`` (n_nodes, 2) [um]."""
+        change = self._geometry(x)[0]
+        return float(np.sum(self.stiffness * (1.0 - np.cos(change))))
+
+    def gradient(self, x: np.ndarray, n_dof: int) -> np.ndarray:
+        """(n_dof,) gradient of the bending energy [uN] (the force the surroundings exert)."""
+        change, _, _, jacobian = self._geometry(x)
+        values = (self.stiffness * np.sin(change))[:, None] * jacobian
+        return np.bincount(self.dof.ravel(), values.ravel(), minlength=n_dof)
+
+    def blocks(self, x: np.ndarray, exact: bool) -> np.ndarray:
+        """(n_joints, 6, 6) Hessian of each joint's energy [uN / um] over (x_a, x_b, x_c).
+
+        ``exact`` False keeps only k max(cos(Delta), 0) (d theta/dx)(d theta/dx)^T, positive
+        semi-definite.
+        """
+        change, u, v, jacobian = self._geometry(x)
+        cosine = np.cos(change) if exact else np.maximum(np.cos(change), 0.0)
+        hessian = (self.stiffness * cosine)[:, None, None] * jacobian[:, :, None] * jacobian[:, None, :]
+        if exact:
+            curvature = (np.einsum("ai,nab,bj->nij", _V, _perp_derivative(v), _V)
+                         - np.einsum("ai,nab,bj->nij", _U, _perp_derivative(u), _U))
+            hessian += (self.stiffness * np.sin(change))[:, None, None] * curvature
+        return hessian
+
+    def virial(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(2, 2) sum over joint nodes of g_n (x) y_n [uN um]: the joints' part of V0 P with
+        ``y`` the reference positions X, of det F V0 sigma with ``y`` = ``x``.
+
+        Each joint's forces sum to zero, so the origin of ``y`` does not matter.
+        """
+        change, _, _, jacobian = self._geometry(x)
+        force = ((self.stiffness * np.sin(change))[:, None] * jacobian).reshape(-1, 3, 2)
+        return np.einsum("nki,nkj->ij", force, y[self.nodes])
+
+
+def _perp_derivative(w: np.ndarray) -> np.ndarray:
+    """(n, 2, 2) d(perp(w) / |w|^2) / dw = R / |w|^2 - 2 R w w^T / |w|^4."""
+    ww = np.einsum("ij,ij->i", w, w)
+    outer = np.einsum("ij,nj,nk->nik", _ROTATE, w, w)
+    return _ROTATE[None] / ww[:, None, None] - 2.0 * outer / (ww * ww)[:, None, None]
+
+
+def fiber_joints(network: Network, modulus_MPa: float) -> FiberJoints:
+    """The joints of a network's fibers with springs of modulus ``modulus_MPa`` (module notes).
+
+    Parameters
+    ----------
+    network : Network
+        Elements are listed in order along each fiber.
+    modulus_MPa : float [MPa]
+        E of the bending stiffness E I, > 0.
+
+    Returns
+    -------
+    FiberJoints
+    """
+    nodes = network.element_nodes
+    fiber = network.element_fiber
+    joined = np.flatnonzero((fiber[:-1] == fiber[1:]) & (nodes[:-1, 1] == nodes[1:, 0]))
+    triple = np.column_stack([nodes[joined, 0], nodes[joined, 1], nodes[joined + 1, 1]])
+    length = network.element_contour_length
+    diameter = 0.5 * (network.element_diameter[joined] + network.element_diameter[joined + 1])
+    mean_length = 0.5 * (length[joined] + length[joined + 1])
+    stiffness = float(modulus_MPa) * np.pi * diameter**4 / 64.0 / mean_length
+    reference = FiberJoints(triple.astype(np.int64), stiffness, np.zeros(len(joined)))
+    angle = reference._geometry(network.node_position)[0]
+    return FiberJoints(triple.astype(np.int64), stiffness, angle)
