@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 import espin.geometry.rve
 from espin.core.errors import ConfigError
-from espin.imaging.batch import (IMAGE_COLUMNS, _diameters, _Sample, image_files, measure_batch,
+from espin.imaging.batch import (IMAGE_COLUMNS, _Sample, image_files, measure_batch,
                                  pooled_statistics)
 from espin.imaging.pores import PoreStructure
 from espin.imaging.synthetic import render_sem
@@ -83,9 +83,8 @@ def test_cli_folder_reruns_the_same_batch(batch, folder, tmp_path, measure_app):
 
 
 def _population(fibers: pd.DataFrame) -> pd.Series:
-    """The diameters the batch pools: of the visible fibers when the table marks them."""
-    d = fibers["diameter_um"].dropna()
-    return d[fibers["visible"].astype(bool)] if "visible" in fibers else d
+    """The diameters the batch pools: of the fully visible fibers."""
+    return fibers["diameter_um"][fibers["visible"].astype(bool)].dropna()
 
 
 def test_pooled_statistics_and_bootstrap_intervals(batch):
@@ -99,8 +98,8 @@ def test_pooled_statistics_and_bootstrap_intervals(batch):
     d = pooled["diameter"]
     population = _population(fibers)
     assert d["n_fibers"] == len(population)
-    assert d["population"] == ("fibers with visible True" if "visible" in fibers
-                               else "all traced fibers")
+    assert d["population"] == "fully visible fibers (visible True)"
+    assert 0 < len(population) < fibers["diameter_um"].notna().sum()  # the hidden ones left out
     assert d["mean_um"] == pytest.approx(population.mean(), rel=1e-5)
     assert d["image_sd_of_mean_um"] == pytest.approx(np.std(ok["diameter_mean_um"], ddof=1))
     for section, key in [("diameter", "mean_um"), ("diameter", "median_um"),
@@ -152,21 +151,13 @@ def test_image_files_of_folders_and_files(folder, tmp_path):
         image_files([tmp_path])
 
 
-def test_diameter_population_is_the_visible_fibers_when_marked():
-    fibers = pd.DataFrame({"diameter_um": [1.0, 2.0, np.nan, 4.0]})
-    assert _diameters(fibers).tolist() == [1.0, 2.0, 4.0]
-    fibers["visible"] = [True, False, True, True]
-    assert _diameters(fibers).tolist() == [1.0, 4.0]
-
-
 def _sample(diameters, porosity, area, junctions):
     structure = PoreStructure(porosity=porosity, pore_diameter_um=np.array([1.0, 2.0]),
                               pore_inscribed_um=np.array([0.5, 1.0]), n_pores_on_border=0,
                               area_um2=area, n_junctions=junctions, fiber_length_um=100.0)
     d = np.asarray(diameters, float)
     return _Sample(diameter_um=d, orientation_deg=np.full(len(d), 170.0), tortuosity=np.ones(len(d)),
-                   structure=structure, coherency=0.5, n_crossing=0, u_turn_fraction=np.nan,
-                   visible_only=False)
+                   structure=structure, coherency=0.5, n_crossing=0, u_turn_fraction=np.nan)
 
 
 def test_pooled_statistics_weighting_and_reproducibility():

@@ -48,8 +48,8 @@ def test_measurement_columns_and_ranges(result, synthetic):
 
 def test_write_outputs_and_read_back(result, tmp_path):
     files = result.write(tmp_path / "out")
-    assert {p.name for p in files.values()} == {"fibers.csv", "measurement.toml",
-                                                "histograms.png", "overlay.png"}
+    assert {p.name for p in files.values()} == {"fibers.csv", "measurement.toml", "histograms.png",
+                                                "overlay.png", "orientation_map.png"}
     table = read_fibers_csv(files["fibers"])
     assert list(table.columns) == list(FIBER_COLUMNS)
     np.testing.assert_allclose(table["tortuosity"], result.fibers["tortuosity"], rtol=1e-5)
@@ -58,6 +58,7 @@ def test_write_outputs_and_read_back(result, tmp_path):
     assert meta["field_of_view_um"] == pytest.approx(list(result.field_of_view_um))
     assert meta["counts"]["fibers"] == len(result.fibers)
     assert meta["diameter"]["mean_um"] == pytest.approx(result.fits.diameter_mean_um)
+    assert meta["pores"]["porosity"] == pytest.approx(1.0 - result.mask.mean())
     assert meta["tortuosity"]["loc"] == 1.0
     assert meta["orientation"]["selection"] == "AIC"
     assert files["overlay"].stat().st_size > 10_000

@@ -119,22 +119,20 @@ def _measure_one(image: Path, out: Path | None, options: dict[str, Any], figures
 
     from espin.core.errors import EspinError
     from espin.core.output_folder import OutputFolder
-    from espin.imaging.batch import IMAGE_OUTPUTS, image_structure, write_measurement
-    from espin.imaging.measurement import measurement_digest
+    from espin.imaging.measurement import MEASURE_OUTPUTS, measurement_digest
     from espin.imaging.measurement import measure as measure_image
 
     folder = out if out is not None else Path(f"{image.stem}_measure")
     try:
         digest = measurement_digest(image, **options)  # checks the options and the file first
-        with OutputFolder.claim(folder, "measure", digest, IMAGE_OUTPUTS, overwrite=overwrite), \
+        with OutputFolder.claim(folder, "measure", digest, MEASURE_OUTPUTS, overwrite=overwrite), \
                 console.status(f"measuring {image.name}"):
             result = measure_image(image, **options)
-            structure = image_structure(result)
-            files = write_measurement(result, folder, figures=figures)
+            files = result.write_files(folder, figures=figures)
     except EspinError as err:
         fail(err)
     table = Table(title=f"{image.name}", show_header=False)
-    for name, value in [*result.table_rows(), *structure.table_rows()]:
+    for name, value in result.table_rows():
         table.add_row(name, value)
     console.print(table)
     console.print(f"wrote {folder}/: " + ", ".join(p.name for p in files.values()),

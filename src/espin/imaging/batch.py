@@ -20,7 +20,7 @@ deviation (ddof 1) across images of each image's own value. With one image the i
 collapse onto the estimate and the spread is NaN.
 
 **Diameter population.** The pooled diameters are ``diameter_um`` of the fibers table, of the
-rows whose ``visible`` column is True when the table has one (the fully visible fibers).
+rows whose ``visible`` column is True (the fully visible fibers, :mod:`espin.imaging.visibility`).
 
 **Errors.** Every image's options and scale are checked first: a :class:`ConfigError` (an
 option out of range, an image with no scale) stops the batch before any image is measured.
@@ -43,20 +43,17 @@ import pandas as pd
 from espin.core.errors import ConfigError, SEMError
 from espin.core.output_folder import OutputFolder, inputs_digest
 from espin.imaging.measurement import MEASURE_OUTPUTS, SEMMeasurement, measure, measurement_digest
-from espin.imaging.pores import PoreStructure, mat_structure
+from espin.imaging.pores import PoreStructure
 
-__all__ = ["BatchMeasurement", "measure_batch", "image_files", "image_structure",
-           "write_measurement", "pooled_statistics", "IMAGE_SUFFIXES", "IMAGE_COLUMNS",
-           "IMAGE_OUTPUTS", "BATCH_OUTPUTS", "BATCH_SCHEMA", "BOOTSTRAP_RESAMPLES",
+__all__ = ["BatchMeasurement", "measure_batch", "image_files", "pooled_statistics",
+           "IMAGE_SUFFIXES", "IMAGE_COLUMNS", "BATCH_OUTPUTS", "BATCH_SCHEMA", "BOOTSTRAP_RESAMPLES",
            "BOOTSTRAP_SEED"]
 
 BATCH_SCHEMA = "espin.sem.batch/1"
 """Schema of ``pooled.toml``."""
 IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".jpg", ".jpeg")
 """Files of a folder that are measured (case-insensitive)."""
-IMAGE_OUTPUTS = (*MEASURE_OUTPUTS, "orientation_map.png")
-"""What one image's folder holds."""
-BATCH_OUTPUTS = ("images.csv", "pooled.toml", "*/run.json", *(f"*/{p}" for p in IMAGE_OUTPUTS))
+BATCH_OUTPUTS = ("images.csv", "pooled.toml", "*/run.json", *(f"*/{p}" for p in MEASURE_OUTPUTS))
 """What a batch folder holds (glob patterns relative to it)."""
 BOOTSTRAP_RESAMPLES = 2000
 """B, resamples of whole images for the confidence intervals."""
@@ -111,7 +108,6 @@ class _Sample:
     coherency: float
     n_crossing: int
     u_turn_fraction: float
-    visible_only: bool  # the diameters are those of the rows with visible True
 
 
 def image_files(paths: Sequence[str | Path]) -> list[Path]:
@@ -135,32 +131,6 @@ def image_files(paths: Sequence[str | Path]) -> list[Path]:
         else:
             files.append(path)
     return list(dict.fromkeys(files))
-
-
-def image_structure(m: SEMMeasurement) -> PoreStructure:
-    """Porosity, pores and intersections of a measurement
-    (:func:`espin.imaging.pores.mat_structure` on its fiber mask and junctions).
-
-    The mask is the measurement's ``mask`` when it has one; else the analysed image is
-    segmented again at its typical fiber width (:func:`espin.imaging.segment.segment_fibers`).
-    """
-    mask = getattr(m, "mask", None)
-    if mask is None:
-        from espin.imaging.segment import segment_fibers
-
-        mask = segment_fibers(m.image, m.typical_width_px).mask
-    return mat_structure(mask, m.junctions_px, m.um_per_px)
-
-
-def write_measurement(m: SEMMeasurement, folder: str | Path, figures: bool = True) -> dict[str, Path]:
-    """One image's files (:data:`IMAGE_OUTPUTS`) in a folder the caller has claimed:
-    :meth:`SEMMeasurement.write_files` and, with the figures, ``orientation_map.png``."""
-    files = m.write_files(folder, figures=figures)
-    if figures:
-        from espin.imaging.figures import save_orientation_map
-
-        files["orientation_map"] = save_orientation_map(m, Path(folder) / "orientation_map.png")
-    return files
 
 
 def measure_batch(images: Sequence[str | Path], out: str | Path, *, overwrite: bool = False,
@@ -255,32 +225,23 @@ def _measure_one(path: Path, folder: Path, digest: str | None, error: str | None
     if error is not None:
         return row, None
     try:
-        with OutputFolder.claim(folder, "measure", digest, IMAGE_OUTPUTS):
+        with OutputFolder.claim(folder, "measure", digest, MEASURE_OUTPUTS):
             m = measure(path, **options)
-            structure = image_structure(m)
-            write_measurement(m, folder, figures)
+            m.write_files(folder, figures)
     except (SEMError, ConfigError) as err:
         row["error"] = str(err)
         return row, None
-    sample = _sample(m, structure)
+    sample = _sample(m)
     return row | _image_row(m, sample) | {"status": "ok", "folder": folder.name}, sample
 
 
-def _sample(m: SEMMeasurement, structure: PoreStructure) -> _Sample:
+def _sample(m: SEMMeasurement) -> _Sample:
     f = m.fibers
-    return _Sample(diameter_um=_diameters(f), orientation_deg=_finite(f["orientation_deg"]),
-                   tortuosity=_finite(f["tortuosity"]), structure=structure,
+    return _Sample(diameter_um=_finite(f["diameter_um"][f["visible"].to_numpy(dtype=bool)]),
+                   orientation_deg=_finite(f["orientation_deg"]),
+                   tortuosity=_finite(f["tortuosity"]), structure=m.pores,
                    coherency=m.coherency, n_crossing=m.n_crossing,
-                   u_turn_fraction=m.u_turn_fraction, visible_only="visible" in f.columns)
-
-
-def _diameters(fibers: pd.DataFrame) -> np.ndarray:
-    """The pooled diameter population [um]: ``diameter_um`` of the rows whose ``visible`` is
-    True when the table has that column, else of every row; finite values only."""
-    d = fibers["diameter_um"]
-    if "visible" in fibers.columns:
-        d = d[fibers["visible"].fillna(False).astype(bool).to_numpy()]
-    return _finite(d)
+                   u_turn_fraction=m.u_turn_fraction)
 
 
 def _image_row(m: SEMMeasurement, s: _Sample) -> dict[str, Any]:
@@ -345,8 +306,7 @@ def pooled_statistics(samples: Sequence[_Sample], resamples: int = BOOTSTRAP_RES
     coherency = np.array([s.coherency for s in samples])
     return head | {
         "diameter": {
-            "population": ("fibers with visible True" if any(s.visible_only for s in samples)
-                           else "all traced fibers"),
+            "population": "fully visible fibers (visible True)",
             "n_fibers": int(sum(map(len, d))),
             **_stat("mean_um", *_pooled_mean(d, counts)),
             **_stat("median_um", *_pooled_median(d, counts)),

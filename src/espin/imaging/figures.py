@@ -1,8 +1,10 @@
 """Figures of an SEM measurement: histograms with fitted distributions, an overlay and an
 orientation colour map.
 
-The overlay draws every traced fiber (its centre line, one colour per fiber; twice as thick
-for a fiber traced from edge to edge of the image) and, at every fourth width sample, a white
+The diameter histogram shows the fully visible fibers (filled; their fitted family, chosen by
+BIC, as a curve) and the partly hidden ones (outlined) apart, over all local widths. The
+overlay draws every traced fiber (its centre line, amber for a fully visible fiber, blue for a
+partly hidden one; twice as thick for a fiber traced from edge to edge of the image) and, at every fourth width sample, a white
 tick across the fiber as long as the width measured there, on the analysed image: a user sees
 at a glance what was traced and measured. A legend below the image says so, and a scale bar
 (a round length, at most a fifth of the image width) sits in its lower right corner.
@@ -65,7 +67,7 @@ class MeasuredImage(Protocol):
     def typical_width_px(self) -> float: ...
 
 _TICK_EVERY = 4  # width samples per drawn width tick
-_COLOURS = [f"C{k}" for k in (0, 1, 2, 3, 4, 5, 6, 8, 9)]  # not C7, grey on a grey image
+_VISIBLE, _HIDDEN = "#ffb000", "#4fa3ff"  # centre lines of fully visible / partly hidden fibers
 _MIN_SIDE, _MAX_SIDE = 1000.0, 1600.0  # figure pixels of the image's longer side
 _STRIP = "0.12"  # background of the legend strip below an image
 
@@ -76,15 +78,26 @@ def save_histograms(m: MeasuredImage, path: str | Path) -> Path:
     fig = Figure(figsize=(12, 3.6), layout="constrained")
     ax_d, ax_o, ax_t = fig.subplots(1, 3)
 
-    d = _finite(f["diameter_um"])
-    if len(d):
-        ax_d.hist(m.widths_um, bins=40, density=True, color="0.85", label="local widths")
-        ax_d.hist(d, bins="auto", density=True, alpha=0.7, label="per fiber")
-        x = np.linspace(0.0, max(d.max(), np.percentile(m.widths_um, 99)) * 1.1, 200)
-        if np.isfinite(fits.diameter_sd_um) and fits.diameter_sd_um > 0:
-            ax_d.plot(x, stats.norm.pdf(x, fits.diameter_mean_um, fits.diameter_sd_um), "k-",
-                      label=f"normal {fits.diameter_mean_um:.3g} +- {fits.diameter_sd_um:.2g}")
-    ax_d.set(xlabel="diameter [um]", ylabel="density [1/um]")
+    visible = f["visible"].to_numpy(dtype=bool)
+    d = _finite(f["diameter_um"][visible])
+    hidden = _finite(f["diameter_um"][~visible])
+    if len(d) or len(hidden):
+        top = max(np.max(d, initial=0.0), np.max(hidden, initial=0.0), np.percentile(m.widths_um, 99))
+        bins = np.linspace(0.0, 1.1 * top, 31)
+        ax_d.hist(m.widths_um, bins=bins, density=True, color="0.85", label="local widths (all)")
+        if len(hidden):
+            ax_d.hist(hidden, bins=bins, density=True, histtype="step", color="C0", lw=1.5,
+                      label=f"partly hidden fibers ({len(hidden)})")
+        if len(d):
+            ax_d.hist(d, bins=bins, density=True, color="C1", alpha=0.75,
+                      label=f"fully visible fibers ({len(d)})")
+        chosen = fits.diameter.chosen
+        if chosen:
+            x = np.linspace(bins[1] / 10.0, bins[-1], 300)
+            ax_d.plot(x, fits.diameter.pdf(chosen, x), "k-",
+                      label=f"{chosen} fit, visible (BIC): {fits.diameter.mean_um:.3g} ± "
+                            f"{fits.diameter.sd_um:.2g} µm")
+    ax_d.set(xlabel="diameter [µm]", ylabel="density [1/µm]")
     ax_d.legend(fontsize=7)
 
     theta = _finite(f["orientation_deg"])
@@ -120,7 +133,8 @@ def save_overlay(m: MeasuredImage, path: str | Path) -> Path:
     ax.imshow(m.image, cmap="gray", interpolation="nearest")
     lines = [p[:, ::-1] for p in m.paths_px]
     crossing = ((m.fibers["start_edge"] != "") & (m.fibers["end_edge"] != "")).to_numpy()
-    colours = [_COLOURS[i % len(_COLOURS)] for i in range(len(lines))]
+    visible = m.fibers["visible"].to_numpy(dtype=bool)
+    colours = np.where(visible, _VISIBLE, _HIDDEN)
     ax.add_collection(LineCollection(lines, colors=colours, linewidths=np.where(crossing, 2.4, 1.2)))
     s = m.width_samples
     pick = np.arange(0, len(s.width_px), _TICK_EVERY)
@@ -132,8 +146,10 @@ def save_overlay(m: MeasuredImage, path: str | Path) -> Path:
     ax.set(xlim=(-0.5, cols - 0.5), ylim=(rows - 0.5, -0.5))
     ax.axis("off")
     _add_scale_bar(ax, m.um_per_px, cols, fontsize)
-    key = [Line2D([], [], color="C0", lw=1.2, label="traced fiber centre line (one colour each)"),
-           Line2D([], [], color="C1", lw=2.4, label="traced from edge to edge of the image"),
+    key = [Line2D([], [], color=_VISIBLE, lw=1.2, label=f"fully visible fiber ({visible.sum()}), "
+                                                          "its diameter is the primary one"),
+           Line2D([], [], color=_HIDDEN, lw=1.2, label=f"partly hidden fiber ({(~visible).sum()})"),
+           Line2D([], [], color="0.8", lw=2.4, label="thick: traced from edge to edge of the image"),
            Line2D([], [], color="white", lw=1.2, label=f"measured width (every {_TICK_EVERY}th sample)"),
            Line2D([], [], color="C3", ls="", marker=".", ms=6, label="junction (crossing)")]
     ax_key.legend(handles=key, loc="center", ncol=2, frameon=False, labelcolor="white",

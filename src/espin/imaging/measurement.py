@@ -45,6 +45,7 @@ from espin.imaging.orientation import image_angle_deg, structure_tensor_orientat
 from espin.imaging.scale import ScaleBar, detect_scale_bar
 from espin.imaging.segment import MIN_WIDTH_PX, segment_fibers
 from espin.imaging.trace import trace_fibers
+from espin.imaging.pores import PoreStructure, mat_structure
 from espin.imaging.visibility import Visibility, fiber_visibility
 from espin.imaging.widths import WidthSamples, fiber_diameters, local_widths
 
@@ -53,7 +54,7 @@ __all__ = ["SEMMeasurement", "measure", "measurement_digest", "SCHEMA", "MEASURE
 
 SCHEMA = "espin.sem.measurement/1"
 """Schema of ``measurement.toml``."""
-MEASURE_OUTPUTS = ("fibers.csv", "measurement.toml", "histograms.png", "overlay.png")
+MEASURE_OUTPUTS = ("fibers.csv", "measurement.toml", "histograms.png", "overlay.png", "orientation_map.png")
 """The files a measurement writes into its folder (glob patterns relative to it)."""
 EDGE_NEAR = 0.2
 """A traced fiber's end within this many fiber widths w (the tracer's) of an edge of the
@@ -134,6 +135,9 @@ class SEMMeasurement:
         The analysed grey image (cropped).
     mask : (rows, cols) bool
         Fiber pixels of the analysed image (:attr:`espin.imaging.segment.Segmentation.mask`).
+    pores : PoreStructure
+        Porosity, pore sizes and intersection density of the analysed image
+        (:func:`espin.imaging.pores.mat_structure` on ``mask`` and ``junctions_px``).
     rows : tuple[int, int]
         Rows of the original image that were analysed (start, stop).
     paths_px : list of (n_i, 2) float64 [px]
@@ -182,6 +186,7 @@ class SEMMeasurement:
     typical_width_px: float
     image: np.ndarray
     mask: np.ndarray
+    pores: PoreStructure
     rows: tuple[int, int]
     paths_px: list[np.ndarray]
     width_samples: WidthSamples
@@ -251,6 +256,7 @@ class SEMMeasurement:
                          "u_turn_fraction": self.u_turn_fraction,
                          "straightness": self.straightness,
                          "edge_near_widths": EDGE_NEAR, "edge_reach_widths": EDGE_REACH},
+            "pores": self.pores.summary(),
         }
 
     def table_rows(self) -> list[tuple[str, str]]:
@@ -279,6 +285,7 @@ class SEMMeasurement:
                            f"scale {fits.tortuosity_scale:.4f} (of the traced pieces; whole "
                            "fibers across the image: espin calibrate-geometry)"),
             ("edge to edge", self._crossing_text()),
+            *self.pores.table_rows(),
         ]
 
     @staticmethod
@@ -351,10 +358,11 @@ class SEMMeasurement:
                  "summary": atomic_write_bytes(folder / "measurement.toml",
                                                tomli_w.dumps(_toml_ready(self.summary())).encode())}
         if figures:
-            from espin.imaging.figures import save_histograms, save_overlay
+            from espin.imaging.figures import save_histograms, save_orientation_map, save_overlay
 
             files["histograms"] = save_histograms(self, folder / "histograms.png")
             files["overlay"] = save_overlay(self, folder / "overlay.png")
+            files["orientation_map"] = save_orientation_map(self, folder / "orientation_map.png")
         return files
 
 
@@ -640,7 +648,7 @@ def _measure_grey(grey: np.ndarray, um_per_px: float, width_px: float | None,
         n_crossing=edge_to_edge.n_crossing, u_turn_fraction=edge_to_edge.u_turn_fraction,
         straightness=edge_to_edge.straightness,
         min_chord_um=min_chord_px * um_per_px, typical_width_px=typical, image=grey,
-        mask=seg.mask, rows=rows,
+        mask=seg.mask, pores=mat_structure(seg.mask, traced.junctions, um_per_px), rows=rows,
         paths_px=[paths[i] for i in kept], width_samples=samples, junctions_px=traced.junctions,
         source=source, inputs_digest=inputs_digest, **scale_fields,
     )
