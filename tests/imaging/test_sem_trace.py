@@ -78,3 +78,59 @@ def test_two_fibers_joined_by_a_bar_are_no_shallow_crossing():
     long = _long_paths(mask)
     assert _axes_deg(long) == [90, 90]
     assert all(_tortuosity(p) < 1.002 for p in long)
+
+
+def test_crossings_close_together_are_paired_by_straight_continuation():
+    """Fibers at 0 and 20 deg cross in the centre, 30 px from a fiber at 80 deg: the skeleton
+    junctions of the shallow X (a bridge about 3 w long) and of the third fiber form one
+    cluster with five branch ends and more. Paired junction by junction, both fibers of the
+    X switched (two traces at 10 deg); paired across the cluster by straight continuation,
+    each keeps its line."""
+    rows, cols = np.mgrid[0:N, 0:N].astype(float) - (N - 1) / 2
+    mask = _bands(0.0, 20.0) | (np.abs(rows * np.cos(np.radians(80.0))
+                                       + cols * np.sin(np.radians(80.0)) - 30.0) <= WIDTH / 2)
+    paths = _long_paths(mask)
+    assert _axes_deg(paths) == [0, 20, 80]
+    assert all(_tortuosity(p) < 1.002 for p in paths)
+
+
+def _ray(angle_deg: float, width: float) -> np.ndarray:
+    """Mask of a straight fiber ``width`` px wide from the image centre out at ``angle_deg``
+    (counter-clockwise from +col, row up)."""
+    rows, cols = np.mgrid[0:N, 0:N].astype(float) - (N - 1) / 2
+    a = np.radians(angle_deg)
+    along = -rows * np.sin(a) + cols * np.cos(a)
+    across = -rows * np.cos(a) - cols * np.sin(a)
+    return (np.abs(across) <= width / 2) & (along >= -width / 2)
+
+
+def test_a_fiber_continues_on_the_branch_of_its_own_width():
+    """A thick fiber (12 px) from the left ends where a thin one (5 px) from the lower left
+    bends by 30 deg into a thin branch to the right. By direction alone the thick one would
+    continue straight onto the thin branch (a switch); the width difference (12 / 5) costs
+    more than the bend, so the thin fiber is traced whole and the thick one ends."""
+    mask = _ray(180.0, 12.0) | _ray(210.0, 5.0) | _ray(0.0, 5.0)
+    paths = trace_fibers(mask, WIDTH).paths
+    assert len(paths) == 2
+    thin = max(paths, key=len)
+    ends = sorted([thin[0].round().tolist(), thin[-1].round().tolist()], key=lambda p: p[1])
+    # from the left edge, 92 px below the centre (tan 30 deg), to the right edge on the axis
+    assert ends[0][1] == 0 and ends[0][0] == pytest.approx((N - 1) / 2 + (N - 1) / 2 * np.tan(
+        np.radians(30.0)), abs=2)
+    assert ends[1][1] == N - 1 and ends[1][0] == pytest.approx((N - 1) / 2, abs=1)
+    thick = min(paths, key=len)
+    assert max(thick[0][1], thick[-1][1]) < (N - 1) / 2  # ends before the junction
+
+
+def test_branch_ends_are_matched_best_overall_not_greedily(monkeypatch):
+    """Four ends: the cheapest pair (0, 1) leaves 2 and 3 too far apart to pair; the best
+    matching takes (0, 2) and (1, 3), at a higher cost for one pair but lower in total."""
+    cost = np.array([[np.inf, 0.1, 0.2, 0.9],
+                     [0.1, np.inf, 0.9, 0.2],
+                     [0.2, 0.9, np.inf, 0.8],
+                     [0.9, 0.2, 0.8, np.inf]])
+    limit = 0.5
+    assert trace._best_matching(cost, cost <= limit, limit / 2) == [(0, 2), (1, 3)]
+    # with more ends than the exhaustive search takes, the greedy fallback: cheapest first
+    monkeypatch.setattr(trace, "_EXACT", 2)
+    assert trace._best_matching(cost, cost <= limit, limit / 2) == [(0, 1)]

@@ -10,16 +10,28 @@ The algorithm (CT-FIRE-like, written with numpy / scipy.ndimage / scipy.sparse.c
    junctions joined by a branch shorter than 2.5 w are merged (into groups at most 2.5 w wide):
    two fibers crossing at a shallow angle give two nearby skeleton junctions, and are one
    crossing.
-4. At every junction, the direction of each branch is fitted on its pixels between 0.75 w and
-   2.75 w from the junction centre (the skeleton bends towards a junction closer in). Branches
-   are paired greedily by the smallest bending angle, pi minus the angle between their
-   outgoing directions, below ``max_bend_deg``; so a fiber passes straight through a crossing,
-   and an unpaired branch ends there (a fiber that dives under another one). Before that,
-   shallow crossings are paired: two fibers crossing at a few degrees share a stretch of
+4. Shallow crossings first: two fibers crossing at a few degrees share a stretch of
    skeleton (up to 20 w), two three-way junctions joined by a bridge; each outer branch is
    paired with the one at the far junction that continues it on a straight line, and the
    bridge belongs to neither fiber (paired junction by junction, one fiber jogs onto the other
    one's branch and the other is cut).
+   Then the other junctions, in clusters: junctions joined by a branch at most 3 w long
+   (clusters at most 3.5 w across) are paired as one crossing, and those inner branches
+   belong to no fiber (an X at 15-40 deg has two skeleton junctions about 2-4 w apart; a
+   third fiber crossing nearby adds more). The direction of each outer branch is fitted on its pixels
+   between 0.75 w and 2.75 w from its junction's centre (the skeleton bends towards a
+   junction closer in). Continuing branch a on branch c costs the larger of the bend (pi
+   minus the angle between their outgoing directions) and the angles between each direction
+   and the line joining the two branches' points 2 w out (so a side step onto a parallel
+   neighbour costs as a bend), plus 1 rad per unit of the log ratio of their widths beyond
+   0.15 (median local widths 1.25-3.5 w out: a fiber keeps its width; a switch usually joins
+   a fiber to a thinner, deeper one). A pair is allowed if its geometric cost is at most
+   ``max_bend_deg``; the pairs of a cluster are the matching of least total cost, an end left
+   unpaired costing ``max_bend_deg`` / 2 (the best assignment, not the cheapest pair first:
+   greedily, the cheapest pair can leave the other two ends of an X to be paired wrongly or
+   not at all). So a fiber passes straight through a crossing, and a branch whose best
+   continuation costs more than ``max_bend_deg`` ends there (a fiber that dives under another
+   one; better to end a trace than to switch fibers).
 5. Paired branches are chained into fibers. Near a junction, the skeleton pixels within w / 2
    of its centre are dropped and the fiber crosses the junction on a straight line. At the
    open ends of a fiber the skeleton does not follow it: at an unpaired end at a junction it
@@ -62,6 +74,14 @@ _GAP = 8.0  # open fiber ends at most this * w apart may be joined across a stra
 _JOIN_TURN = 1.0  # ... if their total turn is at most this * max_bend,
 _GUARD_SHORT, _GUARD = 2.0, 4.0  # ... and the joined path turns by at most
 _GUARD_LIMIT = 1.0  # this * max_bend between chords of these many widths around the gap
+_CLUSTER = 3.0  # junctions joined by a branch at most this * w long are paired as one ...
+_CLUSTER_SPREAD = 3.5  # ... cluster at most this * w across
+_ANCHOR = 2.0  # a branch's anchor point for the continuation cost lies this * w out
+_WIDTH_COST = 1.0  # [rad] per unit log ratio of the widths of two branches paired
+_WIDTH_FROM, _WIDTH_TO = 1.25, 3.5  # widths compared between these many w from the junction
+_WIDTH_SLACK = 0.15  # log ratio of widths that costs nothing
+_UNPAIRED = 0.5  # an end left unpaired at a junction costs this * max_bend
+_EXACT = 10  # the branch ends of a cluster are matched exhaustively up to this many
 _SHALLOW = 20.0  # bridges of shallow crossings up to this * w long are crossed straight
 _TURN = 1.5  # a fiber is cut where it turns by more than _TURN * max_bend within +- w
 _NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
@@ -80,8 +100,8 @@ class TracedFibers:
     skeleton : (rows, cols) bool
         The skeleton that was traced.
     shared : (n_shared, 2) float64 [px]
-        Skeleton pixels two fibers share: the bridges of shallow crossings. Like the
-        junctions, no place to measure one fiber's width.
+        Skeleton pixels two fibers share: the bridges of shallow crossings and the branches
+        inside junction clusters. Like the junctions, no place to measure one fiber's width.
     """
 
     paths: list[np.ndarray]
@@ -125,15 +145,17 @@ def trace_fibers(mask: np.ndarray, width_px: float, max_bend_deg: float = 35.0) 
     graph = _prune_spurs(graph, w)
     graph = _merge_junctions(graph, w)
     partner, bridges = _pair_shallow_crossings(graph, w, np.radians(max_bend_deg))
-    partner = _pair_branches(graph, w, np.radians(max_bend_deg), partner, bridges)
-    chains = _chain_fibers(graph, partner, w, bridges)
+    width = 2.0 * ndimage.distance_transform_edt(np.pad(mask, pad, mode="edge"))[
+        pad:-pad, pad:-pad] - 1.0
+    partner, inner = _pair_branches(graph, w, np.radians(max_bend_deg), partner, bridges, width)
+    chains = _chain_fibers(graph, partner, w, bridges | inner)
     if _GAP > 0:
         smooth = _join_gaps(chains, w, np.radians(max_bend_deg), skeleton.shape)
     else:
         smooth = [_smoothed(c, w) for c, _ in chains]
     paths = [piece for path in smooth
              for piece in _split_at_turns(path, w, np.radians(_TURN * max_bend_deg))]
-    shared = [graph.branches[b] for b in np.flatnonzero(bridges)]
+    shared = [graph.branches[b] for b in np.flatnonzero(bridges | inner)]
     return TracedFibers(paths=paths, junctions=graph.junction_centre, skeleton=skeleton,
                         shared=np.concatenate(shared).astype(float) if shared
                         else np.zeros((0, 2)))
@@ -335,40 +357,145 @@ def _pair_shallow_crossings(graph: _Graph, w: float,
 
 
 def _pair_branches(graph: _Graph, w: float, max_bend: float, partner: np.ndarray,
-                   bridges: np.ndarray) -> np.ndarray:
-    """partner[b, side] = (branch, side) index 2 b' + s' joined at that end, or -1.
+                   bridges: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pair the branch ends at every junction cluster: (partner, inner).
 
-    Ends already paired in ``partner`` and the ``bridges`` are left out.
+    partner[b, side] = (branch, side) index 2 b' + s' joined at that end, or -1. Junctions
+    joined by a branch at most _CLUSTER w long form one cluster (at most _CLUSTER_SPREAD w
+    across); those inner branches belong to no fiber (``inner``), a fiber crosses the cluster
+    on a straight line. The outer ends of a cluster are matched by :func:`_best_matching` on
+    :func:`_continuation_cost` plus :func:`_width_cost` (``width``: the local width [px] on
+    the skeleton, 2 d - 1 with d the distance to the background). Ends already paired in
+    ``partner`` and the ``bridges`` are left out.
     """
     partner = partner.copy()
-    by_junction: dict[int, list[tuple[int, np.ndarray]]] = {}
-    for b, chain in enumerate(graph.branches):
-        if bridges[b]:
+    cluster, inner = _junction_clusters(graph, w, partner, bridges)
+    by_cluster: dict[int, list[int]] = {}
+    for b in range(len(graph.branches)):
+        if bridges[b] or inner[b]:
             continue
         for side in (0, 1):
             j = int(graph.ends[b, side])
-            if j < 0 or partner[b, side] >= 0:
-                continue
-            oriented = chain if side == 0 else chain[::-1]
-            u = _outgoing_direction(oriented, graph.junction_centre[j], w)
-            by_junction.setdefault(j, []).append((2 * b + side, u))
-    for members in by_junction.values():
-        ids = [m[0] for m in members]
-        if len(ids) < 2 or len(set(i // 2 for i in ids)) < 2:
+            if j >= 0 and partner[b, side] < 0:
+                by_cluster.setdefault(int(cluster[j]), []).append(2 * b + side)
+    for ends in by_cluster.values():
+        if len(ends) < 2:
             continue
-        u = np.array([m[1] for m in members])
-        bend = np.arccos(np.clip(-(u @ u.T), -1.0, 1.0))  # pi - angle between directions
-        a, c = np.triu_indices(len(ids), 1)
-        taken = set()
-        for k in np.argsort(bend[a, c]):
-            i, j = ids[a[k]], ids[c[k]]
-            if bend[a[k], c[k]] > max_bend:
-                break
-            if i in taken or j in taken or i // 2 == j // 2:
-                continue
-            taken |= {i, j}
-            partner.flat[i], partner.flat[j] = j, i
-    return partner
+        u, anchor, thick = {}, {}, {}
+        for e in ends:
+            b, side = divmod(e, 2)
+            oriented = graph.branches[b] if side == 0 else graph.branches[b][::-1]
+            centre = graph.junction_centre[graph.ends[b, side]]
+            u[e] = _outgoing_direction(oriented, centre, w)
+            anchor[e] = oriented[min(int(round(_ANCHOR * w)), len(oriented) - 1)]
+            thick[e] = _width_near(width, oriented, centre, w)
+        bend = np.full((len(ends), len(ends)), np.inf)  # the geometric part of the cost
+        cost = np.full((len(ends), len(ends)), np.inf)
+        for i, a in enumerate(ends):
+            for k in range(i + 1, len(ends)):
+                c = ends[k]
+                if a // 2 != c // 2:
+                    bend[i, k] = bend[k, i] = _continuation_cost(u[a], u[c], anchor[a], anchor[c])
+                    cost[i, k] = cost[k, i] = bend[i, k] + _width_cost(thick[a], thick[c])
+        for i, k in _best_matching(cost, bend <= max_bend, _UNPAIRED * max_bend):
+            partner.flat[ends[i]], partner.flat[ends[k]] = ends[k], ends[i]
+    return partner, inner
+
+
+def _junction_clusters(graph: _Graph, w: float, partner: np.ndarray,
+                       bridges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Cluster of every junction, and the inner branches (joining two junctions of one
+    cluster, at most _CLUSTER w long); shortest branches first, a merge refused if the
+    cluster would be more than _CLUSTER_SPREAD w across."""
+    n = len(graph.junction_centre)
+    group = np.arange(n)
+    length = np.array([_branch_length(b) for b in graph.branches])
+    short = (np.all(graph.ends >= 0, axis=1) & (length <= _CLUSTER * w) & ~bridges
+             & np.all(partner < 0, axis=1))
+    for b in np.flatnonzero(short)[np.argsort(length[short])]:
+        ga, gb = group[graph.ends[b]]
+        if ga == gb:
+            continue
+        members = graph.junction_centre[(group == ga) | (group == gb)]
+        spread = np.hypot(*(members[:, None, :] - members[None, :, :]).transpose(2, 0, 1))
+        if spread.max() <= _CLUSTER_SPREAD * w:
+            group[group == gb] = ga
+    ends = np.maximum(graph.ends, 0)
+    inner = short & (group[ends[:, 0]] == group[ends[:, 1]]) if n else short
+    return group, inner
+
+
+def _continuation_cost(ua: np.ndarray, uc: np.ndarray, anchor_a: np.ndarray,
+                       anchor_c: np.ndarray) -> float:
+    """How far branch c is from continuing branch a straight through a junction [rad].
+
+    The bend (pi minus the angle between their outgoing directions ``ua``, ``uc``) or the
+    angle between either direction and the line joining their anchor points (_ANCHOR w out
+    on each), whichever is largest: 0 on one straight line; a side step between two parallel
+    branches (a fiber continuing on a neighbour) costs as a bend.
+    """
+    line = anchor_c - anchor_a
+    norm = float(np.hypot(*line))
+    if norm < 1e-9:
+        return float(np.arccos(np.clip(-(ua @ uc), -1.0, 1.0)))
+    line = line / norm
+    return max(float(np.arccos(np.clip(-(ua @ uc), -1.0, 1.0))),
+               float(np.arccos(np.clip(-(ua @ line), -1.0, 1.0))),
+               float(np.arccos(np.clip(uc @ line, -1.0, 1.0))))
+
+
+def _width_near(width: np.ndarray, oriented: np.ndarray, centre: np.ndarray, w: float) -> float:
+    """Median local width [px] of a branch's pixels _WIDTH_FROM w to _WIDTH_TO w from a
+    junction centre (all its pixels if none are there)."""
+    distance = np.hypot(*(oriented - centre).T)
+    px = oriented[(distance >= _WIDTH_FROM * w) & (distance <= _WIDTH_TO * w)]
+    px = (px if len(px) else oriented).astype(np.int64)
+    return float(np.median(width[px[:, 0], px[:, 1]]))
+
+
+def _width_cost(a: float, c: float) -> float:
+    """Cost [rad] of joining branches of widths a and c [px]: _WIDTH_COST times the log of
+    their ratio beyond _WIDTH_SLACK (a fiber keeps its width, up to the scatter of the local
+    widths; a deeper one looks thinner in the mask)."""
+    excess = abs(np.log(max(a, 1.0) / max(c, 1.0))) - _WIDTH_SLACK
+    return float(_WIDTH_COST * max(excess, 0.0))
+
+
+def _best_matching(cost: np.ndarray, allowed: np.ndarray,
+                   unpaired: float) -> list[tuple[int, int]]:
+    """Pairs (i, k), each one ``allowed``, that minimize the total ``cost`` (symmetric
+    matrices), an item left unpaired costing ``unpaired``. Exhaustive for up to _EXACT
+    items, greedy (cheapest first) above."""
+    n = len(cost)
+    if n > _EXACT:
+        order = np.dstack(np.unravel_index(np.argsort(cost, axis=None), cost.shape))[0]
+        taken, pairs = set(), []
+        for i, k in order:
+            if (i < k and allowed[i, k] and cost[i, k] < 2 * unpaired and i not in taken
+                    and k not in taken):
+                taken |= {i, k}
+                pairs.append((int(i), int(k)))
+        return pairs
+
+    memo: dict[tuple[int, ...], tuple[float, list[tuple[int, int]]]] = {}
+
+    def best(free: tuple[int, ...]) -> tuple[float, list[tuple[int, int]]]:
+        if free in memo:
+            return memo[free]
+        if len(free) < 2:
+            return unpaired * len(free), []
+        first, rest = free[0], free[1:]
+        total, pairs = best(rest)
+        total += unpaired
+        for m, k in enumerate(rest):
+            if allowed[first, k]:
+                sub, sub_pairs = best(rest[:m] + rest[m + 1:])
+                if sub + cost[first, k] < total:
+                    total, pairs = sub + cost[first, k], [(first, k)] + sub_pairs
+        memo[free] = total, pairs
+        return total, pairs
+
+    return best(tuple(range(n)))[1]
 
 
 def _chain_fibers(graph: _Graph, partner: np.ndarray, w: float,
