@@ -16,7 +16,9 @@ smooth and bounded when a joint folds over (a squared angle would jump where the
 at +-pi). The physical value of E is the fiber's Young's modulus (E_t for a fiber
 whose taut modulus is its material's); 0 switches the term off (the paper's model). The spring
 is elastic (no plastic flow), acts at fixed theta_0 and adds no term at cross-links between
-two fibers (they stay pin joints). docs/model.md section 3.
+two fibers (they stay pin joints). A joint one of whose elements is shorter than the element
+law's length floor (:data:`espin.mechanics.fiber_law.STRETCH_FLOOR` times its reference
+length) carries nothing: its angle is undefined there, and its derivatives grow as 1 / l. docs/model.md section 3.
 
 With u = x_b - x_a and v = x_c - x_b, theta = angle(v) - angle(u) and, with perp(w) = (-w_y,
 w_x), d theta / d x_a = perp(u) / |u|^2, d theta / d x_c = perp(v) / |v|^2 and d theta / d x_b
@@ -32,6 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from espin.geometry.network import Network
+from espin.mechanics.fiber_law import STRETCH_FLOOR
 
 __all__ = ["FiberJoints", "fiber_joints"]
 
@@ -53,11 +56,14 @@ class FiberJoints:
         k = E I / lbar (twice the energy per squared radian of a small angle change).
     reference_angle : (n_joints,) float64 [rad]
         Turning angle theta_0 in the reference state, in (-pi, pi].
+    floor : (n_joints, 2) float64 [um]
+        Length floor of the elements a-b and b-c (below it the joint carries nothing).
     """
 
     nodes: np.ndarray
     stiffness: np.ndarray
     reference_angle: np.ndarray
+    floor: np.ndarray
 
     @property
     def dof(self) -> np.ndarray:
@@ -65,14 +71,22 @@ class FiberJoints:
         return np.stack([2 * self.nodes, 2 * self.nodes + 1], axis=2).reshape(-1, 6)
 
     def _geometry(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Angle change theta - theta_0 (wrapped to (-pi, pi]), u, v, and d theta / d(x_a, x_b, x_c)."""
+        """Angle change theta - theta_0 (wrapped to [-pi, pi)), u, v, and
+        d theta / d(x_a, x_b, x_c); all zero for a joint with an element below its floor
+        (u and v are then unit vectors, harmless in the curvature term)."""
         u = x[self.nodes[:, 1]] - x[self.nodes[:, 0]]
         v = x[self.nodes[:, 2]] - x[self.nodes[:, 1]]
+        uu, vv = np.einsum("ij,ij->i", u, u), np.einsum("ij,ij->i", v, v)
+        active = (uu > self.floor[:, 0] ** 2) & (vv > self.floor[:, 1] ** 2)
+        u = np.where(active[:, None], u, [1.0, 0.0])
+        v = np.where(active[:, None], v, [1.0, 0.0])
+        uu, vv = np.where(active, uu, 1.0), np.where(active, vv, 1.0)
         theta = np.arctan2(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0], np.einsum("ij,ij->i", u, v))
-        change = np.angle(np.exp(1j * (theta - self.reference_angle)))
-        du = (u @ _ROTATE.T) / np.einsum("ij,ij->i", u, u)[:, None]  # -d theta / du
-        dv = (v @ _ROTATE.T) / np.einsum("ij,ij->i", v, v)[:, None]  # d theta / dv
-        return change, u, v, np.hstack([du, -du - dv, dv])
+        change = np.where(active, np.remainder(theta - self.reference_angle + np.pi, 2.0 * np.pi) - np.pi, 0.0)
+        du = (u @ _ROTATE.T) / uu[:, None]  # -d theta / du
+        dv = (v @ _ROTATE.T) / vv[:, None]  # d theta / dv
+        jacobian = np.where(active[:, None], np.hstack([du, -du - dv, dv]), 0.0)
+        return change, u, v, jacobian
 
     def energy(self, x: np.ndarray) -> float:
         """Stored bending energy [uN um] at node positions ``x`` (n_nodes, 2) [um]."""
@@ -140,6 +154,7 @@ def fiber_joints(network: Network, modulus_MPa: float) -> FiberJoints:
     diameter = 0.5 * (network.element_diameter[joined] + network.element_diameter[joined + 1])
     mean_length = 0.5 * (length[joined] + length[joined + 1])
     stiffness = float(modulus_MPa) * np.pi * diameter**4 / 64.0 / mean_length
-    reference = FiberJoints(triple.astype(np.int64), stiffness, np.zeros(len(joined)))
+    floor = STRETCH_FLOOR * np.column_stack([network.element_length[joined], network.element_length[joined + 1]])
+    reference = FiberJoints(triple.astype(np.int64), stiffness, np.zeros(len(joined)), floor)
     angle = reference._geometry(network.node_position)[0]
-    return FiberJoints(triple.astype(np.int64), stiffness, angle)
+    return FiberJoints(triple.astype(np.int64), stiffness, angle, floor)
