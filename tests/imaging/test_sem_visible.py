@@ -140,3 +140,13 @@ def test_visible_column_round_trip_and_old_tables(tmp_path):
 
     with pytest.raises(SEMError, match="column visible, data row 1: 'maybe' is not True or False"):
         read_fibers_csv(bad)
+    # a DataFrame read by pandas itself: the words, and a blank cell refused (np.bool_ would read
+    # "False" and NaN as True and let hidden fibers into the target)
+    raw = pd.read_csv(path)
+    raw["visible"] = raw["visible"].map({True: "True", False: "False"})
+    np.testing.assert_array_equal(GeometryTargets.from_table(raw).diameter_um, [3.5, 3.3] * 5)
+    raw.loc[1, "visible"] = np.nan
+    from espin.geometry.targets import MeasurementError
+
+    with pytest.raises(MeasurementError, match="visible must hold True or False, got nan"):
+        GeometryTargets.from_table(raw)

@@ -16,6 +16,7 @@ A table made by hand needs only one of ``diameter_um``, ``orientation_deg``, ``t
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -23,7 +24,7 @@ import pandas as pd
 from espin.core.atomic import atomic_write
 from espin.core.errors import SEMError
 
-__all__ = ["FIBER_COLUMNS", "EDGE_COLUMNS", "EDGE_NAMES", "VISIBLE_COLUMN", "read_fibers_csv",
+__all__ = ["FIBER_COLUMNS", "EDGE_COLUMNS", "EDGE_NAMES", "VISIBLE_COLUMN", "parse_flags", "read_fibers_csv",
            "write_fibers_csv"]
 
 EDGE_COLUMNS = ("start_edge", "end_edge")
@@ -133,15 +134,22 @@ def _checked_edges(values: pd.Series, column: str, path: Path) -> pd.Series:
     return names
 
 
-def _checked_flags(values: pd.Series, path: Path) -> pd.Series:
-    words = values.astype(str).str.strip().str.lower()
+def parse_flags(values: Any) -> tuple[np.ndarray, int | None]:
+    """True/False values (bools, 1/0, or the words true/false in any case) as a bool array, and
+    the index of the first value that is none of these (NaN and blanks included), else None."""
+    words = pd.Series(np.asarray(values, dtype=object).ravel()).astype(str).str.strip().str.lower()
     truth = {"true": True, "1": True, "1.0": True, "false": False, "0": False, "0.0": False}
-    bad = ~words.isin(tuple(truth))
-    if bad.any():
-        row = int(np.flatnonzero(bad.to_numpy())[0])
-        raise SEMError(f"fibers table {str(path)!r}: column {VISIBLE_COLUMN}, data row {row + 1}: "
-                       f"{values.iloc[row]!r} is not True or False")
-    return words.map(truth).astype(bool)
+    bad = np.flatnonzero(~words.isin(tuple(truth)).to_numpy())
+    flags = np.array([truth.get(word, False) for word in words], dtype=bool)
+    return flags, (int(bad[0]) if len(bad) else None)
+
+
+def _checked_flags(values: pd.Series, path: Path) -> pd.Series:
+    flags, bad = parse_flags(values)
+    if bad is not None:
+        raise SEMError(f"fibers table {str(path)!r}: column {VISIBLE_COLUMN}, data row {bad + 1}: "
+                       f"{values.iloc[bad]!r} is not True or False")
+    return pd.Series(flags, index=values.index)
 
 
 def _checked_ids(values: pd.Series, path: Path) -> pd.Series:

@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from espin.core.errors import InputError
-from espin.geometry.fibers_csv import VISIBLE_COLUMN
+from espin.geometry.fibers_csv import VISIBLE_COLUMN, parse_flags
 
 __all__ = ["MeasurementError", "GeometryTargets", "MIN_SAMPLE_SIZE", "equivalent_square_side"]
 
@@ -96,10 +96,10 @@ def _number(value: Any, name: str) -> float:
 def _visible_diameters(diameter: np.ndarray, visible: Any) -> tuple[np.ndarray, str]:
     """The diameters of the fully visible fibers (the others NaN: a partly hidden fiber reads
     narrower, docs/sem.md), and a note; all of them when no fiber is visible."""
-    try:
-        flags = np.asarray(visible, dtype=bool)
-    except (TypeError, ValueError):
-        raise MeasurementError(f"column {VISIBLE_COLUMN} must hold True or False") from None
+    flags, bad = parse_flags(visible)
+    if bad is not None:
+        raise MeasurementError(f"column {VISIBLE_COLUMN} must hold True or False, got "
+                               f"{np.asarray(visible, dtype=object).ravel()[bad]!r} (fiber {bad})")
     measured = np.isfinite(diameter)
     if not (flags & measured).any():
         return diameter, (f"diameter: no fiber is marked {VISIBLE_COLUMN}; the diameters of all "
