@@ -214,3 +214,36 @@ def test_cli_single_image_writes_the_orientation_map_and_porosity(folder, tmp_pa
     assert "porosity" in run.output and "intersections" in run.output
     overlay = np.asarray(Image.open(out / "overlay.png"))
     assert overlay.shape[1] == 1000 and overlay.shape[0] > 1000  # drawn at 1000 px, key below
+
+
+def test_folder_names_differ_ignoring_case():
+    from pathlib import Path
+
+    from espin.imaging.batch import _folder_names
+
+    names = _folder_names([Path("x/a.tif"), Path("y/A.png"), Path("x/b.tif"), Path("y/c.tif"), Path("z/c.tif")])
+    assert names == ["a_tif", "A_png", "b", "c_tif_4", "c_tif_5"]
+    assert len({n.casefold() for n in names}) == len(names)
+
+
+def test_an_unexpected_error_on_one_image_is_reported_and_the_batch_goes_on(folder, tmp_path, monkeypatch):
+    import functools
+    from pathlib import Path
+
+    import espin.imaging.batch as batch_module
+
+    path, um_per_px = folder
+    real = batch_module.measure
+
+    @functools.wraps(real)  # the batch reads measure's options from its signature
+    def flaky(image, **options):
+        if Path(image).name == "mat2.png":
+            raise RuntimeError("a bug")
+        return real(image, **options)
+
+    monkeypatch.setattr(batch_module, "measure", flaky)
+    result = measure_batch([path / "mat1.png", path / "mat2.png"], tmp_path / "out", um_per_px=um_per_px, figures=False)
+    table = pd.read_csv(tmp_path / "out" / "images.csv", keep_default_na=False, na_values=[""])
+    assert table["status"].tolist() == ["ok", "failed"]
+    assert table["error"][1] == "unexpected RuntimeError: a bug (please report it)"
+    assert result.pooled["n_measured"] == 1

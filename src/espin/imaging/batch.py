@@ -231,6 +231,9 @@ def _measure_one(path: Path, folder: Path, digest: str | None, error: str | None
     except (SEMError, ConfigError) as err:
         row["error"] = str(err)
         return row, None
+    except Exception as err:  # noqa: BLE001 - a bug on one image: reported, the batch goes on
+        row["error"] = f"unexpected {type(err).__name__}: {err} (please report it)"
+        return row, None
     sample = _sample(m)
     return row | _image_row(m, sample) | {"status": "ok", "folder": folder.name}, sample
 
@@ -417,11 +420,13 @@ def _interval(boot: np.ndarray) -> tuple[float, float]:
 
 
 def _folder_names(files: Sequence[Path]) -> list[str]:
-    """Each image's output folder: its stem; where stems repeat, its name with the dot as
-    ``_`` (``a_tif``, ``a_png``), and a number after that if it still repeats."""
-    stems = [p.stem for p in files]
-    names = [p.name.replace(".", "_") if stems.count(p.stem) > 1 else p.stem for p in files]
-    return [f"{name}_{i + 1}" if names.count(name) > 1 else name for i, name in enumerate(names)]
+    """Each image's output folder: its stem; where stems repeat (ignoring case, as the file
+    systems of macOS and Windows do), its name with the dot as ``_`` (``a_tif``, ``a_png``),
+    and a number after that if it still repeats."""
+    stems = [p.stem.casefold() for p in files]
+    names = [p.name.replace(".", "_") if stems.count(p.stem.casefold()) > 1 else p.stem for p in files]
+    folded = [name.casefold() for name in names]
+    return [f"{name}_{i + 1}" if folded.count(name.casefold()) > 1 else name for i, name in enumerate(names)]
 
 
 def _write_table(table: pd.DataFrame, path: Path) -> Path:
