@@ -264,9 +264,10 @@ def _true_crossings(lines: _TrueLines) -> tuple[np.ndarray, np.ndarray, np.ndarr
     seg_fiber = np.concatenate([np.full(len(p) - 1, f)
                                 for p, f in zip(lines.polylines, lines.run_fiber)])
     lo, hi = np.minimum(seg_a, seg_b), np.maximum(seg_a, seg_b)
-    # Candidate pairs: overlapping bounding boxes, found by a tree on the box centres.
+    # Candidate pairs: overlapping bounding boxes, whose centres are at most the sum of their
+    # half-sides apart along each axis (Chebyshev distance, p = inf), found by a tree.
     centre, half = (lo + hi) / 2, np.max(hi - lo, axis=1) / 2
-    pairs = cKDTree(centre).query_pairs(2 * half.max() + 1e-9, output_type="ndarray")
+    pairs = cKDTree(centre).query_pairs(2 * half.max() + 1e-9, p=np.inf, output_type="ndarray")
     i, j = pairs[:, 0], pairs[:, 1]
     keep = (seg_fiber[i] != seg_fiber[j]) & np.all(lo[i] <= hi[j], axis=1) & np.all(
         lo[j] <= hi[i], axis=1)

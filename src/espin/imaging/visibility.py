@@ -44,7 +44,8 @@ crossings are traced as their ends), so it can only veto. The threshold sits in 
 (in ln) of the two levels rather than where the fitted components are equally likely: the
 top component is narrow (sd 0.03-0.05 in ln) and top fibers in a shaded corner or under
 noise fall below it; the equal-likelihood point lay at 0.87-0.90 on some renderings and
-missed top fibers of brightness 0.79-0.86 (recall 0.965 against 0.994).
+missed top fibers of brightness 0.79-0.86 (recall 0.965 against 0.994, with the tracer of
+that time).
 """
 
 from __future__ import annotations
