@@ -39,9 +39,6 @@ from espin.mechanics.fiber_law import STRETCH_FLOOR
 __all__ = ["FiberJoints", "fiber_joints"]
 
 _ROTATE = np.array([[0.0, -1.0], [1.0, 0.0]])  # perp(w) = R w
-# node coordinates (a, b, c) -> u = x_b - x_a and v = x_c - x_b
-_U = np.hstack([-np.eye(2), np.eye(2), np.zeros((2, 2))])
-_V = np.hstack([np.zeros((2, 2)), -np.eye(2), np.eye(2)])
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,9 +106,7 @@ class FiberJoints:
         cosine = np.cos(change) if exact else np.maximum(np.cos(change), 0.0)
         hessian = (self.stiffness * cosine)[:, None, None] * jacobian[:, :, None] * jacobian[:, None, :]
         if exact:
-            curvature = (np.einsum("ai,nab,bj->nij", _V, _perp_derivative(v), _V)
-                         - np.einsum("ai,nab,bj->nij", _U, _perp_derivative(u), _U))
-            hessian += (self.stiffness * np.sin(change))[:, None, None] * curvature
+            hessian += (self.stiffness * np.sin(change))[:, None, None] * _curvature(u, v)
         return hessian
 
     def virial(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -125,10 +120,24 @@ class FiberJoints:
         return np.einsum("nki,nkj->ij", force, y[self.nodes])
 
 
+def _curvature(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(n, 6, 6) d^2 theta / d(x_a, x_b, x_c)^2 with theta = angle(v) - angle(u), u = x_b - x_a,
+    v = x_c - x_b: the blocks of -d perp(u)/|u|^2 / du over (a, b) and of
+    d perp(v)/|v|^2 / dv over (b, c), with the signs of u and v."""
+    hu, hv = _perp_derivative(u), _perp_derivative(v)
+    out = np.zeros((len(u), 3, 2, 3, 2))
+    out[:, 0, :, 0] = -hu
+    out[:, 0, :, 1] = out[:, 1, :, 0] = hu
+    out[:, 1, :, 1] = hv - hu
+    out[:, 1, :, 2] = out[:, 2, :, 1] = -hv
+    out[:, 2, :, 2] = hv
+    return out.reshape(-1, 6, 6)
+
+
 def _perp_derivative(w: np.ndarray) -> np.ndarray:
     """(n, 2, 2) d(perp(w) / |w|^2) / dw = R / |w|^2 - 2 R w w^T / |w|^4."""
     ww = np.einsum("ij,ij->i", w, w)
-    outer = np.einsum("ij,nj,nk->nik", _ROTATE, w, w)
+    outer = (w @ _ROTATE.T)[:, :, None] * w[:, None, :]
     return _ROTATE[None] / ww[:, None, None] - 2.0 * outer / (ww * ww)[:, None, None]
 
 
