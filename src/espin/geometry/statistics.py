@@ -646,6 +646,8 @@ class NetworkStatistics:
         seeding's geometry; the window sample (``window.orientation``) is free of it.
     segment_orientation : (n_segments,) float64 [rad]
         Axis of each deposition segment, in [0, pi).
+    segment_length_um : (n_segments,) float64 [um]
+        Length of each segment (the weights of the orientation moments).
     fiber_tortuosity : (n_fibers,) float64
         Contour over end-to-end length of whole fibers.
     element_tortuosity : (n_elements,) float64
@@ -696,6 +698,7 @@ class NetworkStatistics:
     expected_crosslinks_within_distinct: float
     fiber_orientation: np.ndarray
     segment_orientation: np.ndarray
+    segment_length_um: np.ndarray
     fiber_tortuosity: np.ndarray
     element_tortuosity: np.ndarray
     diameter_um: np.ndarray
@@ -705,6 +708,33 @@ class NetworkStatistics:
     ks_fiber_orientation: float = math.nan
     ks_window_orientation: float = math.nan
     grading: TargetGrading = field(default_factory=TargetGrading)
+
+    def orientation_moments(self) -> dict[str, float]:
+        """Length-weighted orientation moments of the mat's segments against the target's.
+
+        With n = (cos phi, sin phi) the segment axis and weights the segment lengths:
+        ``cos2`` = <cos^2 phi>, ``cos4`` = <cos^4 phi> (the affine modulus along x goes as
+        <cos^4>, the yield stress as <cos^2>; docs/model.md section 7), the orientation tensor
+        <n (x) n> (``tensor_11``, ``tensor_12``; ``tensor_22`` = 1 - ``tensor_11``), the same
+        moments of the target distribution ``target_*`` (by quadrature of its density), and
+        ``tensor_deviation``, the Frobenius norm of the difference of the two tensors (0: the
+        realization's second moments are the target's).
+        """
+        phi = self.segment_orientation
+        w = self.segment_length_um / np.sum(self.segment_length_um)
+        c, s = np.cos(phi), np.sin(phi)
+        mat = {"cos2": float(np.sum(w * c * c)), "cos4": float(np.sum(w * c**4)),
+               "tensor_12": float(np.sum(w * c * s))}
+        theta = (np.arange(_MOMENT_POINTS) + 0.5) * np.pi / _MOMENT_POINTS
+        density = self.orientation_target.pdf(theta)
+        density = density / np.sum(density)
+        ct, st = np.cos(theta), np.sin(theta)
+        target = {"cos2": float(np.sum(density * ct * ct)), "cos4": float(np.sum(density * ct**4)),
+                  "tensor_12": float(np.sum(density * ct * st))}
+        d11, d12 = mat["cos2"] - target["cos2"], mat["tensor_12"] - target["tensor_12"]
+        return {**mat, "tensor_11": mat["cos2"],
+                **{f"target_{k}": v for k, v in target.items()}, "target_tensor_11": target["cos2"],
+                "tensor_deviation": float(np.sqrt(2.0 * d11 * d11 + 2.0 * d12 * d12))}
 
     @property
     def n_crosslinks(self) -> int:
@@ -791,6 +821,7 @@ class NetworkStatistics:
             "window_n_portions": len(w),
             "window_tortuosity_mean": _mean(w.tortuosity),
             "window_tortuosity_sd": _std(w.tortuosity),
+            **{f"orientation_{k}": v for k, v in self.orientation_moments().items()},
             "orientation_target": self.orientation_target.label,
             "ks_fiber_orientation": self.ks_fiber_orientation,
             "ks_window_orientation": self.ks_window_orientation,
@@ -826,6 +857,10 @@ class NetworkStatistics:
                                             "window_tortuosity_sd"]),
             ("against the config's orientation distribution (KS statistic: 0 same, 1 disjoint)",
              ["orientation_target", "ks_fiber_orientation", "ks_window_orientation"]),
+            ("length-weighted orientation moments of the segments, x the 0 deg axis (and the target's)",
+             ["orientation_cos2", "orientation_target_cos2", "orientation_cos4",
+              "orientation_target_cos4", "orientation_tensor_12", "orientation_target_tensor_12",
+              "orientation_tensor_deviation"]),
             ("against measured targets (KS statistic: 0 same, 1 disjoint)",
              _graded_keys(self.grading)),
         ]
@@ -992,6 +1027,7 @@ def network_statistics(
         expected_crosslinks_within_distinct=expected_within_distinct,
         fiber_orientation=np.asarray(mat.orientation),
         segment_orientation=segment_orientation,
+        segment_length_um=np.hypot(seg_vec[:, 0], seg_vec[:, 1]),
         fiber_tortuosity=np.asarray(mat.tortuosity),
         element_tortuosity=element_tortuosity,
         diameter_um=diameter,
@@ -1007,6 +1043,9 @@ def network_statistics(
 # --------------------------------------------------------------------------------------------
 # helpers
 # --------------------------------------------------------------------------------------------
+_MOMENT_POINTS = 3600  # midpoints over [0, pi) for the target's orientation moments
+
+
 def _axial_order(theta: np.ndarray) -> tuple[float, float]:
     """Order parameter |<exp(2 i theta)>| (0 isotropic, 1 aligned) and director [deg]."""
     theta = np.asarray(theta, dtype=float)
