@@ -247,15 +247,7 @@ def _merge_junctions(graph: _Graph, w: float) -> _Graph:
     length = np.array([_branch_length(b) for b in graph.branches])
     candidate = np.flatnonzero(np.all(graph.ends >= 0, axis=1) & (length < _MERGE * w)
                                & (graph.ends[:, 0] != graph.ends[:, 1]))
-    group = np.arange(n)
-    for b in candidate[np.argsort(length[candidate])]:
-        ga, gb = group[graph.ends[b]]
-        if ga == gb:
-            continue
-        members = graph.junction_centre[(group == ga) | (group == gb)]
-        spread = np.hypot(*(members[:, None, :] - members[None, :, :]).transpose(2, 0, 1))
-        if spread.max() <= _MERGE * w:
-            group[group == gb] = ga
+    group = _group_junctions(graph, candidate[np.argsort(length[candidate])], _MERGE * w)
     _, group = np.unique(group, return_inverse=True)
     count = np.bincount(group, minlength=group.max(initial=-1) + 1)
     centre = np.column_stack([np.bincount(group, graph.junction_centre[:, k]) / count
@@ -402,24 +394,31 @@ def _pair_branches(graph: _Graph, w: float, max_bend: float, partner: np.ndarray
     return partner, inner
 
 
+def _group_junctions(graph: _Graph, branches: np.ndarray, max_spread: float) -> np.ndarray:
+    """Group of every junction after joining the two junctions of each of ``branches`` in
+    turn, a join refused if the group would be more than ``max_spread`` [px] across."""
+    group = np.arange(len(graph.junction_centre))
+    for b in branches:
+        ga, gb = group[graph.ends[b]]
+        if ga == gb:
+            continue
+        members = graph.junction_centre[(group == ga) | (group == gb)]
+        spread = np.hypot(*(members[:, None, :] - members[None, :, :]).transpose(2, 0, 1))
+        if spread.max() <= max_spread:
+            group[group == gb] = ga
+    return group
+
+
 def _junction_clusters(graph: _Graph, w: float, partner: np.ndarray,
                        bridges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Cluster of every junction, and the inner branches (joining two junctions of one
     cluster, at most _CLUSTER w long); shortest branches first, a merge refused if the
     cluster would be more than _CLUSTER_SPREAD w across."""
     n = len(graph.junction_centre)
-    group = np.arange(n)
     length = np.array([_branch_length(b) for b in graph.branches])
     short = (np.all(graph.ends >= 0, axis=1) & (length <= _CLUSTER * w) & ~bridges
              & np.all(partner < 0, axis=1))
-    for b in np.flatnonzero(short)[np.argsort(length[short])]:
-        ga, gb = group[graph.ends[b]]
-        if ga == gb:
-            continue
-        members = graph.junction_centre[(group == ga) | (group == gb)]
-        spread = np.hypot(*(members[:, None, :] - members[None, :, :]).transpose(2, 0, 1))
-        if spread.max() <= _CLUSTER_SPREAD * w:
-            group[group == gb] = ga
+    group = _group_junctions(graph, np.flatnonzero(short)[np.argsort(length[short])], _CLUSTER_SPREAD * w)
     ends = np.maximum(graph.ends, 0)
     inner = short & (group[ends[:, 0]] == group[ends[:, 1]]) if n else short
     return group, inner
