@@ -28,6 +28,9 @@ def generate(
     seeding: Annotated[
         Optional[str], typer.Option(help="rve.seeding: border (paper) or lines.")
     ] = None,
+    sampling: Annotated[
+        Optional[str], typer.Option(help="rve.sampling: random (paper) or balanced (less scatter across seeds).")
+    ] = None,
     set_: SetOpt = None,
     figures: Annotated[bool, typer.Option(help="Write PNG figures.")] = True,
     vtk: Annotated[bool, typer.Option(help="Write VTK files for ParaView.")] = True,
@@ -54,6 +57,7 @@ def generate(
         "rve.size_ratio": size_ratio,
         "rve.volume_fraction": volume_fraction,
         "rve.seeding": seeding,
+        "rve.sampling": sampling,
     }
     try:
         overrides = {k: v for k, v in options.items() if v is not None} | parse_set(set_)
@@ -79,7 +83,7 @@ def generate(
     except EspinError as err:
         fail(err)
     console.print(result.statistics.format_table(), highlight=False, soft_wrap=True)
-    console.print(f"seeding: {config.rve.seeding}   wrote {folder}/: " + ", ".join(
+    console.print(f"seeding: {config.rve.seeding}   sampling: {config.rve.sampling}   wrote {folder}/: " + ", ".join(
         p.name for p in result.files.values()
     ), highlight=False)
 

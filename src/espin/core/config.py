@@ -217,6 +217,12 @@ class RVEConfig(_Section):
     """Fiber axis distribution: "uniform", {von_mises = {...}} or {histogram = {...}}."""
     seeding: Literal["border", "lines"] | None = None
     """"border" (paper) or "lines" (stationary); default: border if uniform, else lines."""
+    sampling: Literal["random", "balanced"] = "random"
+    """How the fibers are drawn (docs/geometry.md): "random" (the paper: each fiber's axis,
+    start and diameter independent) or "balanced" (the same law for each fiber, but the RVE's
+    fibers take consecutive points of a scrambled Sobol' sequence and each walk or its mirror
+    image is kept so as to balance the orientation content; about ten times less scatter of
+    modulus and yield stress across realizations of one size)."""
     merge_tolerance_ratio: Annotated[float, Field(gt=0.0, le=0.1)] = 0.1
     """Node candidates closer than this times D along a fiber are merged into one node, in
     (0, 0.1]. Default 0.1 (docs/model.md section 2): shorter elements between close

@@ -25,6 +25,7 @@ independent child streams of the seed, so a layer does not change when others ar
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 from typing import Any
 
@@ -32,6 +33,7 @@ import numpy as np
 from scipy import special, stats
 
 from espin.core.config import RVEConfig
+from espin.geometry.balanced import BalancedSampler, axis_quantiles, orientation_content
 from espin.geometry.mat import FiberMat
 from espin.geometry.orientation import OrientationDistribution, orientation_distribution
 
@@ -39,13 +41,29 @@ __all__ = ["deposit", "deposit_layer", "lognormal_diameters"]
 
 # Inward unit normals of the edges bottom (y = 0), right (x = L), top (y = L), left (x = 0).
 _INWARD = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
+# Spawn keys of balanced sampling's walk and layer streams (the layers' keys are 0 ..
+# layers - 1 <= 999, the sampler's scramble 1,000,000).
+_BALANCED_WALKS_KEY = 1_000_001
+# Candidate fibers walked at once by balanced sampling (each in 2^blocks variants): bounds
+# the memory of large RVEs (points not used go back to the sequence).
+_BALANCED_BATCH = 1024
+# Blocks of a paper walk's turns whose signs balanced sampling chooses (2^blocks variants).
+_TURN_BLOCKS = 4
+_BALANCED_LAYERS_KEY = 1_000_002
 
 
 def _border_starts(
     rng: np.random.Generator, n: int, side: float, dist: OrientationDistribution
 ) -> tuple[np.ndarray, np.ndarray]:
     """Start points uniform on the border and inward axes (``border`` seeding)."""
-    s = rng.uniform(0.0, 4.0 * side, n)
+    start, edge = _border_points(rng.uniform(0.0, 4.0 * side, n), side)
+    return start, _inward(rng, dist.sample(rng, n), edge, dist)
+
+
+def _border_points(s: np.ndarray, side: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points at arc lengths ``s`` in [0, 4L) [um] along the border (counter-clockwise from
+    the origin) and the index of their edge (bottom, right, top, left)."""
+    n = len(s)
     edge = np.minimum((s // side).astype(np.int64), 3)
     along = s - edge * side
     start = np.empty((n, 2))
@@ -53,7 +71,13 @@ def _border_starts(
     start[edge == 1] = np.c_[np.full((edge == 1).sum(), side), along[edge == 1]]
     start[edge == 2] = np.c_[side - along[edge == 2], np.full((edge == 2).sum(), side)]
     start[edge == 3] = np.c_[np.zeros((edge == 3).sum()), side - along[edge == 3]]
-    theta = dist.sample(rng, n)
+    return start, edge
+
+
+def _inward(rng: np.random.Generator, theta: np.ndarray, edge: np.ndarray,
+            dist: OrientationDistribution) -> np.ndarray:
+    """The sense of the axes ``theta`` [rad] that points into the square from ``edge``
+    (axes parallel to the edge drawn again)."""
     normal = _INWARD[edge]
     while True:
         dot = np.cos(theta) * normal[:, 0] + np.sin(theta) * normal[:, 1]
@@ -61,9 +85,7 @@ def _border_starts(
         if not parallel.any():
             break
         theta[parallel] = dist.sample(rng, int(parallel.sum()))
-    # Take the sense of the axis that points into the square.
-    theta = np.where(dot > 0.0, theta, theta + np.pi)
-    return start, theta
+    return np.where(dot > 0.0, theta, theta + np.pi)
 
 
 def _line_starts(
@@ -76,13 +98,20 @@ def _line_starts(
     direction follows p: a line of axis theta crosses the square along L^2 / w on average.
     """
     theta = _width_weighted_axes(rng, n, dist) + np.pi * rng.integers(0, 2, n)  # random sense
+    return _line_entries(theta, rng.uniform(0.0, 1.0, n), side)
+
+
+def _line_entries(theta: np.ndarray, offset: np.ndarray, side: float) -> tuple[np.ndarray, np.ndarray]:
+    """Entry points into the square of the lines of directions ``theta`` [rad] whose offsets
+    across the square, perpendicular to them, are the fractions ``offset`` in [0, 1) of the
+    square's width seen from that direction; and ``theta``."""
     d = np.c_[np.cos(theta), np.sin(theta)]
     normal = np.c_[-d[:, 1], d[:, 0]]
     centre = np.array([side / 2.0, side / 2.0])
     # Half-width of the square seen across the line direction: projection of the corners.
     half = 0.5 * side * (np.abs(normal[:, 0]) + np.abs(normal[:, 1]))
-    offset = rng.uniform(-half, half)
-    point = centre + offset[:, None] * normal
+    # -half + (2 half) offset: the arithmetic of Generator.uniform(-half, half).
+    point = centre + (-half + 2.0 * half * offset)[:, None] * normal
     # Entry parameter of the line into the square (slab method).
     with np.errstate(divide="ignore", invalid="ignore"):
         t0 = (0.0 - point) / d
@@ -125,6 +154,23 @@ class _PaperTurns:
               side: float) -> np.ndarray:
         return theta.copy()
 
+    @staticmethod
+    def mirrorable(start: np.ndarray, state: np.ndarray, side: float) -> np.ndarray:
+        """Every fiber: the first segment follows the drawn axis in every variant."""
+        return np.ones(len(state), dtype=bool)
+
+    @property
+    def variants(self) -> np.ndarray:
+        """Turn signs of balanced sampling's variants: every sign pattern over
+        ``_TURN_BLOCKS`` blocks, all +1 first (the turns are independent and symmetric, so
+        negating any of them keeps the walk's law)."""
+        return -np.array(list(itertools.product((-1.0, 1.0), repeat=_TURN_BLOCKS)))
+
+    @staticmethod
+    def block_steps(side: float, segment: float, n_blocks: int) -> int:
+        """Steps per block of turns: the mean chord pi L / 4 in ``n_blocks`` parts."""
+        return int(np.ceil(np.pi * side / 4.0 / segment / n_blocks))
+
     def directions(self, rng: np.random.Generator, state: np.ndarray, n_steps: int,
                    first: bool) -> tuple[np.ndarray, np.ndarray]:
         turns = rng.uniform(-self.max_turn, self.max_turn, (len(state), n_steps))
@@ -166,17 +212,37 @@ class _SmoothDeviation:
         # The first state is drawn from the stationary law, again while the first segment
         # would point out of the square (then the drawn axis itself, which points in).
         psi, phi = self._stationary(rng, len(theta))
-        step = 1e-9 * side
         for _ in range(50):
-            first = theta + self.rms * phi
-            ahead = start + step * np.c_[np.cos(first), np.sin(first)]
-            out = ((ahead <= 0.0) | (ahead >= side)).any(axis=1)
+            out = self._points_out(start, theta + self.rms * phi, side)
             if not out.any():
                 break
             psi[out], phi[out] = self._stationary(rng, int(out.sum()))
         else:
             psi[out], phi[out] = 0.0, 0.0
         return theta, psi, phi
+
+    def mirrorable(self, start: np.ndarray, state: tuple[np.ndarray, np.ndarray, np.ndarray],
+                   side: float) -> np.ndarray:
+        """Fibers whose mirror image also starts into the square: on that set, symmetric in
+        the deviation, the image has the walk's law."""
+        theta, _, phi = state
+        return ~self._points_out(start, theta - self.rms * phi, side)
+
+    @property
+    def variants(self) -> np.ndarray:
+        """Deviation signs (2, 1) of balanced sampling's variants: the walk and its mirror
+        image (the Gaussian deviation negated as a whole keeps its law, in part it would not)."""
+        return np.array([[1.0], [-1.0]])
+
+    @staticmethod
+    def block_steps(side: float, segment: float, n_blocks: int) -> int:
+        """One block: the deviation is negated as a whole."""
+        return int(np.ceil(4.0 * side / segment))
+
+    @staticmethod
+    def _points_out(start: np.ndarray, direction: np.ndarray, side: float) -> np.ndarray:
+        ahead = start + 1e-9 * side * np.c_[np.cos(direction), np.sin(direction)]
+        return ((ahead <= 0.0) | (ahead >= side)).any(axis=1)
 
     def directions(self, rng: np.random.Generator, state: tuple[np.ndarray, np.ndarray, np.ndarray],
                    n_steps: int, first: bool
@@ -214,28 +280,57 @@ def _walk(
     side: float,
     segment: float,
     model: _PaperTurns | _SmoothDeviation,
+    signs: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Walks of segments ``segment`` from ``start`` along first axes ``theta``, directions from
     ``model``, until they leave the square; the leaving segment is trimmed at the border.
 
+    With ``signs`` (n_variants, n_blocks) of +-1, each fiber is walked once per variant, all
+    on the same draws: variant v turns by ``signs[v, b]`` times the drawn turn (the change of
+    direction from one segment to the next, the first one measured from the axis) in the
+    b-th block of ``model.block_steps(side, segment, n_blocks)`` steps (the last block runs to
+    the end). Variant 0 must be all +1 (the walk as drawn); a fiber that
+    ``model.mirrorable`` refuses is walked as drawn in every variant.
+
     Returns
     -------
     vertices : (n_vertices, 2) float64 [um]
-        Vertices of all fibers, fiber after fiber.
-    counts : (n,) int64
+        Vertices of all fibers, fiber after fiber (with ``signs``, variant after variant).
+    counts : (n,) or (n_variants n,) int64
         Number of vertices of each fiber (segments + 1).
     """
     n = len(start)
+    signs = np.ones((1, 1)) if signs is None else np.asarray(signs, dtype=float)
+    rows = len(signs) * n
+    drawn_for = np.arange(rows) % n  # the fiber whose draws a row follows
     chunk = int(np.ceil(1.5 * side / segment)) + 2
-    pieces_fiber = [np.arange(n)]
-    pieces_vertex = [start]
-    active = np.arange(n)
-    pos = start.copy()
+    pieces_fiber = [np.arange(rows)]
+    pieces_vertex = [start[drawn_for]]
+    active = np.arange(rows)
+    pos = start[drawn_for]
+    drawn = np.arange(n)  # fibers whose directions are still drawn (a variant is inside)
     state = model.start(rng, start, theta, side)
+    if len(signs) > 1:
+        row_signs = np.where(model.mirrorable(start, state, side)[drawn_for, None],
+                             np.repeat(signs, n, axis=0), 1.0)
+        block = max(model.block_steps(side, segment, signs.shape[1]), 1)
+        drawn_last = theta.copy()  # direction before the next drawn segment
+        row_last = theta[drawn_for]
+    step = 0
     first = True
     while active.size:
-        angles, state = model.directions(rng, state, chunk, first)
+        drawn_angles, state = model.directions(rng, state, chunk, first)
         first = False
+        angles = drawn_angles[np.searchsorted(drawn, drawn_for[active])]
+        if len(signs) > 1:
+            turned = active >= n  # variant 0 takes the drawn angles as they are
+            turns = np.diff(np.c_[drawn_last, drawn_angles], axis=1)[np.searchsorted(drawn, drawn_for[active[turned]])]
+            blocks = np.minimum((step + np.arange(chunk)) // block, signs.shape[1] - 1)
+            angles[turned] = row_last[active[turned], None] + np.cumsum(
+                row_signs[active[turned]][:, blocks] * turns, axis=1)
+            row_last[active] = angles[:, -1]
+            drawn_last = drawn_angles[:, -1]
+        step += chunk
         steps = segment * np.stack([np.cos(angles), np.sin(angles)], axis=-1)
         path = pos[:, None, :] + np.cumsum(steps, axis=1)
         outside = ((path < 0.0) | (path > side)).any(axis=2)
@@ -255,11 +350,15 @@ def _walk(
         # Fibers still inside carry on from their last vertex.
         going = ~exited
         pos = path[going, -1]
-        state = model.keep(state, going)
         active = active[going]
+        still = np.isin(drawn, drawn_for[active])
+        state = model.keep(state, still)
+        if len(signs) > 1:
+            drawn_last = drawn_last[still]
+        drawn = drawn[still]
     fiber = np.concatenate(pieces_fiber)
     order = np.argsort(fiber, kind="stable")
-    return np.concatenate(pieces_vertex)[order], np.bincount(fiber, minlength=n)
+    return np.concatenate(pieces_vertex)[order], np.bincount(fiber, minlength=rows)
 
 
 def _diameters(rng: np.random.Generator, n: int, rve: RVEConfig) -> np.ndarray:
@@ -273,10 +372,21 @@ def _diameters(rng: np.random.Generator, n: int, rve: RVEConfig) -> np.ndarray:
         lower = (rve.diameter_min_um - rve.diameter_um) / rve.diameter_sd_um
         return stats.truncnorm.rvs(lower, np.inf, loc=rve.diameter_um, scale=rve.diameter_sd_um,
                                    size=n, random_state=rng)
+    return _diameter_quantiles(rve, rng.uniform(0.0, 1.0, n))
+
+
+def _diameter_quantiles(rve: RVEConfig, u: np.ndarray) -> np.ndarray:
+    """Fiber diameters [um] at cumulative probabilities ``u`` of ``rve.diameter_distribution``
+    truncated below at ``rve.diameter_min_um`` (the inverse distribution function)."""
+    if rve.diameter_sd_um == 0.0:
+        return np.full(len(u), rve.diameter_um)
+    if rve.diameter_distribution == "normal":
+        lower = (rve.diameter_min_um - rve.diameter_um) / rve.diameter_sd_um
+        return stats.truncnorm.ppf(u, lower, np.inf, loc=rve.diameter_um, scale=rve.diameter_sd_um)
     sigma, median = _lognormal_parameters(rve.diameter_um, rve.diameter_sd_um)
     # Inverse CDF over [low, 1): the truncated law exactly.
     low = special.ndtr(np.log(rve.diameter_min_um / median) / sigma)
-    return median * np.exp(sigma * special.ndtri(low + (1.0 - low) * rng.uniform(0.0, 1.0, n)))
+    return median * np.exp(sigma * special.ndtri(low + (1.0 - low) * u))
 
 
 def _lognormal_parameters(mean_um: float, sd_um: float) -> tuple[float, float]:
@@ -295,7 +405,8 @@ def lognormal_diameters(mean_um: float, sd_um: float) -> Any:
 def deposit_layer(
     rve: RVEConfig, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Deposit one layer until its volume fraction reaches ``rve.volume_fraction``.
+    """Deposit one layer of random sampling until its volume fraction reaches
+    ``rve.volume_fraction``.
 
     Parameters
     ----------
@@ -313,28 +424,15 @@ def deposit_layer(
     diameters : (n_fibers,) float64 [um]
         Fiber diameters.
     """
-    side, segment = rve.side_um, rve.segment_length_um
     dist = orientation_distribution(rve.orientation)
-    seed_fibers = _border_starts if rve.seeding == "border" else _line_starts
-    walk = _walk_model(rve)
-    target = rve.volume_fraction * side**2 * rve.diameter_um
-    # Mean chord of isotropic lines in a square is pi L / 4 (Cauchy-Crofton).
-    expected = target / (np.pi * rve.diameter_um**2 / 4.0 * np.pi * side / 4.0)
+    target, expected = _layer_target(rve)
     batch = int(1.1 * expected) + 4
     parts_v, parts_c, parts_d = [], [], []
     volume = 0.0
     while True:
-        start, theta = seed_fibers(rng, batch, side, dist)
-        diameter = _diameters(rng, batch, rve)
-        vertices, counts = _walk(rng, start, theta, side, segment, walk)
-        seg = np.diff(vertices, axis=0)
-        seg_len = np.hypot(seg[:, 0], seg[:, 1])
+        vertices, counts, diameter = _random_fibers(rve, rng, batch, dist)
         ends = np.cumsum(counts)
-        # Contour of each fiber: sum of its segments (the step from one fiber to the next
-        # is not a segment).
-        cum = np.concatenate([[0.0], np.cumsum(seg_len)])
-        contour = cum[ends - 1] - cum[ends - counts]
-        cum_volume = volume + np.cumsum(np.pi * diameter**2 / 4.0 * contour)
+        cum_volume = volume + np.cumsum(_fiber_volumes(vertices, counts, diameter))
         reached = np.flatnonzero(cum_volume >= target)
         n_keep = reached[0] + 1 if reached.size else batch
         parts_v.append(vertices[: ends[n_keep - 1]])
@@ -347,6 +445,103 @@ def deposit_layer(
     return np.concatenate(parts_v), np.concatenate(parts_c), np.concatenate(parts_d)
 
 
+def _layer_target(rve: RVEConfig) -> tuple[float, float]:
+    """Fiber volume of a full layer [um^3] and the expected number of fibers in it."""
+    target = rve.volume_fraction * rve.side_um**2 * rve.diameter_um
+    # Mean chord of isotropic lines in a square is pi L / 4 (Cauchy-Crofton).
+    return target, target / (np.pi * rve.diameter_um**2 / 4.0 * np.pi * rve.side_um / 4.0)
+
+
+def _fiber_volumes(vertices: np.ndarray, counts: np.ndarray, diameter: np.ndarray) -> np.ndarray:
+    """Volume [um^3] of each fiber: cross-section times contour (the sum of its segments;
+    the step from one fiber to the next is not a segment)."""
+    seg = np.diff(vertices, axis=0)
+    cum = np.concatenate([[0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))])
+    ends = np.cumsum(counts)
+    return np.pi * diameter**2 / 4.0 * (cum[ends - 1] - cum[ends - counts])
+
+
+def _balanced_layers(rve: RVEConfig, progress: Callable[[int, int], None] | None
+                     ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """All layers of a mat of balanced sampling, deposited together: fiber after fiber, the
+    sampler's next fiber goes to a layer drawn uniformly among those not yet full, until
+    every layer reaches ``rve.volume_fraction`` (the fiber that crosses it is kept).
+
+    The RVE's fibers are then a prefix of the sampler's sequence (balanced), and a layer's
+    fibers are scattered through it: fibers of one layer are no closer in the sequence than
+    fibers of different layers, so the sequence's even spreading does not change how often
+    fibers of a layer cross (consecutive points of the sequence are never alike).
+
+    Returns
+    -------
+    list of (vertices, counts, diameters), one per layer
+        As :func:`deposit_layer`.
+    """
+    dist = orientation_distribution(rve.orientation)
+    target, expected = _layer_target(rve)
+    sampler = BalancedSampler(rve.seed)
+    walks = np.random.default_rng(np.random.SeedSequence(rve.seed, spawn_key=(_BALANCED_WALKS_KEY,)))
+    chooser = np.random.default_rng(np.random.SeedSequence(rve.seed, spawn_key=(_BALANCED_LAYERS_KEY,)))
+    volume = np.zeros(rve.layers)
+    open_layers = list(range(rve.layers))
+    kept: list[list[tuple[np.ndarray, float]]] = [[] for _ in range(rve.layers)]
+    while open_layers:
+        batch = min(int(1.1 * expected * len(open_layers)) + 4, _BALANCED_BATCH)
+        vertices, counts, diameter = _balanced_fibers(rve, walks, batch, dist, sampler)
+        ends = np.concatenate([[0], np.cumsum(counts)])
+        fiber_volume = _fiber_volumes(vertices, counts, diameter)
+        n_keep = batch
+        for j in range(batch):
+            layer = open_layers[int(chooser.integers(len(open_layers)))]
+            kept[layer].append((vertices[ends[j]:ends[j + 1]], diameter[j]))
+            volume[layer] += fiber_volume[j]
+            if volume[layer] >= target:
+                open_layers.remove(layer)
+                if progress is not None:
+                    progress(rve.layers - len(open_layers), rve.layers)
+                if not open_layers:
+                    n_keep = j + 1
+                    break
+        sampler.accept(n_keep)
+    return [(np.concatenate([v for v, _ in fibers]), np.array([len(v) for v, _ in fibers]),
+             np.array([d for _, d in fibers])) for fibers in kept]
+
+
+def _random_fibers(rve: RVEConfig, rng: np.random.Generator, n: int, dist: OrientationDistribution
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``n`` candidate fibers drawn independently (the paper): vertices, counts, diameters."""
+    seed_fibers = _border_starts if rve.seeding == "border" else _line_starts
+    start, theta = seed_fibers(rng, n, rve.side_um, dist)
+    diameter = _diameters(rng, n, rve)
+    vertices, counts = _walk(rng, start, theta, rve.side_um, rve.segment_length_um, _walk_model(rve))
+    return vertices, counts, diameter
+
+
+def _balanced_fibers(rve: RVEConfig, rng: np.random.Generator, n: int, dist: OrientationDistribution,
+                     sampler: BalancedSampler) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``n`` candidate fibers of balanced sampling (geometry/balanced.py): axis, start and
+    diameter at the sampler's next points, each walk's variant (turns negated in part or in
+    whole, ``model.variants``) chosen by herding."""
+    side = rve.side_um
+    u = sampler.points(n)
+    if rve.seeding == "border":
+        start, edge = _border_points(4.0 * side * u[:, 1], side)
+        theta = _inward(rng, axis_quantiles(dist, u[:, 0], width_weighted=False), edge, dist)
+    else:
+        theta = axis_quantiles(dist, u[:, 0], width_weighted=True) + np.pi * rng.integers(0, 2, n)
+        start, theta = _line_entries(theta, u[:, 1], side)
+    diameter = _diameter_quantiles(rve, u[:, 2])
+    model = _walk_model(rve)
+    variants = model.variants
+    vertices, counts = _walk(rng, start, theta, side, rve.segment_length_um, model, signs=variants)
+    ends = np.concatenate([[0], np.cumsum(counts)])
+    content = orientation_content(vertices, counts, np.tile(diameter, len(variants)))
+    chosen = sampler.herd(content.reshape(len(variants), n, -1)) * n + np.arange(n)
+    kept_counts = counts[chosen]
+    first = np.repeat(ends[chosen] - np.concatenate([[0], np.cumsum(kept_counts)[:-1]]), kept_counts)
+    return vertices[first + np.arange(kept_counts.sum())], kept_counts, diameter
+
+
 def deposit(
     rve: RVEConfig,
     progress: Callable[[int, int], None] | None = None,
@@ -356,8 +551,10 @@ def deposit(
     Parameters
     ----------
     rve
-        Deposition parameters; ``rve.seed`` seeds the random streams (one child stream per
-        layer), so the same parameters give the same mat.
+        Deposition parameters; ``rve.seed`` seeds the random streams (random sampling: one
+        child stream per layer, so adding layers leaves the others unchanged; balanced
+        sampling: the sequence's scramble, the walks and the layers' draw), so the same
+        parameters give the same mat.
     progress
         Called as ``progress(layers_done, n_layers)`` after each layer.
 
@@ -366,16 +563,18 @@ def deposit(
     FiberMat
         The fibers as polylines.
     """
-    children = np.random.SeedSequence(rve.seed).spawn(rve.layers)
-    vertices, counts, diameters, layers = [], [], [], []
-    for k, child in enumerate(children):
-        v, c, d = deposit_layer(rve, np.random.default_rng(child))
-        vertices.append(v)
-        counts.append(c)
-        diameters.append(d)
-        layers.append(np.full(len(c), k, dtype=np.int64))
-        if progress is not None:
-            progress(k + 1, rve.layers)
+    if rve.sampling == "balanced":
+        per_layer = _balanced_layers(rve, progress)
+    else:
+        per_layer = []
+        for k, child in enumerate(np.random.SeedSequence(rve.seed).spawn(rve.layers)):
+            per_layer.append(deposit_layer(rve, np.random.default_rng(child)))
+            if progress is not None:
+                progress(k + 1, rve.layers)
+    vertices = [v for v, _, _ in per_layer]
+    counts = [c for _, c, _ in per_layer]
+    diameters = [d for _, _, d in per_layer]
+    layers = [np.full(len(c), k, dtype=np.int64) for k, c in enumerate(counts)]
     counts_all = np.concatenate(counts)
     return FiberMat(
         vertices=np.concatenate(vertices),

@@ -111,7 +111,7 @@ def generate(
     cfg = resolve_config(config, **overrides)
     size = check_size(cfg, allow_large=allow_large)
     log.info("expecting %s", size.describe())
-    log.info("depositing %d layers with %s seeding", cfg.rve.layers, cfg.rve.seeding)
+    log.info("depositing %d layers with %s seeding, %s sampling", cfg.rve.layers, cfg.rve.seeding, cfg.rve.sampling)
     layer_progress = None if progress is None else (lambda done, total: progress("deposition", done, total))
     mat = deposit(cfg.rve, progress=layer_progress)
     crosslinks = find_crosslinks(mat)
