@@ -1,6 +1,6 @@
 """Benchmark: the paper's Appendix A at paper scale, with random and balanced sampling.
 
-Run:  python benchmarks/bench_rve_size.py [--out rve_size_bench] [--realizations 10]
+Run:  python benchmarks/bench_rve_size.py [--out rve_size_bench] [--realizations 10] [--update-archive]
                                           [--variants border-random,border-balanced,lines-random,lines-balanced]
                                           [--sizes 50,100,150,200,250,300] [--layers 5,10,15,20]
       python benchmarks/bench_rve_size.py --report-only     # print what is on disk
@@ -15,6 +15,11 @@ It runs in the background and resumes: each variant's folder keeps every finishe
 the cheapest up across all variants (a first pass on the small sizes of every variant, then the
 large ones), so an interrupted run already compares the variants. A full run on 2 cores is
 about 4 hours (about 49 plla-sized tensile tests per variant).
+
+The rows of finished points are kept in the archive `benchmarks/data/rve_size/<variant>.csv`
+(`--archive`; written with `--update-archive`): points with all their realizations there are
+not run again, and the report merges the archive with the folder, so the study can be carried
+on from a fresh clone.
 """
 
 from __future__ import annotations
@@ -40,7 +45,20 @@ def _numbers(text: str, kind: type) -> list:
     return [kind(v) for v in text.split(",") if v.strip()]
 
 
-def run(out: Path, variants: list[str], sizes: list[float], layers: list[int], realizations: int) -> None:
+ARCHIVE = Path(__file__).parent / "data" / "rve_size"
+
+
+def results(out: Path, archive: Path, name: str) -> pd.DataFrame:
+    """Finished realizations of a variant: its folder's table and the archive's, one row per
+    (L/D, layers, seed), the folder's first."""
+    tables = [pd.read_csv(p) for p in (out / name / "results.csv", archive / f"{name}.csv") if p.exists()]
+    if not tables:
+        return pd.DataFrame(columns=["rve.size_ratio", "rve.layers", "seed"])
+    return pd.concat(tables).drop_duplicates(["rve.size_ratio", "rve.layers", "seed"])
+
+
+def run(out: Path, archive: Path, variants: list[str], sizes: list[float], layers: list[int],
+        realizations: int) -> None:
     from espin.studies.sweeps import rve_size_study
 
     # Passes of increasing cost (cost ~ (L/D)^2 N_l): every variant's cheap points first.
@@ -49,8 +67,13 @@ def run(out: Path, variants: list[str], sizes: list[float], layers: list[int], r
     passes = [c for c in (100.0**2 * 5, 200.0**2 * 10, np.inf) if c >= cost[0]]
     for limit in passes:
         for name in variants:
-            todo_sizes = [s for s in sizes if s * s * LAYERS_FOR_SIZES <= limit]
-            todo_layers = [n for n in layers if SIZE_FOR_LAYERS**2 * n <= limit]
+            done = results(out, archive, name).groupby(["rve.size_ratio", "rve.layers"]).size()
+
+            def missing(size: float, n_layers: int) -> bool:
+                return size * size * n_layers <= limit and done.get((size, n_layers), 0) < realizations
+
+            todo_sizes = [s for s in sizes if missing(s, LAYERS_FOR_SIZES)]
+            todo_layers = [n for n in layers if missing(SIZE_FOR_LAYERS, n)]
             if not todo_sizes and not todo_layers:
                 continue
             t0 = time.perf_counter()
@@ -60,14 +83,16 @@ def run(out: Path, variants: list[str], sizes: list[float], layers: list[int], r
             print(f"{name}: pass <= {limit:.3g} done in {time.perf_counter() - t0:.0f} s", flush=True)
 
 
-def report(out: Path, variants: list[str]) -> pd.DataFrame:
+def report(out: Path, archive: Path, variants: list[str], update_archive: bool) -> pd.DataFrame:
     rows = []
     for name in variants:
-        table = out / name / "results.csv"
-        if not table.exists():
+        table = results(out, archive, name)
+        if table.empty:
             continue
-        results = pd.read_csv(table)
-        for (size, n_layers), group in results.groupby(["rve.size_ratio", "rve.layers"]):
+        if update_archive:
+            archive.mkdir(parents=True, exist_ok=True)
+            table.sort_values(["rve.size_ratio", "rve.layers", "seed"]).to_csv(archive / f"{name}.csv", index=False)
+        for (size, n_layers), group in table.groupby(["rve.size_ratio", "rve.layers"]):
             row = {"variant": name, "L/D": size, "layers": n_layers, "n": len(group),
                    "dof": group["n_dof"].mean(), "seconds": group["seconds"].mean()}
             for p in PROPERTIES:
@@ -102,14 +127,18 @@ def main() -> None:
     parser.add_argument("--layers", default="5,10,15,20")
     parser.add_argument("--realizations", type=int, default=10)
     parser.add_argument("--report-only", action="store_true")
+    parser.add_argument("--archive", type=Path, default=ARCHIVE)
+    parser.add_argument("--update-archive", action="store_true",
+                        help="write the merged rows of each variant to the archive")
     args = parser.parse_args()
     variants = [v for v in args.variants.split(",") if v]
     unknown = sorted(set(variants) - set(VARIANTS))
     if unknown:
         parser.error(f"--variants: unknown {unknown}; choose from {list(VARIANTS)}")
     if not args.report_only:
-        run(args.out, variants, _numbers(args.sizes, float), _numbers(args.layers, int), args.realizations)
-    report(args.out, variants)
+        run(args.out, args.archive, variants, _numbers(args.sizes, float), _numbers(args.layers, int),
+            args.realizations)
+    report(args.out, args.archive, variants, args.update_archive)
 
 
 if __name__ == "__main__":
