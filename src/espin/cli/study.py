@@ -15,6 +15,7 @@ __all__ = ["register", "parse_grid"]
 study_app = typer.Typer(
     help="Ensembles of virtual tests: RVE size (Appendix A), DOF (Fig. 14), parameter sweeps.",
     no_args_is_help=True,
+    rich_markup_mode=None,
 )
 
 BaseArg = Annotated[Optional[str], typer.Argument(help="Preset (plla) or TOML config. Default: plla.")]
