@@ -68,6 +68,7 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "CurveError",
     "CurveProperties",
+    "check_curve",
     "curve_properties",
     "simulation_properties",
     "summarize_properties",
@@ -173,7 +174,14 @@ def _r_squared(y: np.ndarray, model: np.ndarray) -> float:
     return 1.0 - float(np.sum((y - model) ** 2)) / total
 
 
-def _check_curve(strain: ArrayLike, stress: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+def check_curve(strain: ArrayLike, stress: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """The curve as float arrays, checked: 1-D of one length, finite, strain not decreasing.
+
+    Raises
+    ------
+    CurveError
+        Naming the first point that breaks a rule.
+    """
     try:
         x = np.asarray(strain, dtype=float)
         y = np.asarray(stress, dtype=float)
@@ -320,7 +328,7 @@ def curve_properties(
         raise CurveError(f"elastic_fraction must be in (0, 1], got {elastic_fraction}")
     if not 0.0 < max_slope_ratio < 1.0:
         raise CurveError(f"max_slope_ratio must be in (0, 1), got {max_slope_ratio}")
-    x, y = _check_curve(strain, stress)
+    x, y = check_curve(strain, stress)
     if strain_range is not None:
         lo, hi = _check_strain_range(strain_range)
         keep = (x >= lo) & (x <= hi)

@@ -100,6 +100,45 @@ def _summary_row(summary: dict[str, dict[str, float]], n_curves: int) -> list[st
             cell("yield_strain", 100.0), cell("post_yield_modulus_MPa"), cell("r_squared"), note]
 
 
+def _standard_options(chord_range: str | None, percent: bool, offset_percent: float,
+                      break_drop_percent: float) -> dict[str, Any]:
+    """Keywords of :func:`~espin.analysis.standard_properties.standard_properties` from the
+    command's options; a stated chord range must hold points of every curve."""
+    import math
+
+    from espin.analysis.standard_properties import ISO_CHORD_RANGE
+    from espin.core.errors import ConfigError
+
+    if not (math.isfinite(offset_percent) and offset_percent > 0.0):
+        raise ConfigError(f"--offset-percent: a strain > 0 %, e.g. 0.2 (got {offset_percent})")
+    if not 0.0 < break_drop_percent < 100.0:
+        raise ConfigError(f"--break-drop-percent: in (0, 100) (got {break_drop_percent})")
+    chord = ISO_CHORD_RANGE
+    if chord_range is not None:
+        lo, hi = _strain_range(chord_range, percent)
+        if lo is None or hi is None or lo < 0.0:
+            raise ConfigError(f"--chord-range: LO:HI, both given, 0 <= LO < HI (got {chord_range!r})")
+        chord = (lo, hi)
+    return {"chord_range": chord, "offset": offset_percent / 100.0, "break_drop": break_drop_percent / 100.0,
+            "require_chord": chord_range is not None}
+
+
+def _percent(strains: tuple[float, float]) -> str:
+    return f"{100 * strains[0]:g} % to {100 * strains[1]:g} %"
+
+
+def _standard_row(name: str, p) -> list[str]:
+    def cell(value: float, scale: float = 1.0) -> str:
+        return "-" if value != value else f"{scale * value:.4g}"
+
+    return [name, cell(p.chord_modulus_MPa), cell(p.offset_yield_stress_MPa), cell(p.offset_yield_strain, 100.0),
+            cell(p.tensile_strength_MPa), cell(p.strain_at_strength, 100.0), cell(p.strain_at_break, 100.0),
+            p.note]
+
+
+_STANDARD_HEADER = ["curve", "chord modulus [MPa]", "offset yield [MPa]", "at strain [%]", "tensile strength [MPa]",
+                    "at strain [%]", "strain at break [%]", "note"]
+
 _HEADER = ["curve", "E [MPa]", "yield stress [MPa]", "yield strain [%]", "post-yield modulus [MPa]",
            "R^2", "note"]
 
@@ -133,12 +172,17 @@ class _Analysis:
     average_props: CurveProperties | None
     rows: list[list[str]]
     records: list[dict]
+    standard_options: dict[str, Any]
+    standard_rows: list[list[str]]
 
 
 def _analyse(curves: list[Curve],
-             strain_range: tuple[float | None, float | None] | None = None) -> _Analysis:
-    """Fit each curve (on ``strain_range``, fractions); with several, summarize them and fit
-    their average.
+             strain_range: tuple[float | None, float | None] | None = None,
+             standard: dict[str, Any] | None = None) -> _Analysis:
+    """Fit each curve (on ``strain_range``, fractions) and find its standard tensile
+    properties (``standard``: the keywords of
+    :func:`espin.analysis.standard_properties.standard_properties`); with several, summarize
+    them and fit their average.
 
     Raises
     ------
@@ -154,11 +198,24 @@ def _analyse(curves: list[Curve],
         except CurveError as err:
             raise CurveError(f"{source}: {err}") from None
 
+    from espin.analysis.standard_properties import standard_properties
+
+    standard = _standard_options(None, False, 0.2, 50.0) if standard is None else standard
+
+    def measure(source: str, strain, stress):
+        try:
+            return standard_properties(strain, stress, **standard)
+        except CurveError as err:
+            raise CurveError(f"{source}: {err}") from None
+
     short = [Path(c.source).name for c in curves]
     names = short if len(set(short)) == len(short) else [c.source for c in curves]
     fitted = [fit(c.source, c.strain, c.stress_MPa) for c in curves]
     rows = [_row(name, props) for name, props in zip(names, fitted)]
-    records = [{"curve": c.source} | p.as_dict() for c, p in zip(curves, fitted)]
+    measured = [measure(c.source, c.strain, c.stress_MPa) for c in curves]
+    standard_rows = [_standard_row(name, p) for name, p in zip(names, measured)]
+    records = [{"curve": c.source} | p.as_dict() | {f"standard_{k}": v for k, v in m.as_dict().items()}
+               for c, p, m in zip(curves, fitted, measured)]
     average = average_props = None
     if len(curves) > 1:
         summary = summarize_properties(fitted)
@@ -168,7 +225,7 @@ def _analyse(curves: list[Curve],
         average_props = fit("the average curve", average.strain, average.mean_MPa)
         rows.append(_row("average curve", average_props))
         records.append({"curve": "average"} | average_props.as_dict())
-    return _Analysis(names, curves, fitted, average, average_props, rows, records)
+    return _Analysis(names, curves, fitted, average, average_props, rows, records, standard, standard_rows)
 
 
 def _write_outputs(analysis: _Analysis, folder: Path) -> list[Path]:
@@ -224,6 +281,21 @@ def register(app: typer.Typer) -> None:
                               "column's units (percent with --percent-strain); either end may "
                               "be empty, e.g. 0.02: to leave out a toe region. Default: all."),
         ] = None,
+        chord_range: Annotated[
+            Optional[str],
+            typer.Option(metavar="LO:HI",
+                         help="Strain range of the chord modulus, in the strain column's units "
+                              "(percent with --percent-strain); at least two points of each "
+                              "curve must lie in it. Default: 0.05 % to 0.25 % (ISO 527-1), "
+                              "reported as missing where a curve has no points there."),
+        ] = None,
+        offset_percent: Annotated[
+            float, typer.Option(help="Offset strain of the offset yield (proof stress), percent.")
+        ] = 0.2,
+        break_drop_percent: Annotated[
+            float, typer.Option(help="Drop of the stress after its maximum, percent of the tensile "
+                                     "strength, that marks the break.")
+        ] = 50.0,
         out: Annotated[
             Optional[Path],
             typer.Option("--out", "-o", help="Folder for properties.csv, the averaged curve "
@@ -235,7 +307,8 @@ def register(app: typer.Typer) -> None:
         """Elastic modulus, yield and post-yield modulus of curves by a bilinear fit (docs/model.md section 7).
 
         With several curves (specimens) also their mean ± sd and the properties of their
-        average curve.
+        average curve. Beside the fit, what testing standards report (ISO 527-1, ASTM D882;
+        docs/properties.md): chord modulus, offset yield, tensile strength, strain at break.
         """
         from rich.console import Console
         from rich.table import Table
@@ -247,10 +320,11 @@ def register(app: typer.Typer) -> None:
             options = read_options(strain_column, stress_column, percent_strain, delimiter, skip_rows,
                                    decimal)
             fit_range = _strain_range(strain_range, percent_strain)
+            standard = _standard_options(chord_range, percent_strain, offset_percent, break_drop_percent)
             with curve_warnings():
                 read = [read_curve(path, **options) for path in curves]
-                with _claim(out, curves, [options, fit_range], overwrite):  # after the inputs are read
-                    analysis = _analyse(read, fit_range)
+                with _claim(out, curves, [options, fit_range, standard], overwrite):  # after the inputs are read
+                    analysis = _analyse(read, fit_range, standard)
                     written = [] if out is None else _write_outputs(analysis, out)
         except EspinError as err:
             fail(err)
@@ -259,5 +333,12 @@ def register(app: typer.Typer) -> None:
             table.add_row(*row)
         console = Console(width=140)
         console.print(table)
+        standard_table = Table(*_STANDARD_HEADER, title=(
+            f"testing standards: chord modulus over {_percent(analysis.standard_options['chord_range'])} strain, "
+            f"offset yield at {analysis.standard_options['offset'] * 100:g} %, break at a "
+            f"{analysis.standard_options['break_drop'] * 100:g} % drop"))
+        for row in analysis.standard_rows:
+            standard_table.add_row(*row)
+        console.print(standard_table)
         if out is not None:
             console.print(f"wrote {out}/: " + ", ".join(p.name for p in written), highlight=False)
