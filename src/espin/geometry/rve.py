@@ -7,8 +7,9 @@ config -> deposition (fibers) -> cross-links -> network.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from html import escape
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,7 @@ from espin.geometry.mat import FiberMat
 from espin.geometry.network import Network, build_network
 from espin.geometry.size_estimate import check_size
 
-__all__ = ["RVE", "generate", "resolve_config"]
+__all__ = ["RVE", "generate", "html_table", "resolve_config"]
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +34,27 @@ VOLUME_FRACTION_RTOL = 0.1
 """A mat whose mean layer volume fraction is further than this from the target is reported."""
 
 
-@dataclass(frozen=True, eq=False)
+def html_table(caption: str, rows: Sequence[tuple[str, str]]) -> str:
+    """A small HTML table for the ``_repr_html_`` (Jupyter) of espin's objects.
+
+    Parameters
+    ----------
+    caption
+        The table's caption (the class name).
+    rows
+        (quantity, value with its unit) pairs, one row each; the text is escaped.
+
+    Returns
+    -------
+    str
+        ``<table>...</table>``.
+    """
+    body = "".join(f'<tr><th style="text-align:left">{escape(name)}</th>'
+                   f'<td style="text-align:left">{escape(value)}</td></tr>' for name, value in rows)
+    return f"<table><caption>{escape(caption)}</caption>{body}</table>"
+
+
+@dataclass(frozen=True, eq=False, repr=False)
 class RVE:
     """A generated RVE.
 
@@ -57,6 +78,35 @@ class RVE:
     crosslinks: Crosslinks
     network: Network
     path: Path | None = None
+
+    def __repr__(self) -> str:
+        """One line: size (L/D, side L [um]), layers, fibers, cross-links, nodes, DOF,
+        elements (segments), seed and sampling."""
+        rve, network = self.config.rve, self.network
+        return (f"RVE(L/D {rve.side_um / rve.diameter_um:.4g}, side {rve.side_um:.4g} um, {self.mat.n_layers} layers, "
+                f"{self.mat.n_fibers} fibers, {self.crosslinks.n} cross-links, {network.n_nodes} nodes, "
+                f"{network.n_dof} DOF, {network.n_elements} elements, seed {rve.seed}, {rve.sampling} sampling)")
+
+    def _repr_html_(self) -> str:
+        """The key numbers as an HTML table (Jupyter)."""
+        rve, network = self.config.rve, self.network
+        rows = [
+            ("L/D", f"{rve.side_um / rve.diameter_um:.4g}"),
+            ("side L", f"{rve.side_um:.4g} um"),
+            ("fiber diameter D", f"{rve.diameter_um:.4g} +- {rve.diameter_sd_um:.3g} um"),
+            ("volume fraction (target)", f"{rve.volume_fraction:.4g}"),
+            ("layers", str(self.mat.n_layers)),
+            ("fibers", str(self.mat.n_fibers)),
+            ("cross-links", f"{self.crosslinks.n} ({network.n_merged} merged)"),
+            ("nodes", f"{network.n_nodes} ({network.n_inner} inner, {network.n_border} border)"),
+            ("DOF", str(network.n_dof)),
+            ("elements", str(network.n_elements)),
+            ("seed", str(rve.seed)),
+            ("sampling", rve.sampling),
+        ]
+        if self.path is not None:
+            rows.append(("file", str(self.path)))
+        return html_table("RVE", rows)
 
 
 def resolve_config(config: Config | str | Path | None = None, **overrides: Any) -> Config:

@@ -36,6 +36,7 @@ from espin.core.errors import ConfigError, SEMError
 from espin.core.output_folder import OutputFolder
 from espin.geometry.fibers_csv import EDGE_NAMES, FIBER_COLUMNS, write_fibers_csv
 from espin.geometry.pieces import CrossingStatistics, border_edges, crossing_statistics
+from espin.geometry.rve import html_table
 from espin.imaging.databar import DataBar, detect_data_bar
 from espin.imaging.distributions import (DiameterFits, FittedDistributions, fit_diameter_families,
                                          fit_distributions)
@@ -83,7 +84,11 @@ that differ by more than this fraction are noted in the result (the given one is
 Rows = tuple[int, int] | str
 
 
-@dataclass(frozen=True, eq=False)
+REPR_NAME_LENGTH = 40
+"""``repr(SEMMeasurement)`` shows at most this many characters of the image's file name (its end)."""
+
+
+@dataclass(frozen=True, eq=False, repr=False)
 class SEMMeasurement:
     """What :func:`measure` found in one SEM image.
 
@@ -199,6 +204,21 @@ class SEMMeasurement:
     metadata: MetadataScale | None
     scale_note: str
     data_bar: DataBar | None = None
+
+    def __repr__(self) -> str:
+        """One line: image name, scale [um/px], fibers traced (visible), diameter of the visible
+        fibers mean +- sd [um], dominant direction [deg] and coherency."""
+        name = Path(self.source).name
+        if len(name) > REPR_NAME_LENGTH:
+            name = "..." + name[3 - REPR_NAME_LENGTH:]
+        d = self.fits.diameter
+        return (f"SEMMeasurement({name}, {self.um_per_px:.4g} um/px, {len(self.fibers)} fibers "
+                f"({int(self.fibers['visible'].sum())} visible), diameter {d.mean_um:.3g} +- {d.sd_um:.2g} um, "
+                f"direction {self.dominant_direction_deg:.0f} deg, coherency {self.coherency:.2f})")
+
+    def _repr_html_(self) -> str:
+        """The printed table of :meth:`table_rows` as an HTML table (Jupyter)."""
+        return html_table(f"SEMMeasurement of {self.source}", self.table_rows())
 
     def summary(self) -> dict[str, Any]:
         """The summary written to ``measurement.toml`` (units in the key names)."""

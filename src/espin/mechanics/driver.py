@@ -12,14 +12,16 @@ extrapolates the non-affine part of the node motion (docs/model.md sections 4, 6
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from espin.core.config import Config
 from espin.core.errors import SolverError
 from espin.geometry.network import Network
+from espin.geometry.rve import html_table
 from espin.mechanics.equilibrium import EquilibriumSolver, StepFailed, StepResult, StepState
 from espin.mechanics.fiber_law import FiberLaw, yielded
 from espin.mechanics.homogenization import cauchy_stress, nominal_stress, paper_stress
@@ -27,7 +29,7 @@ from espin.mechanics.loading import LoadProgram, load_program
 from espin.mechanics.time_steps import StepSizeControl, local_error, split
 
 __all__ = ["StepRecord", "SimulationResult", "SimulationFailed", "run_program", "result_from_records",
-           "FREE_LATERAL_NOTE"]
+           "FREE_LATERAL_NOTE", "curve_columns", "curve_summary"]
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +95,78 @@ class StepRecord:
     recruited: np.ndarray
 
 
-@dataclass(frozen=True, eq=False)
+_CURVE_TENSORS = (("F", "F", ""), ("P", "P", "_MPa"), ("paper", "P_paper", "_MPa"), ("cauchy", "cauchy", "_MPa"))
+"""(column prefix, SimulationResult attribute, unit suffix) of the tensors of ``curve.csv``."""
+_CURVE_SCALARS = (("recruited_fraction", "recruited_fraction"), ("yielded_fraction", "yielded_fraction"),
+                  ("iterations", "iterations"), ("factorizations", "factorizations"), ("substeps", "substeps"),
+                  ("residual_uN", "residual"))
+"""(column, SimulationResult attribute) of the per-step scalars of ``curve.csv``, after ``stress_MPa``."""
+
+
+def curve_columns(steps: Mapping[str, np.ndarray], stress: np.ndarray, first_step: int = 0) -> dict[str, np.ndarray]:
+    """The columns of ``curve.csv`` (also :meth:`SimulationResult.to_dataframe`), in order.
+
+    Parameters
+    ----------
+    steps
+        (n,) or (n, 2, 2) arrays by :class:`SimulationResult` attribute name (``time``,
+        ``strain``, ``F``, ``P``, ``P_paper``, ``cauchy``, ``recruited_fraction``, ...).
+    stress
+        (n,) curve stress [MPa] (:meth:`SimulationResult.stress`).
+    first_step
+        Number of the first row's step.
+
+    Returns
+    -------
+    dict
+        Column name -> (n,) array: ``step``, ``time_s``, ``strain``, the tensor components
+        ``F11`` .. ``F22``, ``P11_MPa`` .. , ``paper11_MPa`` .., ``cauchy11_MPa`` .. (RVE
+        axes), ``stress_MPa``, ``recruited_fraction``, ``yielded_fraction``, ``iterations``,
+        ``factorizations``, ``substeps``, ``residual_uN``.
+    """
+    n = len(steps["time"])
+    columns = {"step": first_step + np.arange(n), "time_s": steps["time"], "strain": steps["strain"]}
+    for prefix, attr, unit in _CURVE_TENSORS:
+        flat = np.asarray(steps[attr]).reshape(n, 4)
+        columns |= {f"{prefix}{i}{j}{unit}": flat[:, 2 * (i - 1) + j - 1] for i in (1, 2) for j in (1, 2)}
+    columns["stress_MPa"] = stress
+    columns |= {name: steps[attr] for name, attr in _CURVE_SCALARS}
+    return columns
+
+
+def curve_summary(test: str, stress_measure: str, strain: np.ndarray, stress: np.ndarray) -> dict[str, str]:
+    """Key numbers of a recorded curve as text, for the reprs of the results.
+
+    Parameters
+    ----------
+    test
+        The loading's test (``uniaxial``, ``simple_shear``, ...).
+    stress_measure
+        ``nominal`` or ``paper`` (``output.stress_measure``).
+    strain
+        (n,) load parameter of each step (step 0 undeformed).
+    stress
+        (n,) curve stress [MPa]: P'11, or P'12 for simple shear, in the loading frame.
+
+    Returns
+    -------
+    dict
+        ``test``; ``steps`` (step 0 not counted); ``max strain`` (the value of largest
+        magnitude, signed); ``peak stress`` (likewise) and ``last stress`` with ``MPa``;
+        ``stress`` (the component and measure).
+    """
+    component = "P'12" if test == "simple_shear" else "P'11"
+    return {
+        "test": test,
+        "steps": str(len(strain) - 1),
+        "max strain": f"{strain[np.argmax(np.abs(strain))]:.4g}",
+        "peak stress": f"{stress[np.argmax(np.abs(stress))]:.4g} MPa",
+        "last stress": f"{stress[-1]:.4g} MPa",
+        "stress": f"{component}, {stress_measure}",
+    }
+
+
+@dataclass(frozen=True, eq=False, repr=False)
 class SimulationResult:
     """The recorded curve of a loading program (one row per step, step 0 undeformed).
 
@@ -139,6 +212,39 @@ class SimulationResult:
         measure = measure or self.config.output.stress_measure
         tensor = self.loading_frame(self.P if measure == "nominal" else self.P_paper)
         return tensor[:, 0, 1] if self.program.test == "simple_shear" else tensor[:, 0, 0]
+
+    def to_dataframe(self) -> Any:
+        """The curve as a pandas DataFrame, one row per step (step 0 undeformed), with the
+        columns of ``curve.csv`` (:func:`curve_columns`; stresses [MPa], time [s], residual
+        [uN]); ``stress_MPa`` is :meth:`stress` of ``output.stress_measure``."""
+        import pandas as pd
+
+        steps = {name: getattr(self, name) for name in ("time", "strain", *(a for _, a, _ in _CURVE_TENSORS),
+                                                        *(a for _, a in _CURVE_SCALARS))}
+        return pd.DataFrame(curve_columns(steps, self.stress()))
+
+    def _summary(self) -> dict[str, str]:
+        summary = curve_summary(self.program.test, self.config.output.stress_measure, self.strain, self.stress())
+        if len(self.strain) - 1 < self.program.n_steps:
+            summary["steps"] += f" of {self.program.n_steps}"
+        summary["elements"] = str(len(self.final.stress))
+        summary["nodes"] = str(len(self.final.positions))
+        return summary
+
+    def __repr__(self) -> str:
+        """One line: test, steps, max strain, peak and last curve stress [MPa], elements, nodes."""
+        s = self._summary()
+        return (f"SimulationResult({s['test']}, {s['steps']} steps, max strain {s['max strain']}, "
+                f"peak {s['peak stress']}, last {s['last stress']} ({s['stress']}), {s['elements']} elements, "
+                f"{s['nodes']} nodes)")
+
+    def _repr_html_(self) -> str:
+        """The key numbers as an HTML table (Jupyter)."""
+        summary = self._summary()
+        summary["direction"] = f"{self.config.loading.direction_deg:g} deg"
+        summary["strain rate"] = f"{self.config.loading.strain_rate_per_s:.4g} 1/s"
+        summary["Newton iterations"] = str(int(self.iterations.sum()))
+        return html_table("SimulationResult", list(summary.items()))
 
 
 def _record(index, solver: EquilibriumSolver, result: StepResult, strain, counts, threshold) -> StepRecord:

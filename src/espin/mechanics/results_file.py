@@ -31,6 +31,7 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
@@ -40,8 +41,15 @@ from espin.core.config import Config
 from espin.core.errors import RVEFileError
 from espin.core.header import open_checked, read_config, write_header
 from espin.geometry.network import Network
+from espin.geometry.rve import html_table
 from espin.geometry.vtk import write_network_vtu
-from espin.mechanics.driver import SimulationResult, StepRecord, result_from_records
+from espin.mechanics.driver import (
+    SimulationResult,
+    StepRecord,
+    curve_columns,
+    curve_summary,
+    result_from_records,
+)
 from espin.mechanics.fiber_law import yielded
 from espin.mechanics.loading import LoadProgram, load_program
 
@@ -177,21 +185,10 @@ class SimulationWriter:
 
 def _curve_columns(result: SimulationResult, first_step: int = 0) -> tuple[list[str], list[np.ndarray], list[str]]:
     """Names, (n,) arrays and printf formats of the CSV columns; steps numbered from ``first_step``."""
-    n = len(result.time)
-    names = ["step", "time_s", "strain"]
-    columns = [first_step + np.arange(n), result.time, result.strain]
-    for prefix, tensor, unit in (
-        ("F", result.F, ""), ("P", result.P, "_MPa"), ("paper", result.P_paper, "_MPa"),
-        ("cauchy", result.cauchy, "_MPa"),
-    ):
-        names += [f"{prefix}{c}{unit}" for c in _COMPONENTS]
-        columns += list(tensor.reshape(n, 4).T)
-    names += ["stress_MPa", "recruited_fraction", "yielded_fraction", "iterations",
-              "factorizations", "substeps", "residual_uN"]
-    columns += [result.stress(), result.recruited_fraction, result.yielded_fraction,
-                result.iterations, result.factorizations, result.substeps, result.residual]
+    table = curve_columns({attr: getattr(result, attr) for attr in _STEPS}, result.stress(), first_step)
+    columns = list(table.values())
     formats = ["%d" if np.issubdtype(np.asarray(c).dtype, np.integer) else "%.17g" for c in columns]
-    return names, columns, formats
+    return list(table), columns, formats
 
 
 def write_results(result: SimulationResult, folder: str | Path, *, curve: bool = True,
@@ -245,7 +242,7 @@ def write_results(result: SimulationResult, folder: str | Path, *, curve: bool =
     return written
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, repr=False)
 class ResultsFile:
     """The content of a ``results.h5`` file.
 
@@ -274,6 +271,38 @@ class ResultsFile:
     final: dict[str, np.ndarray]
     status: str | None = None
 
+    def to_dataframe(self) -> Any:
+        """The curve as a pandas DataFrame, one row per step (step 0 undeformed), with the
+        columns of ``curve.csv`` (:func:`espin.mechanics.driver.curve_columns`; stresses
+        [MPa], time [s], residual [uN]); ``stress_MPa`` is the stored curve stress."""
+        import pandas as pd
+
+        steps = {attr: self.steps[name] for attr, (name, _) in _STEPS.items()}
+        return pd.DataFrame(curve_columns(steps, self.steps["stress_MPa"]))
+
+    def _summary(self) -> dict[str, str]:
+        summary = curve_summary(self.config.loading.test, self.config.output.stress_measure,
+                                self.steps["strain"], self.steps["stress_MPa"])
+        summary["elements"] = str(len(self.final["stress_MPa"]))
+        summary["nodes"] = str(len(self.final["positions_um"]))
+        summary["seed"] = str(self.seed)
+        summary["status"] = "no run.json" if self.status is None else self.status
+        return summary
+
+    def __repr__(self) -> str:
+        """One line: test, steps, max strain, peak and last curve stress [MPa], elements, seed,
+        run status."""
+        s = self._summary()
+        return (f"ResultsFile({s['test']}, {s['steps']} steps, max strain {s['max strain']}, "
+                f"peak {s['peak stress']}, last {s['last stress']} ({s['stress']}), {s['elements']} elements, "
+                f"seed {s['seed']}, {s['status']})")
+
+    def _repr_html_(self) -> str:
+        """The key numbers as an HTML table (Jupyter)."""
+        summary = self._summary()
+        summary |= {key: self.provenance[key] for key in ("run_id", "espin_version") if key in self.provenance}
+        return html_table("ResultsFile", list(summary.items()))
+
 
 class PartialResultWarning(UserWarning):
     """A results file holds less than a complete run, or belongs to another run than its folder."""
@@ -298,7 +327,13 @@ _STEP_CHECKS: dict[str, tuple[str, tuple, str, dict]] = {
 
 
 def load_results(path: str | Path) -> ResultsFile:
-    """Read a file written by :func:`write_results` (or the ``results.h5`` of a results folder).
+    """Read a file written by :func:`write_results`, or the ``results.h5`` of a results folder.
+
+    Parameters
+    ----------
+    path
+        A ``results.h5`` file, or the folder ``espin simulate`` wrote (its ``results.h5`` is
+        read).
 
     Every dataset is checked (type, shape, finite values, fractions in [0, 1], counts >= 0,
     one row per step throughout) before it is used. A file whose folder's ``run.json`` says
@@ -308,8 +343,9 @@ def load_results(path: str | Path) -> ResultsFile:
     Raises
     ------
     RVEFileError
-        If the file is missing, unreadable, not an espin results file, of another schema
-        version, incomplete, or holds values outside these rules (naming the dataset).
+        If the file is missing (a folder without ``results.h5``: naming the folder),
+        unreadable, not an espin results file, of another schema version, incomplete, or
+        holds values outside these rules (naming the dataset).
     """
     import warnings
 
@@ -317,6 +353,9 @@ def load_results(path: str | Path) -> ResultsFile:
 
     path = Path(path)
     if path.is_dir():
+        if not (path / "results.h5").exists():
+            raise file_error(path, "", "is a folder without results.h5",
+                             "a results.h5 file or the folder espin simulate wrote, which holds results.h5")
         path = path / "results.h5"
     with open_checked(path, SCHEMA, SCHEMA_VERSION, "results") as f:
         config = read_config(f, path)

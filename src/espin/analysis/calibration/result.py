@@ -19,6 +19,7 @@ from espin.analysis.calibration.search import _profile_sse, _Search
 from espin.analysis.calibration.simulation import _loading_config
 from espin.analysis.calibration.uncertainty import _Uncertainty, eta_resolution
 from espin.core.config import Config
+from espin.geometry.rve import html_table
 
 log = logging.getLogger(__name__)  # espin.analysis.calibration.result: the result's warnings
 
@@ -29,7 +30,16 @@ UNIDENTIFIABLE_SD, UNIDENTIFIABLE_CORRELATION = 1.0, 0.99
 """A relative sd above the first, or a |correlation| above the second, is warned about."""
 
 
-@dataclass(frozen=True, eq=False)
+REPR_LENGTH = 200
+"""``repr(FitResult)`` leaves out the sds when they would make it this long or longer."""
+
+
+def _unit(key: str) -> str:
+    """The unit in a config key's name: `` MPa``, `` 1/s`` or "" (dimensionless)."""
+    return " MPa" if key.endswith("_MPa") else " 1/s" if key.endswith("_per_s") else ""
+
+
+@dataclass(frozen=True, eq=False, repr=False)
 class FitResult:
     """A calibrated parameter set and how well, and how surely, it matches the curve(s).
 
@@ -121,6 +131,55 @@ class FitResult:
     elapsed_s: float
     pool: str
     load_steps: tuple[dict[str, float | int], ...]
+
+    def __repr__(self) -> str:
+        """One line: each fitted value (the paper's symbol, +- 1 sd, unit), RMS residual [MPa],
+        R^2, simulations run; the sds are left out when the line would reach 200 characters."""
+        n = len(self.warnings)
+        tail = (f"; RMS {self.rmse_MPa:.3g} MPa, R^2 {self.r_squared:.4f}, {self.simulations} simulations, "
+                f"{n} warning{'s' * (n != 1)})")
+        for with_sd in (True, False):
+            values = ", ".join(
+                f"{FIT_PARAMETERS[key].symbol} {self.values[key]:.4g}"
+                + (f" +- {self.uncertainties[key]:.3g}" if with_sd else "") + _unit(key)
+                for key in self.parameters
+            )
+            text = f"FitResult({values}{tail}"
+            if len(text) < REPR_LENGTH:
+                break
+        return text
+
+    def _repr_html_(self) -> str:
+        """The fitted values with their 1-sd intervals and the fit's quality as an HTML table
+        (Jupyter)."""
+        rows = []
+        for key in self.parameters:
+            low, high = self.interval(key)
+            bound = f", at the {self.at_bound[key]} bound" if self.at_bound[key] else ""
+            rows.append((f"{FIT_PARAMETERS[key].symbol} ({key})",
+                         (f"{self.values[key]:.4g} +- {self.uncertainties[key]:.3g}{_unit(key)} "
+                          f"(1 sd: {low:.4g} .. {high:.4g}{bound})")))
+        rows += [
+            ("RMS residual", f"{self.rmse_MPa:.4g} MPa"),
+            ("R^2", f"{self.r_squared:.4f}"),
+            ("curves", str(len(self.curves))),
+            ("realizations (seeds)", f"{len(self.seeds)} ({', '.join(map(str, self.seeds))})"),
+            ("evaluations", str(len(self.history))),
+            ("simulations", f"{self.simulations} ({self.failed_simulations} failed)"),
+            ("elapsed", f"{self.elapsed_s:.4g} s"),
+            ("warnings", str(len(self.warnings))),
+        ]
+        return html_table("FitResult", rows)
+
+    def to_dataframe(self) -> Any:
+        """The model evaluations of the fit (:attr:`history`) as a pandas DataFrame, one row
+        per evaluation: ``evaluation`` (1, 2, ...), ``stage``, ``rve.volume_fraction``, the
+        fiber values by config key (units in the names), ``sse_MPa2`` (sum of squared stress
+        residuals [MPa^2]; a point no realization reached costs a large penalty) and
+        ``failed_simulations``."""
+        import pandas as pd
+
+        return pd.DataFrame(list(self.history))
 
     def sd_factor(self, key: str) -> float | None:
         """exp(sd of log(value)) of a log-scale parameter (None for eta and c_p): the value is
