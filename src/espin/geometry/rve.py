@@ -7,9 +7,8 @@ config -> deposition (fibers) -> cross-links -> network.
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
-from html import escape
 from pathlib import Path
 from typing import Any
 
@@ -17,13 +16,14 @@ import numpy as np
 
 from espin.core.config import Config, apply_overrides, load_config
 from espin.core.errors import ConfigError
+from espin.core.html import html_table
 from espin.geometry.crosslinks import Crosslinks, find_crosslinks
 from espin.geometry.deposition import deposit
 from espin.geometry.mat import FiberMat
 from espin.geometry.network import Network, build_network
 from espin.geometry.size_estimate import check_size
 
-__all__ = ["RVE", "generate", "html_table", "resolve_config"]
+__all__ = ["RVE", "generate", "resolve_config"]
 
 log = logging.getLogger(__name__)
 
@@ -32,26 +32,6 @@ Progress = Callable[[str, int, int], None]
 
 VOLUME_FRACTION_RTOL = 0.1
 """A mat whose mean layer volume fraction is further than this from the target is reported."""
-
-
-def html_table(caption: str, rows: Sequence[tuple[str, str]]) -> str:
-    """A small HTML table for the ``_repr_html_`` (Jupyter) of espin's objects.
-
-    Parameters
-    ----------
-    caption
-        The table's caption (the class name).
-    rows
-        (quantity, value with its unit) pairs, one row each; the text is escaped.
-
-    Returns
-    -------
-    str
-        ``<table>...</table>``.
-    """
-    body = "".join(f'<tr><th style="text-align:left">{escape(name)}</th>'
-                   f'<td style="text-align:left">{escape(value)}</td></tr>' for name, value in rows)
-    return f"<table><caption>{escape(caption)}</caption>{body}</table>"
 
 
 @dataclass(frozen=True, eq=False, repr=False)

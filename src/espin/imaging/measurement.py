@@ -33,20 +33,24 @@ import numpy as np
 import pandas as pd
 
 from espin.core.errors import ConfigError, SEMError
+from espin.core.html import html_table
 from espin.core.output_folder import OutputFolder
 from espin.geometry.fibers_csv import EDGE_NAMES, FIBER_COLUMNS, write_fibers_csv
 from espin.geometry.pieces import CrossingStatistics, border_edges, crossing_statistics
-from espin.geometry.rve import html_table
 from espin.imaging.databar import DataBar, detect_data_bar
-from espin.imaging.distributions import (DiameterFits, FittedDistributions, fit_diameter_families,
-                                         fit_distributions)
+from espin.imaging.distributions import (
+    DiameterFits,
+    FittedDistributions,
+    fit_diameter_families,
+    fit_distributions,
+)
 from espin.imaging.image import as_grey, parse_rows, read_image, row_slice
 from espin.imaging.metadata import MetadataScale, read_pixel_size
 from espin.imaging.orientation import image_angle_deg, structure_tensor_orientation
+from espin.imaging.pores import PoreStructure, mat_structure
 from espin.imaging.scale import ScaleBar, detect_scale_bar
 from espin.imaging.segment import MIN_WIDTH_PX, segment_fibers
 from espin.imaging.trace import trace_fibers
-from espin.imaging.pores import PoreStructure, mat_structure
 from espin.imaging.visibility import Visibility, fiber_visibility
 from espin.imaging.widths import WidthSamples, fiber_diameters, local_widths
 
@@ -378,7 +382,11 @@ class SEMMeasurement:
                  "summary": atomic_write_bytes(folder / "measurement.toml",
                                                tomli_w.dumps(_toml_ready(self.summary())).encode())}
         if figures:
-            from espin.imaging.figures import save_histograms, save_orientation_map, save_overlay
+            from espin.imaging.figures import (
+                save_histograms,
+                save_orientation_map,
+                save_overlay,
+            )
 
             files["histograms"] = save_histograms(self, folder / "histograms.png")
             files["overlay"] = save_overlay(self, folder / "overlay.png")

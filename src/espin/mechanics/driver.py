@@ -20,9 +20,14 @@ import numpy as np
 
 from espin.core.config import Config
 from espin.core.errors import SolverError
+from espin.core.html import html_table
 from espin.geometry.network import Network
-from espin.geometry.rve import html_table
-from espin.mechanics.equilibrium import EquilibriumSolver, StepFailed, StepResult, StepState
+from espin.mechanics.equilibrium import (
+    EquilibriumSolver,
+    StepFailed,
+    StepResult,
+    StepState,
+)
 from espin.mechanics.fiber_law import FiberLaw, yielded
 from espin.mechanics.homogenization import cauchy_stress, nominal_stress, paper_stress
 from espin.mechanics.loading import LoadProgram, load_program

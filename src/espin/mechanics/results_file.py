@@ -40,8 +40,8 @@ from espin.core.atomic import atomic_write, atomic_write_bytes
 from espin.core.config import Config
 from espin.core.errors import RVEFileError
 from espin.core.header import open_checked, read_config, write_header
+from espin.core.html import html_table
 from espin.geometry.network import Network
-from espin.geometry.rve import html_table
 from espin.geometry.vtk import write_network_vtu
 from espin.mechanics.driver import (
     SimulationResult,

@@ -19,7 +19,7 @@ from espin.analysis.calibration.search import _profile_sse, _Search
 from espin.analysis.calibration.simulation import _loading_config
 from espin.analysis.calibration.uncertainty import _Uncertainty, eta_resolution
 from espin.core.config import Config
-from espin.geometry.rve import html_table
+from espin.core.html import html_table
 
 log = logging.getLogger(__name__)  # espin.analysis.calibration.result: the result's warnings
 

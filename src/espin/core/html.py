@@ -1,0 +1,28 @@
+"""Small HTML tables for the ``_repr_html_`` of espin's objects in Jupyter."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from html import escape
+
+__all__ = ["html_table"]
+
+
+def html_table(caption: str, rows: Sequence[tuple[str, str]]) -> str:
+    """A small HTML table for the ``_repr_html_`` (Jupyter) of espin's objects.
+
+    Parameters
+    ----------
+    caption
+        The table's caption (the class name).
+    rows
+        (quantity, value with its unit) pairs, one row each; the text is escaped.
+
+    Returns
+    -------
+    str
+        ``<table>...</table>``.
+    """
+    body = "".join(f'<tr><th style="text-align:left">{escape(name)}</th>'
+                   f'<td style="text-align:left">{escape(value)}</td></tr>' for name, value in rows)
+    return f"<table><caption>{escape(caption)}</caption>{body}</table>"
