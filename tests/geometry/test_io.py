@@ -89,9 +89,18 @@ def test_vtk_exports(small_rve, tmp_path):
     assert set(fibers.cell_data) >= {"layer", "fiber", "tortuosity", "diameter_um"}
     z = fibers.points[:, 2]
     assert np.allclose(np.unique(z), (np.arange(mat.n_layers) + 0.5) * mat.thickness)
-    moved = net.node_position * 1.1
+    # Every file is centred on the RVE, so the fibers, the network and the steps overlay.
+    assert np.allclose(fibers.points[:, :2].min(axis=0), -mat.size / 2) and np.allclose(
+        fibers.points[:, :2].max(axis=0), mat.size / 2)
+    centred = net.node_position - net.centre
+    displacement = 0.1 * centred  # a uniform 10 % stretch about the centre
     stress = np.arange(net.n_elements, dtype=float)
-    network = meshio.read(write_network_vtu(net, tmp_path / "net.vtu", moved, {"stress_MPa": stress}))
-    assert np.allclose(network.points[:, :2], moved)
+    network = meshio.read(write_network_vtu(net, tmp_path / "net.vtu", displacement, {"stress_MPa": stress},
+                                            field_data={"time_s": 2.5, "strain": 0.1}))
+    assert np.allclose(network.points[:, :2], centred)
+    assert np.allclose(network.point_data["displacement_um"][:, :2], displacement)
+    assert np.allclose(network.cell_data["chord_strain"][0], 0.1)
     assert np.array_equal(network.cell_data["stress_MPa"][0], stress)
+    text = (tmp_path / "net.vtu").read_text()
+    assert 'Name="time_s" NumberOfTuples="1" format="ascii">2.5<' in text and 'Name="strain"' in text
     assert np.array_equal(network.cells_dict["line"], net.element_nodes)

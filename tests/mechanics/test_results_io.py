@@ -143,8 +143,11 @@ def test_writer_streams_vtk_series(network, tmp_path):
     for dataset, record in zip(datasets, records, strict=True):
         mesh = meshio.read(tmp_path / dataset.get("file"))
         assert np.array_equal(mesh.cells_dict["line"], network.element_nodes)
-        assert np.array_equal(mesh.points[:, :2], record.positions)
+        # Reference points centred on the RVE, displaced by the point data to the step's.
+        assert np.allclose(mesh.points[:, :2], network.node_position - network.centre)
+        assert np.allclose(mesh.points[:, :2] + mesh.point_data["displacement_um"][:, :2], record.positions)
         data = {name: value[0] for name, value in mesh.cell_data.items()}
+        assert np.allclose(data["axial_force_uN"], record.stress * network.element_area)
         assert np.array_equal(data["stress_MPa"], record.stress)
         assert np.array_equal(data["plastic_stretch"], record.plastic_stretch)
         assert np.array_equal(data["recruited"], record.recruited.astype(np.int8))

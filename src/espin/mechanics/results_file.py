@@ -90,9 +90,11 @@ class SimulationWriter:
     """Write a run's results as it goes, for use as ``run_program(on_step=)``.
 
     Each call appends the step's row to ``curve.csv`` (the header first; flushed and synced),
-    writes ``vtk/step_NNNN.vtu`` (node positions [um] relative to the RVE centre; cell data
-    ``stress_MPa``, ``plastic_stretch``, ``recruited`` and ``yielded`` as int8, plus the
-    network's own) and then rewrites ``deformation.pvd``, which indexes every step so far with
+    writes ``vtk/step_NNNN.vtu`` (the reference network centred on the RVE with the point
+    data ``displacement_um``, for ParaView's Warp By Vector; cell data ``stress_MPa``,
+    ``axial_force_uN``, ``chord_strain``, ``plastic_stretch``, ``recruited`` and ``yielded``
+    as int8, plus the network's own; field data ``time_s`` and ``strain``) and then rewrites
+    ``deformation.pvd``, which indexes every step so far with
     its time [s] as the ParaView timestep; and, when a minute has passed since the last time,
     rewrites ``results.h5`` with every step so far.
 
@@ -162,13 +164,15 @@ class SimulationWriter:
         write_network_vtu(
             self.network,
             self.folder / name,
-            positions=record.positions,
+            displacement=record.positions - (self.network.node_position - self.network.centre),
             cell_data={
                 "stress_MPa": record.stress,
+                "axial_force_uN": record.stress * self.network.element_area,
                 "plastic_stretch": record.plastic_stretch,
                 "recruited": record.recruited.astype(np.int8),
                 "yielded": yielded(record.plastic_stretch, self._threshold).astype(np.int8),
             },
+            field_data={"time_s": float(record.time), "strain": float(record.strain)},
         )
         self._steps.append((float(record.time), name))
         datasets = "".join(
