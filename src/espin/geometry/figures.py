@@ -93,16 +93,16 @@ def plot_mat(
         ax.add_patch(
             Rectangle(window.origin, window.side, window.side, fill=False, edgecolor="red",
                       linewidth=1.8, linestyle="--", zorder=5,
-                      label=f"observation window ({window.side:.3g} um)")
+                      label=f"observation window ({window.side:.3g} µm)")
         )
         ax.legend(loc="upper right", fontsize="small")
     ax.set_xlim(0.0, mat.size)
     ax.set_ylim(0.0, mat.size)
     ax.set_aspect("equal")
-    ax.set_xlabel("x [um]")
-    ax.set_ylabel("y [um]")
+    ax.set_xlabel("x [µm]")
+    ax.set_ylabel("y [µm]")
     ax.set_title(title or f"{mat.n_fibers:,} fibers in {mat.n_layers} layers, "
-                          f"L = {mat.size:g} um")
+                          f"L = {mat.size:g} µm")
     ticks = np.arange(0, n_layers, -(-n_layers // 10))  # at most 10 evenly spaced layers
     fig.colorbar(lc, ax=ax, label="layer", ticks=ticks, shrink=0.85)
     return save_figure(fig, path, dpi)
@@ -120,6 +120,11 @@ def _hist(ax, sample: np.ndarray, bins: np.ndarray, label: str, color: str = "C0
 
 def _ks(value: float) -> str:
     return "KS -" if not np.isfinite(value) else f"KS = {value:.3f}"
+
+
+def _typeset(label: str) -> str:
+    """A target's plain-text label for a figure: micrometres with a mu."""
+    return label.removesuffix(" um") + " µm" if label.endswith(" um") else label
 
 
 def _against_target(ax, values: np.ndarray, target: Target | None, label: str, floor: float) -> None:
@@ -142,10 +147,10 @@ def _against_target(ax, values: np.ndarray, target: Target | None, label: str, f
     elif target.law is not None:
         x = np.linspace(lo, hi, 400)
         ax.plot(x, target.law.pdf(x), color="k",
-                label=f"measured {target.label}, mean {target.mean:.4g}")
+                label=f"measured {_typeset(target.label)}, mean {target.mean:.4g}")
     else:
         ax.hist(np.clip(target.sample, lo, hi), bins=bins, density=True, histtype="step",
-                color="k", label=f"measured {target.label}, mean {target.mean:.4g}")
+                color="k", label=f"measured {_typeset(target.label)}, mean {target.mean:.4g}")
     ax.legend(fontsize="small")
 
 
@@ -209,13 +214,13 @@ def plot_statistics(stats: NetworkStatistics, path: str | Path, *, dpi: float = 
     ax.set_xlabel("tortuosity (contour / chord)")
     ax.set_ylabel("density (log)")
     ks = math.nan if graded is None else graded.ks
-    ax.set_title(f"tortuosity in a {w.side:.3g} um window: {_ks(ks)}")
+    ax.set_title(f"tortuosity in a {w.side:.3g} µm window: {_ks(ks)}")
 
     ax = axes[0, 2]
     d = stats.diameter_um
     _against_target(ax, d, None if g.diameter is None else g.diameter.target, "fibers", floor=0.0)
-    ax.set_xlabel("diameter [um]")
-    ax.set_ylabel("density [1/um]")
+    ax.set_xlabel("diameter [µm]")
+    ax.set_ylabel("density [1/µm]")
     fixed = len(d) > 0 and np.ptp(d) == 0.0
     ks = math.nan if g.diameter is None else g.diameter.ks
     ax.set_title(f"diameter: {_ks(ks)}" + (" (fixed diameter)" if fixed else ""))
@@ -228,7 +233,7 @@ def plot_statistics(stats: NetworkStatistics, path: str | Path, *, dpi: float = 
     bins = np.linspace(1.0, max(hi, 1.0 + 1e-6), 41)
     _hist(ax, np.clip(et, 1.0, bins[-1]), bins, "elements", color="C2")
     ax.set_yscale("log")
-    ax.set_xlabel("element tortuosity lambda_r = L0 / l0 (clipped at 99.9 %)")
+    ax.set_xlabel(r"element tortuosity $\lambda_r = L_0 / l_0$ (clipped at 99.9 %)")
     ax.set_ylabel("density (log)")
     ax.set_title(f"element tortuosity: mean {np.mean(et) if len(et) else np.nan:.5f}")
     ax.legend(fontsize="small")
@@ -242,9 +247,9 @@ def plot_statistics(stats: NetworkStatistics, path: str | Path, *, dpi: float = 
         ax.hist(el, bins=bins, color="C3", alpha=0.6, edgecolor="white", linewidth=0.4,
                 label=f"elements (n = {len(el):,})")
         ax.set_xscale("log")
-        ax.axvline(np.mean(el), color="k", linestyle="--", label=f"mean {np.mean(el):.3g} um")
+        ax.axvline(np.mean(el), color="k", linestyle="--", label=f"mean {np.mean(el):.3g} µm")
         ax.legend(fontsize="small")
-    ax.set_xlabel("element length l0 [um]")
+    ax.set_xlabel("element length $l_0$ [µm]")
     ax.set_ylabel("count")
     ax.set_title("element length")
     return save_figure(fig, path, dpi)

@@ -121,7 +121,7 @@ def save_histograms(m: MeasuredImage, path: str | Path) -> Path:
                       label=f"half-normal loc 1, scale {fits.tortuosity_scale:.3g}")
     ax_t.set(xlabel="tortuosity (contour / end-to-end)", ylabel="density")
     ax_t.legend(fontsize=7)
-    fig.suptitle(f"{Path(m.source).name}: {len(f)} fibers, {m.um_per_px:.4g} um/px", fontsize=10)
+    fig.suptitle(f"{Path(m.source).name}: {len(f)} fibers, {m.um_per_px:.4g} µm/px", fontsize=10)
     return save_figure(fig, path, dpi=120)
 
 

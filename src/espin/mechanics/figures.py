@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from matplotlib.collections import LineCollection
+from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon
 
@@ -23,12 +24,12 @@ if TYPE_CHECKING:  # pragma: no cover
 
 __all__ = ["plot_curve", "plot_deformed"]
 
-_MEASURE_LABEL = {"nominal": "nominal P'{}", "paper": "paper Eq. 17 sigma'{}"}
+_MEASURE_LABEL = {"nominal": "nominal $P'_{{{}}}$", "paper": "paper Eq. 17 $\\sigma'_{{{}}}$"}
 _STRAIN_LABEL = {
-    "uniaxial": "strain F'11 - 1 [%]",
+    "uniaxial": "strain $F'_{11} - 1$ [%]",
     "equibiaxial": "stretch - 1 [%]",
-    "pure_shear": "stretch F'11 - 1 [%]",
-    "simple_shear": "shear gamma [%]",
+    "pure_shear": "stretch $F'_{11} - 1$ [%]",
+    "simple_shear": "shear $\\gamma$ [%]",
 }
 
 
@@ -43,7 +44,7 @@ def _test_label(config: Config) -> str:
         if isinstance(lateral, str):
             text += f", lateral {lateral}"
         elif isinstance(lateral, PoissonLateral):
-            text += f", lateral nu = {lateral.poisson_ratio:g}"
+            text += f", lateral $\\nu$ = {lateral.poisson_ratio:g}"
         else:
             text += f", lateral from {lateral.transverse_csv.name}"
     return text
@@ -94,7 +95,7 @@ def plot_curve(result: SimulationResult, path: str | Path, measure: str | None =
     right = ax.twinx()
     lines += right.plot(x, result.recruited_fraction, color="C2", linewidth=1.0, label="recruited")
     lines += right.plot(x, result.yielded_fraction, color="C3", linewidth=1.0, label="yielded")
-    right.set_ylim(0.0, 1.0)
+    right.set_ylim(-0.04, 1.04)  # fractions at 0 or 1 stay off the spines
     right.set_ylabel("fraction of fiber volume")
     fig.legend(handles=lines, loc="outside lower center", ncols=4, fontsize="small")
     ax.set_title(_test_label(result.config))
@@ -107,7 +108,11 @@ def plot_deformed(network: Network, record: StepRecord, path: str | Path, *,
     """Draw the deformed network, elements coloured by their stress t [MPa].
 
     Elements are drawn as straight lines between their nodes at ``record.positions``
-    (relative to the RVE centre), the most stressed on top.
+    (relative to the RVE centre), the most stressed on top. Beside the whole RVE, a window at
+    its centre (a sixth of the side, at least 20 D) is drawn magnified when it is at most
+    half the side, so that single fibers and cross-links can be seen in a large RVE. The
+    colour range spans the 1st to 99th percentile of the stresses (the colour bar extends
+    beyond it).
 
     Parameters
     ----------
@@ -121,7 +126,8 @@ def plot_deformed(network: Network, record: StepRecord, path: str | Path, *,
         Also draw the reference square [-L/2, L/2]^2 (dashed) and its image F X (solid),
         on which the border nodes lie.
     linewidth : float [pt]
-        Line width of every element.
+        Line width of the elements in the window and, up to 20,000 elements, in the whole
+        view (thinner beyond, as 1 / sqrt(elements)); the window's are 2.5 times wider.
     cmap
         Matplotlib colormap of the stress.
     dpi
@@ -134,23 +140,42 @@ def plot_deformed(network: Network, record: StepRecord, path: str | Path, *,
     """
     order = np.argsort(record.stress, kind="stable")
     segments = record.positions[network.element_nodes[order]]
-    fig = Figure(figsize=(7.5, 6.5), layout="constrained")
-    ax = fig.add_subplot()
-    lc = LineCollection(segments, linewidths=linewidth, cmap=cmap, capstyle="round")
-    lc.set_array(record.stress[order])
-    ax.add_collection(lc)
+    stress = record.stress[order]
+    low, high = np.percentile(stress, [1.0, 99.0]) if stress.size else (0.0, 1.0)
+    norm = Normalize(vmin=low, vmax=high if high > low else low + 1.0)
+    window = max(network.size / 6.0, 20.0 * network.thickness)
+    zoom = window <= network.size / 2.0
+    fig = Figure(figsize=(12.5, 6.5) if zoom else (7.5, 6.5), layout="constrained")
+    axes = fig.subplots(1, 2) if zoom else [fig.add_subplot()]
+    # Thinner lines in the whole view of a large network, so that it does not fill solid.
+    whole_width = linewidth * min(1.0, float(np.sqrt(2.0e4 / max(len(stress), 1))))
+    for ax, width in zip(axes, (whole_width, 2.5 * linewidth)):
+        lc = LineCollection(segments, linewidths=width, cmap=cmap, norm=norm, capstyle="round")
+        lc.set_array(stress)
+        ax.add_collection(lc)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [µm]")
+        ax.set_ylabel("y [µm]")
+    whole = axes[0]
     if outline:
         half = network.size / 2.0
         square = half * np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
-        ax.add_patch(Polygon(square, closed=True, fill=False, edgecolor="0.5", linestyle="--",
-                             linewidth=0.8, label="reference RVE"))
-        ax.add_patch(Polygon(square @ record.F.T, closed=True, fill=False, edgecolor="k",
-                             linewidth=0.8, label="deformed RVE (F X)"))
-        fig.legend(loc="outside lower center", ncols=2, fontsize="small")
-    ax.autoscale_view()
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [um]")
-    ax.set_ylabel("y [um]")
-    ax.set_title(f"step {record.index}: strain {100.0 * record.strain:.3g} %, t = {record.time:.4g} s")
-    fig.colorbar(lc, ax=ax, label="element stress t [MPa]", shrink=0.85)
+        whole.add_patch(Polygon(square, closed=True, fill=False, edgecolor="0.5", linestyle="--",
+                                linewidth=0.8, zorder=3, label="reference RVE"))
+        whole.add_patch(Polygon(square @ record.F.T, closed=True, fill=False, edgecolor="k",
+                                linewidth=0.8, zorder=3, label="deformed RVE (F X)"))
+    whole.autoscale_view()
+    whole.set_title(f"step {record.index}: strain {100.0 * record.strain:.3g} %, t = {record.time:.4g} s")
+    if zoom:
+        h = window / 2.0
+        whole.add_patch(Polygon(h * np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]]), closed=True,
+                                fill=False, edgecolor="C3", linewidth=1.5, zorder=3, label="magnified window"))
+        axes[1].set_xlim(-h, h)
+        axes[1].set_ylim(-h, h)
+        axes[1].set_title(f"centre window, {window:.3g} µm wide")
+        for spine in axes[1].spines.values():
+            spine.set_edgecolor("C3")
+    if outline or zoom:
+        fig.legend(loc="outside lower center", ncols=3, fontsize="small")
+    fig.colorbar(whole.collections[0], ax=axes, label="element stress $t$ [MPa]", shrink=0.85, extend="both")
     return save_figure(fig, path, dpi)
