@@ -39,3 +39,17 @@ def test_version_from_the_command_and_the_module():
     assert result.exit_code == 0 and result.output.strip() == f"espin {__version__}"
     module = subprocess.run([sys.executable, "-m", "espin", "--version"], capture_output=True, text=True, check=True)
     assert module.stdout.strip() == f"espin {__version__}"
+
+
+def test_verbose_and_log_file(tmp_path):
+    log = tmp_path / "espin.log"
+    for _ in range(2):  # a second call replaces the first one's handlers, it does not add to them
+        result = CliRunner().invoke(app, ["-v", "--log-file", str(log), "generate", "plla", "--size-ratio", "30",
+                                          "--layers", "2", "--no-figures", "--no-vtk", "-q", "-o", str(tmp_path / "g"),
+                                          "--overwrite"])
+        assert result.exit_code == 0, result.output
+    lines = log.read_text().splitlines()
+    assert sum("depositing 2 layers" in line for line in lines) == 2
+    assert "INFO espin.geometry.rve: depositing 2 layers" in result.output
+    bad = CliRunner().invoke(app, ["--log-file", str(tmp_path / "no" / "such.log"), "config"])
+    assert bad.exit_code == 2 and "--log-file" in bad.output

@@ -324,8 +324,11 @@ def register(app: typer.Typer) -> None:
                     curve_warnings(), console.status("fitting") as status:
 
                 def on_evaluation(record: dict) -> None:
-                    status.update(f"evaluation {record['evaluation']} ({record['stage']}): "
-                                  f"SSE {record['sse_MPa2']:.4g} MPa^2")
+                    line = (f"evaluation {record['evaluation']} ({record['stage']}): "
+                            f"SSE {record['sse_MPa2']:.4g} MPa^2")
+                    status.update(line)
+                    if not console.is_terminal:  # no live status off a terminal: one plain line each
+                        console.print(line, highlight=False)
 
                 result = fit(
                     curve, base=config, parameters=[p for p in params.split(",") if p.strip()],

@@ -48,7 +48,7 @@ def simulate(
     Writes the curve (CSV), results (HDF5), a VTK series for ParaView and figures.
     """
     from rich.console import Console
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     from espin.core.errors import EspinError
     from espin.mechanics.loading import load_program
@@ -74,7 +74,7 @@ def simulate(
         target = config if rve is None else rve
         program = load_program(config.loading)
         columns = (TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[info]}"),
-                   TimeElapsedColumn())
+                   TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn())
         with Progress(*columns, console=console) as bar:
             task = bar.add_task("generating", total=program.n_steps, info="")
 
@@ -83,9 +83,11 @@ def simulate(
                 R = program.rotation
                 local = R.T @ stress @ R
                 value = local[0, 1] if program.test == "simple_shear" else local[0, 0]
+                info = f"strain {record.strain:.4f}  stress {value:.4g} MPa  iterations {record.iterations}"
                 bar.update(task, completed=record.index, description=f"step {record.index}/{program.n_steps}",
-                           info=f"strain {record.strain:.4f}  stress {value:.4g} MPa  "
-                                f"iterations {record.iterations}")
+                           info=info)
+                if not console.is_terminal:  # no live bar off a terminal: one plain line per step
+                    console.print(f"step {record.index}/{program.n_steps}: {info}", highlight=False)
 
             result = run_simulation(target, folder, on_step=on_step, overwrite=overwrite,
                                     allow_large=allow_large)

@@ -92,18 +92,29 @@ def _overrides(set_: list[str] | None) -> dict[str, Any]:
 def _run_with_progress(run, n_tasks: int, quiet: bool):
     """Call ``run(on_outcome)`` under a progress bar (on stderr)."""
     from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
 
     console = Console(stderr=True, quiet=quiet)
     failed = 0
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=console, transient=True) as bar:
+                  TextColumn("ETA"), TimeRemainingColumn(), console=console, transient=True) as bar:
         task_id = bar.add_task("tensile tests", total=n_tasks)
 
         def on_outcome(outcome, task) -> None:
             nonlocal failed
             failed += not outcome.ok
             bar.update(task_id, advance=1, description=f"tensile tests ({failed} failed)" if failed else "tensile tests")
+            if not console.is_terminal:  # no live bar off a terminal: one plain line per task
+                done = int(bar.tasks[0].completed)
+                console.print(f"tensile tests: {done}/{n_tasks} done ({failed} failed), "
+                              f"{bar.tasks[0].elapsed:.0f} s", highlight=False)
 
         return run(on_outcome)
 
