@@ -11,7 +11,17 @@ from typing import Annotated, Optional
 
 import typer
 
-from espin.cli import calibrate_geometry, config, fit, generate, measure, properties, simulate, study
+from espin.cli import (
+    calibrate_geometry,
+    config,
+    example_data,
+    fit,
+    generate,
+    measure,
+    properties,
+    simulate,
+    study,
+)
 
 __all__ = ["app"]
 
@@ -78,7 +88,7 @@ def _configure_logging(verbose: bool, log_file: Path | None) -> None:
         logger.setLevel(logging.DEBUG if log_file is not None else logging.INFO)
 
 
-for _group in (generate, simulate, config, measure, properties, fit, study, calibrate_geometry):
+for _group in (generate, simulate, config, measure, properties, fit, study, calibrate_geometry, example_data):
     _group.register(app)
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,0 +1,30 @@
+"""espin example-data: sample files that the other commands read as they are."""
+
+from __future__ import annotations
+
+from typer.testing import CliRunner
+
+from espin.analysis.experiments import read_curve
+from espin.analysis.properties import curve_properties
+from espin.cli import app
+from espin.datasets import SEM_UM_PER_PX
+from espin.imaging.databar import detect_data_bar
+from espin.imaging.image import read_image
+from espin.imaging.metadata import read_pixel_size
+
+
+def test_example_data_is_ready_to_use_and_not_overwritten(tmp_path):
+    result = CliRunner().invoke(app, ["example-data", "-o", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    # The image carries its scale and a data bar that espin measure finds.
+    assert read_pixel_size(tmp_path / "mat.tif").um_per_px == SEM_UM_PER_PX
+    grey = read_image(tmp_path / "mat.tif")
+    rows, bar = detect_data_bar(grey)
+    assert bar is not None and rows[0] == 0 and 0.85 * grey.shape[0] < rows[1] < grey.shape[0]
+    # The curves read without options and look like the paper's PLLA specimens.
+    moduli = [curve_properties(c.strain, c.stress_MPa).modulus_MPa
+              for c in (read_curve(tmp_path / f"spec{k}.csv") for k in (1, 2, 3))]
+    assert all(180.0 < m < 240.0 for m in moduli) and len(set(moduli)) == 3
+    again = CliRunner().invoke(app, ["example-data", "-o", str(tmp_path)])
+    assert again.exit_code == 2 and "--overwrite" in again.output
+    assert CliRunner().invoke(app, ["example-data", "-o", str(tmp_path), "--overwrite"]).exit_code == 0
