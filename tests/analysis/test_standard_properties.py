@@ -103,3 +103,12 @@ def test_command_reports_them_beside_the_fit(tmp_path):
     # A stated chord range without points is refused, naming the curve.
     refused = CliRunner().invoke(app, ["properties", str(paths[0]), "--percent-strain", "--chord-range", "0.001:0.002"])
     assert refused.exit_code == 3 and "s0.csv" in refused.output and "chord range" in refused.output
+
+
+def test_curve_below_the_offset_line_from_the_start_says_so():
+    strain = np.linspace(0.0, 0.05, 501)
+    stress = 100.0 * strain - 3000.0 * strain**2  # bends at once: chord over 0-2 % is not its slope
+    p = standard_properties(strain, stress, chord_range=(0.0, 0.02), offset=1e-4)
+    assert np.isnan(p.offset_yield_stress_MPa) and "lies below the chord line" in p.note
+    q = standard_properties(strain, -100.0 * strain)  # compression only
+    assert "never positive" in q.note

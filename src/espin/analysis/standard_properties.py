@@ -102,6 +102,9 @@ def _offset_yield(strain: np.ndarray, stress: np.ndarray, modulus: float, zero: 
                   offset: float, start: float) -> tuple[float, float]:
     """First point from strain ``start`` on where the curve falls below the offset line."""
     above = stress - modulus * (strain - zero - offset)
+    after = strain > start
+    if after.any() and above[np.argmax(after)] < 0.0:
+        return math.nan, -math.inf  # below the offset line from the chord range on
     candidates = np.flatnonzero((above[:-1] >= 0.0) & (above[1:] < 0.0) & (strain[1:] > start))
     if candidates.size == 0:
         return math.nan, math.nan
@@ -163,13 +166,20 @@ def standard_properties(
     yield_stress = yield_strain = math.nan
     if modulus > 0.0:
         yield_stress, yield_strain = _offset_yield(x, y, modulus, zero, offset, chord_range[0])
-        if math.isnan(yield_stress):
+        if yield_strain == -math.inf:
+            yield_strain = math.nan
+            notes.append(f"no offset yield: the curve lies below the chord line shifted by {100 * offset:g} % "
+                         "from the chord range on (is the curve linear there?)")
+        elif math.isnan(yield_stress):
             notes.append(f"no offset yield: the curve stays above the chord line shifted by {100 * offset:g} %")
     peak = int(np.argmax(y))
     strength = strength_strain = break_strain = break_stress = math.nan
-    if peak == y.size - 1 or y[peak] <= 0.0:
-        notes.append("no tensile strength or break: the stress rises to the curve's last point "
-                     "(a simulated mat, or a test stopped before the maximum)")
+    if y[peak] <= 0.0:
+        notes.append("no tensile strength or break: the stress is never positive")
+    elif peak == y.size - 1:
+        notes.append("no tensile strength or break: the stress rises to the curve's last point (a simulated "
+                     "mat, or a test stopped before the maximum; a curve cut at a brittle break has its "
+                     "strength at the last point)")
     else:
         strength, strength_strain = float(y[peak]), float(x[peak])
         dropped = np.flatnonzero(y[peak:] < (1.0 - break_drop) * strength)

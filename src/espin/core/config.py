@@ -220,9 +220,10 @@ class RVEConfig(_Section):
     sampling: Literal["random", "balanced"] = "random"
     """How the fibers are drawn (docs/geometry.md): "random" (the paper: each fiber's axis,
     start and diameter independent) or "balanced" (the same law for each fiber, but the RVE's
-    fibers take consecutive points of a scrambled Sobol' sequence and each walk or its mirror
-    image is kept so as to balance the orientation content; about ten times less scatter of
-    modulus and yield stress across realizations of one size)."""
+    fibers take consecutive points of a scrambled Sobol' sequence, the layers are filled
+    together, and of each walk's variants of equal law (turns negated in part; smooth walk:
+    its mirror image) the one that balances the orientation content is kept; plla: 8 times
+    less scatter of modulus and yield stress across realizations)."""
     merge_tolerance_ratio: Annotated[float, Field(gt=0.0, le=0.1)] = 0.1
     """Node candidates closer than this times D along a fiber are merged into one node, in
     (0, 0.1]. Default 0.1 (docs/model.md section 2): shorter elements between close

@@ -466,6 +466,8 @@ def _balanced_layers(rve: RVEConfig, progress: Callable[[int, int], None] | None
     """All layers of a mat of balanced sampling, deposited together: fiber after fiber, the
     sampler's next fiber goes to a layer drawn uniformly among those not yet full, until
     every layer reaches ``rve.volume_fraction`` (the fiber that crosses it is kept).
+    ``progress(done, layers)`` is called after each batch of candidates with the fiber volume
+    laid so far in layers' worth.
 
     The RVE's fibers are then a prefix of the sampler's sequence (balanced), and a layer's
     fibers are scattered through it: fibers of one layer are no closer in the sequence than
@@ -497,11 +499,13 @@ def _balanced_layers(rve: RVEConfig, progress: Callable[[int, int], None] | None
             volume[layer] += fiber_volume[j]
             if volume[layer] >= target:
                 open_layers.remove(layer)
-                if progress is not None:
-                    progress(rve.layers - len(open_layers), rve.layers)
                 if not open_layers:
                     n_keep = j + 1
                     break
+        if progress is not None:
+            # The layers fill together: report the fiber volume laid, in layers' worth.
+            progress(rve.layers - len(open_layers) if not open_layers
+                     else min(int(np.minimum(volume, target).sum() / target), rve.layers - 1), rve.layers)
         sampler.accept(n_keep)
     return [(np.concatenate([v for v, _ in fibers]), np.array([len(v) for v, _ in fibers]),
              np.array([d for _, d in fibers])) for fibers in kept]

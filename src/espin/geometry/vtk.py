@@ -6,6 +6,7 @@ fibers, the network and every step of a tensile test overlay in ParaView.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import meshio
@@ -32,13 +33,22 @@ def _write(path: Path, points: np.ndarray, lines: np.ndarray, cell_data: dict[st
 
 
 def _add_field_data(path: Path, values: dict[str, float]) -> None:
-    """Insert VTK FieldData (one float64 per name, e.g. the step's time and strain) into a
-    .vtu that meshio wrote (meshio does not write field data to .vtu)."""
-    arrays = "".join(f'<DataArray type="Float64" Name="{name}" NumberOfTuples="1" format="ascii">{value!r}'
-                     f"</DataArray>\n" for name, value in values.items())
+    """Insert VTK FieldData (one float64 per name, e.g. the step's time and strain) as the
+    first child of the UnstructuredGrid element of a .vtu that meshio wrote (meshio does not
+    write field data to .vtu).
+
+    Raises
+    ------
+    ValueError
+        If the file has no UnstructuredGrid element (another writer's layout).
+    """
+    arrays = "".join(f'<DataArray type="Float64" Name="{name}" NumberOfTuples="1" format="ascii">'
+                     f"{float(value)!r}</DataArray>\n" for name, value in values.items())
     text = path.read_text(encoding="utf-8")
-    text = text.replace("<UnstructuredGrid>\n", f"<UnstructuredGrid>\n<FieldData>\n{arrays}</FieldData>\n", 1)
-    path.write_text(text, encoding="utf-8")
+    grid = re.search(r"<UnstructuredGrid\b[^>]*>", text)
+    if grid is None:
+        raise ValueError(f"{path}: no <UnstructuredGrid> element to add field data to")
+    path.write_text(f"{text[:grid.end()]}\n<FieldData>\n{arrays}</FieldData>{text[grid.end():]}", encoding="utf-8")
 
 
 def write_mat_vtu(mat: FiberMat, path: str | Path) -> Path:
