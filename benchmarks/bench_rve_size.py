@@ -25,6 +25,7 @@ on from a fresh clone.
 from __future__ import annotations
 
 import argparse
+import json
 import time
 from pathlib import Path
 
@@ -49,9 +50,16 @@ ARCHIVE = Path(__file__).parent / "data" / "rve_size"
 
 
 def results(out: Path, archive: Path, name: str) -> pd.DataFrame:
-    """Finished realizations of a variant: its folder's table and the archive's, one row per
-    (L/D, layers, seed), the folder's first."""
-    tables = [pd.read_csv(p) for p in (out / name / "results.csv", archive / f"{name}.csv") if p.exists()]
+    """Finished realizations of a variant: its folder's task files (every pass's; the folder's
+    results.csv holds only the last pass) and the archive's rows, one row per (L/D, layers,
+    seed), the folder's first."""
+    rows = []
+    for task in sorted((out / name / "tasks").glob("*.json")):
+        record = json.loads(task.read_text())
+        rows.append(record.pop("parameters") | {k: v for k, v in record.items() if k not in ("strain", "stress_MPa")})
+    tables = [pd.DataFrame(rows)] if rows else []
+    if (archive / f"{name}.csv").exists():
+        tables.append(pd.read_csv(archive / f"{name}.csv"))
     if not tables:
         return pd.DataFrame(columns=["rve.size_ratio", "rve.layers", "seed"])
     return pd.concat(tables).drop_duplicates(["rve.size_ratio", "rve.layers", "seed"])
