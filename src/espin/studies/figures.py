@@ -13,13 +13,48 @@ from matplotlib.ticker import MaxNLocator
 
 from espin.core.figures import save_figure
 
-__all__ = ["plot_rve_size", "plot_curve_band", "plot_sweep", "PROPERTY_LABELS"]
+__all__ = ["plot_rve_size", "plot_curve_band", "plot_sweep", "parameter_label", "PROPERTY_LABELS"]
 
 PROPERTY_LABELS = {
-    "modulus_MPa": ("elastic modulus", "E [MPa]"),
-    "yield_stress_MPa": ("yield stress", "sigma_y [MPa]"),
-    "post_yield_modulus_MPa": ("post-yield modulus", "E_p [MPa]"),
+    "modulus_MPa": ("elastic modulus", "$E$ [MPa]"),
+    "yield_stress_MPa": ("yield stress", r"$\sigma_y$ [MPa]"),
+    "post_yield_modulus_MPa": ("post-yield modulus", "$H$ [MPa]"),
 }
+
+_PARAMETER_LABELS = {
+    "rve.volume_fraction": r"volume fraction $\eta$",
+    "rve.max_deviation_deg": r"largest turn $\theta^d_{max}$ [deg]",
+    "rve.waviness_deg": r"waviness $\sigma_\phi$ [deg]",
+    "rve.waviness_length_ratio": "waviness length / $D$",
+    "rve.diameter_um": "fiber diameter $D$ [µm]",
+    "rve.diameter_sd_um": "diameter sd [µm]",
+    "rve.size_ratio": r"RVE size $\tilde L = L / D$",
+    "rve.layers": "layers $N_l$",
+    "rve.segment_ratio": r"segment $\tilde l_s = l_s / D$",
+    "rve.orientation.von_mises.kappa": r"orientation concentration $\kappa$",
+    "rve.orientation.von_mises.mean_deg": "mean orientation [deg]",
+    "fiber.taut_modulus_MPa": "taut modulus $E_t$ [MPa]",
+    "fiber.slack_modulus_MPa": "slack modulus $E_s$ [MPa]",
+    "fiber.flow_resistance_MPa": "flow resistance [MPa]",
+    "fiber.hardening_exponent": "hardening exponent",
+    "loading.direction_deg": "loading direction [deg]",
+    "loading.strain_rate_per_s": "strain rate [1/s]",
+}
+
+
+def _legend(key: str, value: object) -> str:
+    """``quantity = value unit`` of a swept key for a legend."""
+    label = parameter_label(key)
+    if label.endswith("]") and " [" in label:
+        name, unit = label[:-1].rsplit(" [", 1)
+        return f"{name} = {_format(value)} {unit}"
+    return f"{label} = {_format(value)}"
+
+
+def parameter_label(key: str) -> str:
+    """The axis label of a swept config key: the quantity and its unit where espin knows it,
+    else the key itself."""
+    return _PARAMETER_LABELS.get(key, key)
 
 
 def plot_rve_size(summary: pd.DataFrame, folder: str | Path, *, layers_for_sizes: int,
@@ -110,14 +145,16 @@ def plot_sweep(summary: pd.DataFrame, parameters: list[str], folder: str | Path,
                 for values, group in groups:
                     values = values if isinstance(values, tuple) else (values,)
                     group = group.sort_values(parameter)
-                    label = ", ".join(f"{p.split('.')[-1]} = {_format(v)}" for p, v in zip(others, values)) or None
+                    label = ", ".join(_legend(p, v) for p, v in zip(others, values)) or None
                     ax.errorbar(group[parameter], group[f"{name}_mean"], yerr=group[f"{name}_sd"].fillna(0.0),
                                 marker="o", capsize=3, label=label)
-            ax.set_xlabel(parameter)
+            ax.set_xlabel(parameter_label(parameter))
             ax.set_ylabel(unit)
             if ax.get_legend_handles_labels()[1]:
                 ax.legend(frameon=False, fontsize=7)
-        fig.suptitle(f"{title} versus swept parameters")
+        n = sorted({int(v) for v in summary["n"]}) if "n" in summary else []
+        spread = f"mean ± sd over {n[0] if len(n) == 1 else f'{n[0]}-{n[-1]}'} realizations" if n else "mean ± sd"
+        fig.suptitle(f"{title} versus swept parameters ({spread})")
         files[f"sweep_{name}"] = save_figure(fig, Path(folder) / f"sweep_{name.removesuffix('_MPa')}.png", dpi)
     return files
 
