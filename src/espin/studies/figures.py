@@ -76,8 +76,8 @@ def plot_rve_size(summary: pd.DataFrame, folder: str | Path, *, layers_for_sizes
         fig = Figure(figsize=(8.0, 6.0), layout="constrained")
         axes = fig.subplots(2, 2)
         for column, (table, x, xlabel) in enumerate((
-            (by_size, "rve.size_ratio", f"L / D  (N_l = {layers_for_sizes})"),
-            (by_layers, "rve.layers", f"N_l  (L / D = {size_for_layers:g})"),
+            (by_size, "rve.size_ratio", rf"RVE size $\tilde L = L / D$  ($N_l$ = {layers_for_sizes})"),
+            (by_layers, "rve.layers", rf"layers $N_l$  ($\tilde L$ = {size_for_layers:g})"),
         )):
             top, bottom = axes[0, column], axes[1, column]
             if table.empty:
@@ -97,7 +97,9 @@ def plot_rve_size(summary: pd.DataFrame, folder: str | Path, *, layers_for_sizes
             bottom.legend(frameon=False)
             for ax, letter in ((top, "ab"[column]), (bottom, "cd"[column])):
                 ax.set_title(f"{letter})", loc="left", fontsize=10)
-        fig.suptitle(f"{title} versus RVE size (mean +- sd over realizations)")
+        n = sorted({int(v) for v in summary["n"]}) if "n" in summary else []
+        count = f" {n[0] if len(n) == 1 else f'{n[0]}-{n[-1]}'}" if n else ""
+        fig.suptitle(f"{title} versus RVE size (mean ± sd over{count} realizations)")
         files[f"rve_size_{name}"] = save_figure(fig, Path(folder) / f"rve_size_{name.removesuffix('_MPa')}.png", dpi)
     return files
 
