@@ -3,24 +3,26 @@
 Random sampling (the paper) draws every fiber's axis, start and diameter independently, so one
 RVE of the paper's size carries a few percent of orientation noise: its modulus follows its
 own length-weighted <cos^4> and its yield stress its <cos^2>, which scatter from seed to seed.
-Balanced sampling keeps the law of every fiber and removes most of that noise, in two steps:
+Balanced sampling keeps the law of every fiber and removes most of that noise
+(:func:`espin.geometry.deposition.deposit` uses this module):
 
-1. **Low-discrepancy draws.** The fibers of the whole RVE, layer after layer, take consecutive
-   points of one scrambled Sobol' sequence (Owen scrambling, seeded by the RVE seed) in the
-   unit cube of (axis quantile, start quantile, diameter quantile). Each point is uniform on
-   the cube, so each fiber has exactly the law of a randomly drawn one; and every prefix of
-   the sequence fills the cube evenly, so whatever the fiber count the sample's axes, starts
-   and diameters follow their distributions far more closely than independent draws do.
-2. **Mirrored walks.** The directions of a fiber's walk (turns or smooth deviation) are drawn
-   once, and the walk and its mirror image about the fiber's drawn axis (deviation negated,
-   the same law) are both laid. Of the two, the one that brings the RVE's running
-   volume-weighted orientation content closer to its mirror-symmetric mean is kept
-   (herding): the sum over the kept fibers of the half-differences
-   a_i = (c_i^+ - c_i^-) / 2 of their contents c = sum over segments of A l (1, cos 2 phi,
-   sin 2 phi, cos 4 phi, sin 4 phi) stays bounded instead of growing as sqrt(N). The walks'
-   drift, which balanced axes cannot reach, then cancels to first order. The rule is odd in
-   (running sum, a_i) and a_i is symmetric in law, so the kept sum has mean zero: the
-   expected content is that of random sampling.
+1. **Low-discrepancy draws.** The fibers of the whole RVE take consecutive points of one
+   scrambled Sobol' sequence (Owen scrambling, seeded by the RVE seed) in the unit cube of
+   (axis quantile, start quantile, diameter quantile). Each point is uniform on the cube, so
+   each fiber has exactly the law of a randomly drawn one; and every prefix of the sequence
+   fills the cube evenly, so whatever the fiber count the sample's axes, starts and diameters
+   follow their distributions far more closely than independent draws do. The layers are
+   filled together (each fiber to a random open layer), so that fibers of one layer are not
+   neighbours in the sequence.
+2. **Walk variants chosen by herding.** The directions of a fiber's walk are drawn once and
+   the fiber is laid in variants of the same law (the paper walk's turns negated in some of
+   its blocks, the smooth walk's mirror image). Of those, the one is kept that brings the
+   RVE's running sum of (content - mean of the fiber's variants) nearest zero, the content
+   c = sum over segments of A l (1, cos 2 phi, sin 2 phi, cos 4 phi, sin 4 phi): that sum stays
+   bounded instead of growing as sqrt(N), so the walks' drift, which balanced axes cannot
+   reach, cancels to first order. The variants are closed under negating all turns and the
+   rule is odd in (running sum, deviations), so the kept sum has mean zero: the expected
+   content is that of random sampling.
 """
 
 from __future__ import annotations

@@ -19,8 +19,13 @@ Two seedings choose the start point and the first axis:
   that line enters the square. For a uniform distribution this is the isotropic uniform random
   line measure, so the mat is homogeneous and isotropic up to the corners.
 
-The walk is vectorized over a batch of fibers and over chunks of steps; layers draw from
-independent child streams of the seed, so a layer does not change when others are added.
+Two samplings draw them (``rve.sampling``): ``random`` (the paper), each fiber independently,
+layer after layer, each layer from its own child stream of the seed, so a layer does not change
+when others are added; and ``balanced`` (:mod:`espin.geometry.balanced`), the same law for each
+fiber but the RVE's fibers drawn together from a low-discrepancy sequence, the layers filled
+together, and each walk laid in the variant that balances the orientation content.
+
+The walk is vectorized over a batch of fibers and over chunks of steps.
 """
 
 from __future__ import annotations
