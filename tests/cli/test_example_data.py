@@ -7,6 +7,7 @@ from typer.testing import CliRunner
 from espin.analysis.experiments import read_curve
 from espin.analysis.properties import curve_properties
 from espin.cli import app
+from espin.core.config import load_config
 from espin.datasets import SEM_UM_PER_PX
 from espin.imaging.databar import detect_data_bar
 from espin.imaging.image import read_image
@@ -25,6 +26,9 @@ def test_example_data_is_ready_to_use_and_not_overwritten(tmp_path):
     moduli = [curve_properties(c.strain, c.stress_MPa).modulus_MPa
               for c in (read_curve(tmp_path / f"spec{k}.csv") for k in (1, 2, 3))]
     assert all(180.0 < m < 240.0 for m in moduli) and len(set(moduli)) == 3
+    # The calibrated mat is a config that loads and asks for the wavy polydisperse mat of the image.
+    rve = load_config(tmp_path / "calibrated_mat.toml").rve
+    assert (rve.walk, rve.diameter_distribution) == ("smooth", "lognormal") and rve.waviness_deg > 5.0
     again = CliRunner().invoke(app, ["example-data", "-o", str(tmp_path)])
     assert again.exit_code == 2 and "--overwrite" in again.output
     assert CliRunner().invoke(app, ["example-data", "-o", str(tmp_path), "--overwrite"]).exit_code == 0
