@@ -1,0 +1,61 @@
+"""Progress of a long run in a Jupyter notebook: one HTML bar updated in place.
+
+The command line draws its bars with rich; in a notebook, :func:`espin.simulate` and the
+studies show this bar instead (``progress=None`` means: shown in a notebook only, so that
+scripts stay silent).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from html import escape
+
+__all__ = ["in_notebook", "NotebookProgress"]
+
+
+def in_notebook() -> bool:
+    """True inside a Jupyter kernel (a notebook, JupyterLab, VS Code's notebooks)."""
+    shell = sys.modules.get("IPython")
+    if shell is None or "ipykernel" not in sys.modules:
+        return False
+    ipython = shell.get_ipython()
+    return ipython is not None and type(ipython).__name__ == "ZMQInteractiveShell"
+
+
+def _duration(seconds: float) -> str:
+    minutes, secs = divmod(int(round(seconds)), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
+
+
+class NotebookProgress:
+    """An HTML progress bar in the notebook's output, with elapsed time and time left.
+
+    Parameters
+    ----------
+    total
+        Number of units of work (steps, tensile tests).
+    what
+        What a unit is, for the text ("step", "test").
+    """
+
+    def __init__(self, total: int, what: str) -> None:
+        from IPython.display import HTML, display
+
+        self.total = max(int(total), 1)
+        self.what = what
+        self._html = HTML
+        self._start = time.perf_counter()
+        self._handle = display(HTML(self._render(0, "")), display_id=True)
+
+    def _render(self, done: int, info: str) -> str:
+        elapsed = time.perf_counter() - self._start
+        left = f", about {_duration(elapsed / done * (self.total - done))} left" if 0 < done < self.total else ""
+        return (f'<progress value="{done}" max="{self.total}" style="width:40%"></progress> '
+                f"<code>{escape(self.what)} {done}/{self.total}  {escape(info)}  "
+                f"{_duration(elapsed)} elapsed{left}</code>")
+
+    def update(self, done: int, info: str = "") -> None:
+        """Show ``done`` units finished, with a short text (e.g. the strain reached)."""
+        self._handle.update(self._html(self._render(min(int(done), self.total), info)))
