@@ -108,6 +108,10 @@ def test_round_trip_recovers_the_deviation_at_the_true_segment_length(measured_m
     # KS 0.03-0.04 measured; 1.36 / sqrt(n_eff) ~ 0.07 is the 5 % critical value at these n.
     assert result.match("tortuosity").ks < 0.07
     assert result.search["sampling"] == "whole portions"
+    # A notebook shows one line and a small table, not the dataclass dump of targets and image.
+    shown = repr(result)
+    assert shown.startswith("GeometryCalibration(max_deviation_deg ") and "KS tortuosity" in shown
+    assert len(shown) < 200 and "<table>" in result._repr_html_()
 
 
 def test_round_trip_recovers_the_segment_length_at_the_true_deviation(measured_mat):

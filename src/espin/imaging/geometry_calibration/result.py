@@ -92,6 +92,29 @@ class GeometryCalibration:
     warnings: tuple[str, ...] = ()
     image: MeasuredImage | None = None
 
+    def _fitted_text(self) -> list[tuple[str, str]]:
+        """(config key, value) of the searched parameters."""
+        return [(key, f"{self.parameters[key]:.4g}" if isinstance(self.parameters[key], float)
+                 else str(self.parameters[key])) for key in self.parameters["fitted"]]
+
+    def __repr__(self) -> str:
+        """One line: the fitted parameters, the KS distance of each matched distribution, the
+        observation window [um] and the warnings' count."""
+        fitted = ", ".join(f"{key.removeprefix('rve.')} {value}" for key, value in self._fitted_text())
+        ks = ", ".join(f"{m.quantity} {m.ks:.3f}" for m in self.matches)
+        warned = f", {len(self.warnings)} warnings" if self.warnings else ""
+        return (f"GeometryCalibration({fitted}; KS {ks}; window {self.search.get('window_um', math.nan):.4g} um"
+                f"{warned})")
+
+    def _repr_html_(self) -> str:
+        """The fitted parameters and the KS distances as an HTML table (Jupyter)."""
+        from espin.core.html import html_table
+
+        rows = [*self._fitted_text(), *((f"KS {m.quantity}", f"{m.ks:.4f}") for m in self.matches),
+                ("observation window", f"{self.search.get('window_um', math.nan):.4g} um"),
+                *(("warning", w) for w in self.warnings)]
+        return html_table(f"GeometryCalibration of {self.targets.source}", rows)
+
     def match(self, quantity: str) -> DistributionMatch:
         """The match of one quantity (``tortuosity``, ``orientation_deg``, ``diameter_um``)."""
         for m in self.matches:
