@@ -71,6 +71,7 @@ __all__ = [
     "check_curve",
     "curve_properties",
     "simulation_properties",
+    "curve_marks",
     "summarize_properties",
     "bilinear_stress",
     "plot_bilinear_fits",
@@ -417,6 +418,21 @@ def simulation_properties(result: SimulationResult, measure: str | None = None, 
     return curve_properties(result.strain, result.stress(measure), **options)
 
 
+def curve_marks(result: SimulationResult) -> CurveProperties | None:
+    """The bilinear fit that a simulation's ``curve.png`` marks (E, yield point, H), or None
+    where the curve has none: a ``path`` program (drawn against time), or a curve that
+    :func:`curve_properties` refuses (e.g. one that unloads).
+
+    Pass it as ``curve_marks`` to :func:`espin.mechanics.run.simulate`.
+    """
+    if result.program.test == "path":
+        return None
+    try:
+        return simulation_properties(result)
+    except CurveError:
+        return None
+
+
 _SUMMARY_FIELDS = ("modulus_MPa", "yield_stress_MPa", "yield_strain", "post_yield_modulus_MPa", "r_squared")
 
 
@@ -449,20 +465,27 @@ def plot_bilinear_fits(
     path: str | Path,
     *,
     band: tuple[ArrayLike, ArrayLike, ArrayLike] | None = None,
+    band_n: int | None = None,
     dpi: float = 150.0,
 ) -> Path:
     """Draw stress-strain curves with their bilinear fits and yield points.
 
+    Each curve is a solid line; its elastic line (dashed), post-yield line (dotted) and yield
+    point (open circle) are drawn in the same colour as on ``curve.png``
+    (:func:`espin.mechanics.figures.draw_marks`), and its legend entry states E and the
+    yield point (E alone without a clear yield). The legend sits below the axes.
+
     Parameters
     ----------
     curves
-        ``(label, strain, stress [MPa], properties)`` for each curve: the curve as a solid
-        line, its bilinear fit dashed in the same colour, its yield point as a dot.
+        ``(label, strain, stress [MPa], properties)`` for each curve.
     path
         Image file (format from the suffix), written atomically.
     band
         ``(strain, mean [MPa], sd [MPa])`` of averaged specimens, drawn as a grey band of
         mean ± sd.
+    band_n
+        Number of specimens averaged in ``band``, stated in its legend entry.
     dpi
         Resolution.
 
@@ -473,24 +496,25 @@ def plot_bilinear_fits(
     from matplotlib.figure import Figure
 
     from espin.core.figures import save_figure
+    from espin.mechanics.figures import draw_marks, mark_labels
 
-    fig = Figure(figsize=(6.4, 4.6), layout="constrained")
+    fig = Figure(figsize=(7.0, 5.2), layout="constrained")
     ax = fig.subplots()
     if band is not None:
         strain, mean, sd = (np.asarray(v, dtype=float) for v in band)
-        ax.fill_between(100 * strain, mean - sd, mean + sd, color="0.85", label="mean ± sd")
+        n = "" if band_n is None else f", n = {band_n}"
+        ax.fill_between(100 * strain, mean - sd, mean + sd, color="0.85", label=f"mean ± sd{n}")
     for k, (label, strain, stress, props) in enumerate(curves):
         colour = f"C{k % 10}"
         strain = np.asarray(strain, dtype=float)
-        ax.plot(100 * strain, stress, color=colour, lw=1.2, label=label)
-        ax.plot(100 * strain, bilinear_stress(props, strain), color=colour, ls="--", lw=0.9)
-        if props.has_yield:
-            ax.plot(100 * (props.yield_strain + props.strain_offset), props.yield_stress_MPa, "o",
-                    color=colour, ms=4)
+        marks = ", ".join(text for text in mark_labels(props)[:2] if text is not None)
+        ax.plot(100 * strain, stress, color=colour, lw=1.2, label=f"{label}: {marks}")
+        draw_marks(ax, props, float(strain[-1]), color=colour, labelled=False)
     ax.set_xlabel("strain [%]")
     ax.set_ylabel("stress [MPa]")
-    ax.set_title("curves (solid), bilinear fits (dashed), yield points (dots)", fontsize="medium")
+    ax.set_title("curves (solid): elastic line (dashed), yield point (circle), post-yield line (dotted)",
+                 fontsize="small")
     ax.set_xlim(left=0.0)
     ax.set_ylim(bottom=0.0)
-    ax.legend(fontsize="small")
+    fig.legend(loc="outside lower center", ncols=2 if len(curves) > 2 else 1, fontsize="small")
     return save_figure(fig, path, dpi)

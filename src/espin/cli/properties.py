@@ -241,7 +241,8 @@ def _write_outputs(analysis: _Analysis, folder: Path) -> list[Path]:
         written.append(average.to_csv(folder / "average_curve.csv"))
         plotted.append(("average", average.strain, average.mean_MPa, analysis.average_props))
         band = (average.strain, average.mean_MPa, average.sd_MPa)
-    written.append(plot_bilinear_fits(plotted, folder / "properties.png", band=band))
+    written.append(plot_bilinear_fits(plotted, folder / "properties.png", band=band,
+                                      band_n=len(analysis.curves) if band is not None else None))
     return written
 
 

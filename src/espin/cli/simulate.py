@@ -50,6 +50,7 @@ def simulate(
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+    from espin.analysis.properties import curve_marks
     from espin.core.errors import EspinError
     from espin.mechanics.loading import load_program
     from espin.mechanics.run import resolve_source
@@ -90,7 +91,7 @@ def simulate(
                     console.print(f"step {record.index}/{program.n_steps}: {info}", highlight=False)
 
             result = run_simulation(target, folder, on_step=on_step, overwrite=overwrite,
-                                    allow_large=allow_large)
+                                    allow_large=allow_large, curve_marks=curve_marks)
     except EspinError as err:
         fail(err)
     stress = result.stress()

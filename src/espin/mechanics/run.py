@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from threadpoolctl import threadpool_limits
 
@@ -19,6 +19,9 @@ from espin.geometry.size_estimate import check_size
 from espin.mechanics.driver import SimulationFailed, SimulationResult, StepRecord, run_program
 from espin.mechanics.linear_solvers import make_linear_solver
 from espin.mechanics.loading import LoadProgram, load_program
+
+if TYPE_CHECKING:  # pragma: no cover
+    from espin.mechanics.figures import CurveMarks
 
 __all__ = ["simulate", "resolve_source", "SOLVER_LOG", "SIMULATION_OUTPUTS"]
 
@@ -60,6 +63,7 @@ def simulate(
     threads: int | None = None,
     overwrite: bool = False,
     allow_large: bool = False,
+    curve_marks: Callable[[SimulationResult], CurveMarks | None] | None = None,
     **overrides: Any,
 ) -> SimulationResult:
     """Pull on a virtual mat and record its stress-strain response (docs/model.md sections 3-6).
@@ -84,6 +88,10 @@ def simulate(
     allow_large
         Generate the RVE even when its tensile test is estimated to need more memory than is
         available.
+    curve_marks
+        Gives the bilinear fit (E, yield point, H) that ``curve.png`` marks, or None for no
+        marks (e.g. :func:`espin.analysis.properties.curve_marks`: the fit belongs to the
+        analysis stage, above this one). Default: no marks.
     **overrides
         Config keys as ``section__key=value``, e.g. ``loading__max_strain=0.1``.
 
@@ -107,15 +115,16 @@ def simulate(
     if rve is None:
         check_size(config, allow_large=allow_large)  # before the folder is claimed
     if out is None:
-        return _run(config, rve, program, None, on_step, threads, allow_large)
+        return _run(config, rve, program, None, on_step, threads, allow_large, curve_marks)
     outputs = SIMULATION_OUTPUTS + (RVE_OUTPUTS if rve is None else ())
     with OutputFolder.claim(out, "simulate", config_digest(config), outputs, overwrite=overwrite,
                             inputs=[rve.path] if rve is not None and rve.path is not None else []) as claimed:
-        return _run(config, rve, program, claimed, on_step, threads, allow_large)
+        return _run(config, rve, program, claimed, on_step, threads, allow_large, curve_marks)
 
 
 def _run(config: Config, rve: RVE | None, program: LoadProgram, claimed: OutputFolder | None,
-         on_step: Callable[[StepRecord], None] | None, threads: int | None, allow_large: bool) -> SimulationResult:
+         on_step: Callable[[StepRecord], None] | None, threads: int | None, allow_large: bool,
+         curve_marks: Callable[[SimulationResult], CurveMarks | None] | None = None) -> SimulationResult:
     """Generate the RVE if needed, run the program, write the claimed folder."""
     folder = None if claimed is None else claimed.path
     run_id = None if claimed is None else claimed.run_id
@@ -158,6 +167,7 @@ def _run(config: Config, rve: RVE | None, program: LoadProgram, claimed: OutputF
         if config.output.figures:
             from espin.mechanics.figures import plot_curve, plot_deformed
 
-            plot_curve(result, folder / "curve.png")
+            marks = None if curve_marks is None else curve_marks(result)
+            plot_curve(result, folder / "curve.png", marks=marks)
             plot_deformed(rve.network, result.final, folder / "deformed.png")
     return result
