@@ -6,15 +6,15 @@ No command imports another command or the app: each imports from here.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Annotated, Any, NoReturn, Optional
 
 import typer
 
-__all__ = ["SourceArg", "SetOpt", "OverwriteOpt", "AllowLargeOpt", "parse_set", "fail", "StrainColumnOpt", "StressColumnOpt",
-           "PercentStrainOpt", "DelimiterOpt", "DecimalOpt", "SkipRowsOpt", "read_options",
-           "curve_warnings"]
+__all__ = ["SourceArg", "SetOpt", "OverwriteOpt", "AllowLargeOpt", "PlanOpt", "parse_set", "fail", "StrainColumnOpt",
+           "StressColumnOpt", "PercentStrainOpt", "DelimiterOpt", "DecimalOpt", "SkipRowsOpt", "read_options",
+           "curve_warnings", "print_plan", "LONG_WORK_S"]
 
 SourceArg = Annotated[
     Optional[str],
@@ -40,6 +40,52 @@ AllowLargeOpt = Annotated[
     typer.Option("--allow-large", help="Go on when the RVE is estimated to need more memory than "
                  "is available (the estimate is printed in the refusal)."),
 ]
+
+PlanOpt = Annotated[
+    Optional[bool],
+    typer.Option("--plan/--no-plan", envvar="ESPIN_PLAN",
+                 help="Print the plan before the work: tensile tests x DOF -> estimated time on the "
+                      "workers, from a speed calibration of this machine (at most 2 s). Default: only "
+                      "when the work looks long (a minute or more at reference speed). Environment: "
+                      "ESPIN_PLAN=1 / 0."),
+]
+LONG_WORK_S = 60.0
+"""Work expected to take at least this long at the reference speed [s] gets its plan printed by
+default (the speed calibration then costs at most 2 s more)."""
+
+
+def print_plan(make_text: Callable[[Any], str], console: Any, plan: bool | None,
+               reference_seconds: Callable[[], float]) -> None:
+    """Print a long command's plan (one plain line on ``console``) before its work starts.
+
+    Parameters
+    ----------
+    make_text
+        ``make_text(calibration)`` -> the plan's text
+        (:class:`espin.mechanics.cost.Calibration`).
+    console
+        A rich console (quiet: nothing is printed and nothing is calibrated).
+    plan
+        ``--plan/--no-plan``: True always, False never, None when ``reference_seconds()`` is
+        at least :data:`LONG_WORK_S`.
+    reference_seconds
+        The work's expected time at the reference speed [s] (no calibration needed).
+
+    A plan that cannot be made (a config error the command itself will report) is left out.
+    """
+    from espin.core.errors import EspinError
+
+    if plan is False or getattr(console, "quiet", False):
+        return
+    try:
+        if plan is None and reference_seconds() < LONG_WORK_S:
+            return
+        from espin.mechanics.cost import calibrate
+
+        text = make_text(calibrate())
+    except (EspinError, OSError, ValueError):
+        return
+    console.print(text, highlight=False, soft_wrap=True)
 
 
 def parse_set(items: list[str] | None) -> dict[str, Any]:

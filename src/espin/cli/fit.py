@@ -19,12 +19,14 @@ from espin.cli.common import (
     DelimiterOpt,
     OverwriteOpt,
     PercentStrainOpt,
+    PlanOpt,
     SkipRowsOpt,
     StrainColumnOpt,
     StressColumnOpt,
     curve_warnings,
     fail,
     parse_set,
+    print_plan,
     read_options,
 )
 
@@ -195,6 +197,71 @@ def _live_warnings(console: Any) -> Any:
     return Live(logging.WARNING)
 
 
+def _fit_plan(problem: Any, workers: int | None, calibration: Any) -> tuple[str, float]:
+    """The fit's plan as text, and its least time [s] (the eta grid's evaluations and Jacobians).
+
+    A fit's number of evaluations is known only as it goes: each evaluation simulates every
+    realization and curve (one parallel batch), each Jacobian one evaluation per fiber
+    parameter (one batch); the eta grid needs at least one evaluation and one Jacobian per
+    grid point, then the bracket search adds etas, and each eta's least squares takes up to
+    ``MAX_NFEV`` evaluations, each with its Jacobian.
+    """
+    from espin.analysis.calibration import MAX_NFEV
+    from espin.analysis.calibration.simulation import _loading_config
+    from espin.mechanics.cost import format_duration, pool_seconds, predict_test
+
+    tests = [predict_test(_loading_config(problem.base, steps, curve.strain_rate_per_s), calibration)
+             for curve, steps in zip(problem.curves, problem.steps)]
+    per_evaluation = [t.seconds for t in tests for _ in problem.seeds]
+    k = len(problem.fiber_keys)
+    etas = problem.eta_points if problem.fits_eta else 1
+    evaluation_s = pool_seconds(per_evaluation, workers)
+    jacobian_s = pool_seconds(per_evaluation * k, workers) if k else 0.0
+    least = etas * (evaluation_s + jacobian_s)
+    most_per_eta = MAX_NFEV * (evaluation_s + jacobian_s) if k else evaluation_s
+    where = "one worker of the scheduler" if workers is None else f"{workers} worker{'s' * (workers != 1)}"
+    dof = max(t.dof for t in tests)
+    steps = "/".join(str(t.steps) for t in tests)
+    text = (f"plan: fit, each evaluation {len(per_evaluation)} tensile test{'s' * (len(per_evaluation) != 1)} x "
+            f"{dof:,.0f} DOF ({steps} load steps) -> about {format_duration(evaluation_s)} on {where}; "
+            "the number of evaluations is not known up front: ")
+    if problem.fits_eta:
+        text += (f"the {etas}-point eta grid needs at least {etas * (1 + k)} (one"
+                 + (f" + {k} Jacobian columns" if k else "") + f" per eta) -> at least {format_duration(least)}, "
+                 "then the eta bracket search adds etas; ")
+    if k:
+        text += (f"the least squares at one eta may take up to {MAX_NFEV} evaluations + their Jacobians "
+                 f"-> at most about {format_duration(most_per_eta)} per eta")
+    else:
+        text += f"one evaluation per eta, about {format_duration(evaluation_s)} each"
+    text += f" (speed calibration {calibration.seconds:.1f} s)"
+    return text, least
+
+
+def _print_fit_plan(curve: Any, inputs: dict[str, Any], workers: int | None, scheduler: str | None, console: Any,
+                    plan: bool | None) -> None:
+    """Print the fit's plan (:func:`_fit_plan`) before it starts; its inputs are checked here as
+    the fit checks them (an error is left for the fit to report)."""
+    import warnings
+
+    from espin.analysis.calibration.problem import _problem
+    from espin.core.parallel import default_workers
+    from espin.mechanics.cost import REFERENCE_CALIBRATION
+
+    problem: list[Any] = []
+    n_workers = None if scheduler is not None else (workers or default_workers())
+
+    def checked() -> Any:
+        if not problem:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # the fit shows the curves' warnings itself
+                problem.append(_problem(curve, **inputs))
+        return problem[0]
+
+    print_plan(lambda calibration: _fit_plan(checked(), n_workers, calibration)[0], console, plan,
+               lambda: _fit_plan(checked(), n_workers, REFERENCE_CALIBRATION)[1])
+
+
 def register(app: typer.Typer) -> None:
     """Add the ``fit`` command to ``app``."""
 
@@ -288,6 +355,7 @@ def register(app: typer.Typer) -> None:
         decimal: DecimalOpt = None,
         skip_rows: SkipRowsOpt = 0,
         quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or table.")] = False,
+        plan: PlanOpt = None,
     ) -> None:
         """Calibrate eta and fiber-law parameters to a measured stress-strain curve (paper 4.2).
 
@@ -320,6 +388,12 @@ def register(app: typer.Typer) -> None:
             options = [params, bounds, fix, realizations, seed_list, step_strain, grid, large_strain, eta_points,
                        eta_tolerance, csv_options]
             digest = _inputs_digest(config, curve, strain_rate, options)
+            plan_inputs = dict(base=config, parameters=[p for p in params.split(",") if p.strip()],
+                               bounds=_parse_bounds(bounds), fixed=_parse_fixed(fix), realizations=realizations,
+                               seeds=seed_list, strain_rate_per_s=strain_rate, step_strain=step_strain,
+                               average_grid=grid, large_strain=large_strain, eta_points=eta_points,
+                               eta_tolerance=eta_tolerance, read_options=csv_options)
+            _print_fit_plan(curve, plan_inputs, workers, scheduler, console, plan)
             with OutputFolder.claim(out, "fit", digest, FIT_OUTPUTS, overwrite=overwrite, resume="same-inputs"), \
                     curve_warnings(), console.status("fitting") as status:
 

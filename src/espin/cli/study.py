@@ -7,7 +7,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from espin.cli.common import AllowLargeOpt, OverwriteOpt, fail, parse_set
+from espin.cli.common import AllowLargeOpt, OverwriteOpt, PlanOpt, fail, parse_set, print_plan
 from espin.core.errors import EXIT_SOLVER
 
 __all__ = ["register", "parse_grid"]
@@ -87,6 +87,30 @@ def parse_grid(items: list[str] | None) -> dict[str, list[Any]]:
 
 def _overrides(set_: list[str] | None) -> dict[str, Any]:
     return {k.replace(".", "__"): v for k, v in parse_set(set_).items()}
+
+
+def _print_study_plan(base: str | None, set_: list[str] | None, points: list[dict[str, Any]], realizations: int,
+                      workers: int | None, scheduler: str | None, plan: bool | None, quiet: bool) -> None:
+    """Print the plan of a study's tensile tests (``points`` x ``realizations``) before it runs."""
+    from rich.console import Console
+
+    from espin.core.config import apply_overrides
+    from espin.core.parallel import default_workers
+    from espin.geometry.rve import resolve_config
+    from espin.mechanics.cost import REFERENCE_CALIBRATION
+    from espin.mechanics.cost import plan as make_plan
+
+    configs: list[Any] = []
+
+    def tests() -> list[Any]:
+        if not configs:
+            config = resolve_config(base, **_overrides(set_))
+            configs.extend(apply_overrides(config, point) for point in points)
+        return [c for c in configs for _ in range(realizations)]
+
+    n_workers = None if scheduler is not None else (workers or default_workers())
+    print_plan(lambda calibration: make_plan(tests(), n_workers, calibration).text(), Console(stderr=True, quiet=quiet),
+               plan, lambda: make_plan(tests(), n_workers, REFERENCE_CALIBRATION).seconds)
 
 
 def _run_with_progress(run, n_tasks: int, quiet: bool):
@@ -186,6 +210,7 @@ def rve_size(
     overwrite: OverwriteOpt = False,
     allow_large: AllowLargeOpt = False,
     quiet: QuietOpt = False,
+    plan: PlanOpt = None,
 ) -> None:
     """Mean, sd and RSD of modulus, yield stress, post-yield modulus versus L/D and N_l (Appendix A).
 
@@ -199,7 +224,10 @@ def rve_size(
         security = tls_security(tls_ca_file, tls_cert, tls_key)
         sizes = _numbers("--size-ratios", size_ratios, float)
         layers = _numbers("--layer-counts", layer_counts, int)
-        n_points = len({*((s, layers_for_sizes) for s in sizes), *((size_for_layers, n) for n in layers)})
+        points = list(dict.fromkeys([*((s, layers_for_sizes) for s in sizes), *((size_for_layers, n) for n in layers)]))
+        n_points = len(points)
+        _print_study_plan(base, set_, [{"rve.size_ratio": float(s), "rve.layers": int(n)} for s, n in points],
+                          realizations, workers, scheduler, plan, quiet)
         return (lambda on_outcome: rve_size_study(
             base, size_ratios=sizes, layer_counts=layers, layers_for_sizes=layers_for_sizes,
             size_for_layers=size_for_layers, realizations=realizations, seed_start=seed_start,
@@ -232,12 +260,14 @@ def sweep(
     overwrite: OverwriteOpt = False,
     allow_large: AllowLargeOpt = False,
     quiet: QuietOpt = False,
+    plan: PlanOpt = None,
 ) -> None:
     """Properties (modulus, yield stress, post-yield modulus) over any parameter grid, in parallel.
 
     Writes a tidy table (one row per realization), a summary per point and plots. Reruns skip
     finished tasks; a folder of another run is refused unless --overwrite.
     """
+    import itertools
     import math
 
     from espin.core.cluster import tls_security
@@ -247,6 +277,8 @@ def sweep(
         security = tls_security(tls_ca_file, tls_cert, tls_key)
         parsed = parse_grid(grid)
         n_points = math.prod(len(values) for values in parsed.values())
+        points = [dict(zip(parsed, combo)) for combo in itertools.product(*parsed.values())]
+        _print_study_plan(base, set_, points, realizations, workers, scheduler, plan, quiet)
         return (lambda on_outcome: run_sweep(
             base, parsed, realizations=realizations, seed_start=seed_start, folder=out,
             table_format=table_format, workers=workers, scheduler=scheduler, blas_threads=blas_threads,
