@@ -472,8 +472,8 @@ def plot_bilinear_fits(
 
     Each curve is a solid line; its elastic line (dashed), post-yield line (dotted) and yield
     point (open circle) are drawn in the same colour as on ``curve.png``
-    (:func:`espin.mechanics.figures.draw_marks`), and its legend entry states E and the
-    yield point (E alone without a clear yield). The legend sits below the axes.
+    (:func:`espin.mechanics.figures.draw_marks`), and its legend entry states E, the yield
+    point and H (E alone without a clear yield). The legend sits below the axes.
 
     Parameters
     ----------
@@ -498,7 +498,7 @@ def plot_bilinear_fits(
     from espin.core.figures import save_figure
     from espin.mechanics.figures import draw_marks, mark_labels
 
-    fig = Figure(figsize=(7.0, 5.2), layout="constrained")
+    fig = Figure(figsize=(7.0, 5.2 + 0.2 * len(curves)), layout="constrained")
     ax = fig.subplots()
     if band is not None:
         strain, mean, sd = (np.asarray(v, dtype=float) for v in band)
@@ -507,7 +507,7 @@ def plot_bilinear_fits(
     for k, (label, strain, stress, props) in enumerate(curves):
         colour = f"C{k % 10}"
         strain = np.asarray(strain, dtype=float)
-        marks = ", ".join(text for text in mark_labels(props)[:2] if text is not None)
+        marks = ", ".join(text for text in mark_labels(props) if text is not None)
         ax.plot(100 * strain, stress, color=colour, lw=1.2, label=f"{label}: {marks}")
         draw_marks(ax, props, float(strain[-1]), color=colour, labelled=False)
     ax.set_xlabel("strain [%]")
@@ -516,5 +516,5 @@ def plot_bilinear_fits(
                  fontsize="small")
     ax.set_xlim(left=0.0)
     ax.set_ylim(bottom=0.0)
-    fig.legend(loc="outside lower center", ncols=2 if len(curves) > 2 else 1, fontsize="small")
+    fig.legend(loc="outside lower center", fontsize="small")
     return save_figure(fig, path, dpi)

@@ -211,6 +211,8 @@ def plot_statistics(stats: NetworkStatistics, path: str | Path, *, dpi: float = 
     name = "visible portions" if graded is None else g.tortuosity_sampling
     _against_target(ax, tortuosity, None if graded is None else graded.target, name, floor=1.0)
     ax.set_yscale("log")
+    low, high = ax.get_ylim()
+    ax.set_ylim(low, high * (high / low) ** 0.35)  # headroom above the bars for the legend
     ax.set_xlabel("tortuosity (contour / chord)")
     ax.set_ylabel("density (log)")
     ks = math.nan if graded is None else graded.ks
@@ -219,23 +221,26 @@ def plot_statistics(stats: NetworkStatistics, path: str | Path, *, dpi: float = 
     ax = axes[0, 2]
     d = stats.diameter_um
     _against_target(ax, d, None if g.diameter is None else g.diameter.target, "fibers", floor=0.0)
+    ax.set_ylim(0.0, 1.4 * ax.get_ylim()[1])  # headroom above the bars for the legend
     ax.set_xlabel("diameter [µm]")
     ax.set_ylabel("density [1/µm]")
     fixed = len(d) > 0 and np.ptp(d) == 0.0
     ks = math.nan if g.diameter is None else g.diameter.ks
     ax.set_title(f"diameter: {_ks(ks)}" + (" (fixed diameter)" if fixed else ""))
 
-    # Element tortuosity.
+    # Element tortuosity, as lambda_r - 1: the elements are nearly straight, so the values
+    # differ in the fourth decimal and ticks of lambda_r itself would run into each other.
     ax = axes[1, 1]
     et = np.asarray(stats.element_tortuosity, dtype=float)
-    et = et[np.isfinite(et)]
-    hi = float(np.quantile(et, 0.999)) if len(et) else 1.0
-    bins = np.linspace(1.0, max(hi, 1.0 + 1e-6), 41)
-    _hist(ax, np.clip(et, 1.0, bins[-1]), bins, "elements", color="C2")
+    et = et[np.isfinite(et)] - 1.0
+    hi = max(float(np.quantile(et, 0.999)) if len(et) else 0.0, 1e-6)
+    power = int(np.floor(np.log10(hi)))  # the axis in units of 10^power, stated in its label
+    bins = np.linspace(0.0, hi, 41) / 10.0**power
+    _hist(ax, np.clip(et / 10.0**power, 0.0, bins[-1]), bins, "elements, clipped at 99.9 %", color="C2")
     ax.set_yscale("log")
-    ax.set_xlabel(r"element tortuosity $\lambda_r = L_0 / l_0$ (clipped at 99.9 %)")
+    ax.set_xlabel(rf"element tortuosity $\lambda_r - 1 = L_0 / l_0 - 1$ [$10^{{{power}}}$]")
     ax.set_ylabel("density (log)")
-    ax.set_title(f"element tortuosity: mean {np.mean(et) if len(et) else np.nan:.5f}")
+    ax.set_title(rf"element tortuosity: mean $\lambda_r - 1$ = {np.mean(et) if len(et) else np.nan:.3g}")
     ax.legend(fontsize="small")
 
     # Element length (log-spaced bins: l0 spans several decades).

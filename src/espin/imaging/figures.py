@@ -98,19 +98,17 @@ def save_histograms(m: MeasuredImage, path: str | Path) -> Path:
                       label=f"{chosen} fit, visible (BIC): {fits.diameter.mean_um:.3g} ± "
                             f"{fits.diameter.sd_um:.2g} µm")
     ax_d.set(xlabel="diameter [µm]", ylabel="density [1/µm]")
-    ax_d.legend(fontsize=7)
 
     theta = _finite(f["orientation_deg"])
     ax_o.hist(theta, bins=np.linspace(0, 180, 19), density=True, alpha=0.7, label="fibers")
     grid = np.linspace(0, 180, 361)
     label = ("uniform" if fits.orientation_model == "uniform" else
-             f"von Mises mu {fits.orientation_mean_deg:.0f}, kappa {fits.orientation_kappa:.2g}")
+             rf"von Mises $\mu$ = {fits.orientation_mean_deg:.0f} deg, $\kappa$ = {fits.orientation_kappa:.2g}")
     ax_o.plot(grid, fits.orientation_pdf(grid), "k-", label=f"{label} (AIC)")
     ax_o.axvline(m.dominant_direction_deg, color="C3", ls="--",
                  label=f"structure tensor {m.dominant_direction_deg:.0f} deg, "
                        f"coherency {m.coherency:.2f}")
     ax_o.set(xlabel="orientation [deg]", ylabel="density [1/deg]", xlim=(0, 180))
-    ax_o.legend(fontsize=7)
 
     t = _finite(f["tortuosity"])
     if len(t):
@@ -120,7 +118,9 @@ def save_histograms(m: MeasuredImage, path: str | Path) -> Path:
             ax_t.plot(x, stats.halfnorm.pdf(x, 1.0, fits.tortuosity_scale), "k-",
                       label=f"half-normal loc 1, scale {fits.tortuosity_scale:.3g}")
     ax_t.set(xlabel="tortuosity (contour / end-to-end)", ylabel="density")
-    ax_t.legend(fontsize=7)
+    for ax in (ax_d, ax_o, ax_t):  # headroom, so that the legend sits above the bars
+        ax.set_ylim(0.0, 1.45 * ax.get_ylim()[1])
+        ax.legend(fontsize=7, loc="upper right")
     fig.suptitle(f"{Path(m.source).name}: {len(f)} fibers, {m.um_per_px:.4g} µm/px", fontsize=10)
     return save_figure(fig, path, dpi=120)
 
@@ -175,7 +175,7 @@ def save_orientation_map(m: MeasuredImage, path: str | Path) -> Path:
     right = _colour_disc(fig, ax_key, fontsize)
     ax_key.text(right + 0.02, 0.5, "hue: local fiber direction, 0-180° counter-clockwise from "
                 "horizontal (key: the disc)\nsaturation: coherency, 0 (grey) at the centre to 1 "
-                f"at the rim\nbrightness: the image. Structure tensor, window sigma {window:.0f} px"
+                f"at the rim\nbrightness: the image. Structure tensor, window $\\sigma$ = {window:.0f} px"
                 f"\nwhole image: dominant direction {m.dominant_direction_deg:.0f}°, coherency "
                 f"{m.coherency:.2f}", transform=ax_key.transAxes, ha="left", va="center",
                 color="white", fontsize=fontsize, linespacing=1.5)

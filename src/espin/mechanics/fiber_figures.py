@@ -61,9 +61,9 @@ def plot_single_fiber(
         ax.axhline(plateau, color="C2", ls="--", lw=1,
                    label=rf"$b_p\,\mathrm{{asinh}}(\dot\lambda / a_p)$ = {plateau:.3g} MPa")
     ax.set_xlabel(r"stretch $\lambda = l / l_0$")
-    ax.set_ylabel("engineering stress t [MPa]")
+    ax.set_ylabel("engineering stress $t$ [MPa]")
     ax.set_title(
-        rf"single fiber: $E_t$ = {law.taut_modulus:g}, $E_b$ = {law.slack_modulus:g} MPa, "
+        rf"single fiber: $E_t$ = {law.taut_modulus:g} MPa, $E_b$ = {law.slack_modulus:g} MPa, "
         rf"$a_p$ = {law.flow_rate:g} 1/s, $b_p$ = {law.flow_resistance:g} MPa, "
         rf"$c_p$ = {law.hardening_exponent:g}",
         fontsize=8,
@@ -77,5 +77,7 @@ def plot_single_fiber(
         inset.plot(history.stretch[slack], history.stress[slack], color="C0")
         inset.axvline(lam_r, color="0.4", ls=":", lw=1)
         inset.set_title(r"slack branch ($E_b$)", fontsize=7)
+        inset.set_xlabel(r"$\lambda$", fontsize=7, labelpad=1)
+        inset.set_ylabel("$t$ [MPa]", fontsize=7, labelpad=1)
         inset.tick_params(labelsize=6)
     return save_figure(fig, path, dpi)

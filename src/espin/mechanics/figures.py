@@ -20,6 +20,7 @@ from espin.core.figures import save_figure
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
+    from matplotlib.lines import Line2D
 
     from espin.geometry.network import Network
     from espin.mechanics.driver import SimulationResult, StepRecord
@@ -68,6 +69,11 @@ def mark_labels(marks: CurveMarks, test: str = "uniaxial") -> tuple[str, str | N
     test
         The kind of test: E, sigma_y and H name the uniaxial quantities (docs/model.md), G and
         tau_y those of simple shear; other tests' slopes are named in words.
+
+    Returns
+    -------
+    tuple of str, str or None, str or None
+        Stresses and slopes in MPa, the yield strain in % (from ``strain_offset``).
     """
     slope, point, post = _MARK_SYMBOLS.get(test, _SLOPE_SYMBOLS)
     elastic = f"{slope} = {marks.modulus_MPa:.3g} MPa"
@@ -78,7 +84,7 @@ def mark_labels(marks: CurveMarks, test: str = "uniaxial") -> tuple[str, str | N
 
 
 def draw_marks(ax: Axes, marks: CurveMarks, strain_end: float, *, test: str = "uniaxial",
-               color: str = "k", labelled: bool = True) -> list:
+               color: str = "k", labelled: bool = True) -> list[Line2D]:
     """Draw the marks on a stress [MPa] versus strain [%] axes; return the drawn artists.
 
     The elastic line (dashed) runs from its zero-stress strain to 1.2 times the yield strain

@@ -245,8 +245,8 @@ def dof_fit_table(table: pd.DataFrame) -> pd.DataFrame:
 
 def plot_dof_study(table: pd.DataFrame, path: str | Path, *, dpi: float = 150.0) -> Path:
     """Fig. 14-like figure: both models' DOF versus L_tilde with their quadratic fits (top), the
-    ratio beam / espin (bottom); one colour per number of layers, seeds averaged (sd as error
-    bars).
+    ratio beam / espin (bottom); one colour per number of layers, seeds averaged (error bars:
+    sample sd over the seeds, their number n in the title).
 
     Returns
     -------
@@ -268,17 +268,19 @@ def plot_dof_study(table: pd.DataFrame, path: str | Path, *, dpi: float = 150.0)
         for column, marker, label in (("espin_dof", "o", "espin"), ("beam_dof", "s", "beam FE")):
             top.errorbar(sizes, stats[column]["mean"], yerr=stats[column]["std"].fillna(0.0), fmt=marker,
                          color=colour, mfc="none" if column == "beam_dof" else colour,
-                         label=f"{label}, N_l = {n_layers}")
+                         label=f"{label}, $N_l$ = {n_layers}")
             if len(sizes) >= 3:
                 top.plot(smooth, dof_fit(rows, column, n_layers)(smooth), color=colour,
                          ls="-" if column == "espin_dof" else "--", lw=1)
         bottom.errorbar(sizes, stats["ratio"]["mean"], yerr=stats["ratio"]["std"].fillna(0.0), fmt="o-",
-                        color=colour, label=f"N_l = {n_layers}")
+                        color=colour, label=f"$N_l$ = {n_layers}")
     top.set_ylabel("degrees of freedom")
     top.ticklabel_format(axis="y", style="sci", scilimits=(0, 0))
     top.legend(fontsize="small")
-    top.set_title("DOF versus RVE size (lines: quadratic fits)")
-    bottom.set_xlabel("RVE size L / D")
+    seeds = table.groupby(["layers", "size_ratio"]).size()
+    n = f"{seeds.min()}" if seeds.min() == seeds.max() else f"{seeds.min()}-{seeds.max()}"
+    fig.suptitle(f"DOF versus RVE size (mean ± sd, n = {n} seeds; lines: quadratic fits)", fontsize="medium")
+    bottom.set_xlabel(r"RVE size $\tilde L = L / D$")
     bottom.set_ylabel("beam DOF / espin DOF")
     bottom.set_ylim(bottom=0.0)
     if table["layers"].nunique() > 1:

@@ -11,7 +11,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from espin.core.figures import save_figure
+from espin.core.figures import parameter_label, parameter_value, save_figure
 
 __all__ = ["plot_rve_size", "plot_curve_band", "plot_sweep", "parameter_label", "PROPERTY_LABELS"]
 
@@ -20,42 +20,6 @@ PROPERTY_LABELS = {
     "yield_stress_MPa": ("yield stress", r"$\sigma_y$ [MPa]"),
     "post_yield_modulus_MPa": ("post-yield modulus", "$H$ [MPa]"),
 }
-
-_PARAMETER_LABELS = {
-    "rve.volume_fraction": r"volume fraction $\eta$",
-    "rve.max_deviation_deg": r"largest turn $\theta^d_{max}$ [deg]",
-    "rve.waviness_deg": r"waviness $\sigma_\phi$ [deg]",
-    "rve.waviness_length_ratio": "waviness length / $D$",
-    "rve.diameter_um": "fiber diameter $D$ [µm]",
-    "rve.diameter_sd_um": "diameter sd [µm]",
-    "rve.size_ratio": r"RVE size $\tilde L = L / D$",
-    "rve.layers": "layers $N_l$",
-    "rve.segment_ratio": r"segment $\tilde l_s = l_s / D$",
-    "rve.orientation.von_mises.kappa": r"orientation concentration $\kappa$",
-    "rve.orientation.von_mises.mean_deg": "mean orientation [deg]",
-    "fiber.taut_modulus_MPa": "taut modulus $E_t$ [MPa]",
-    "fiber.slack_modulus_MPa": "slack modulus $E_s$ [MPa]",
-    "fiber.flow_resistance_MPa": "flow resistance [MPa]",
-    "fiber.hardening_exponent": "hardening exponent",
-    "loading.direction_deg": "loading direction [deg]",
-    "loading.strain_rate_per_s": "strain rate [1/s]",
-}
-
-
-def _legend(key: str, value: object) -> str:
-    """``quantity = value unit`` of a swept key for a legend."""
-    label = parameter_label(key)
-    if label.endswith("]") and " [" in label:
-        name, unit = label[:-1].rsplit(" [", 1)
-        return f"{name} = {_format(value)} {unit}"
-    return f"{label} = {_format(value)}"
-
-
-def parameter_label(key: str) -> str:
-    """The axis label of a swept config key: the quantity and its unit where espin knows it,
-    else the key itself."""
-    return _PARAMETER_LABELS.get(key, key)
-
 
 def plot_rve_size(summary: pd.DataFrame, folder: str | Path, *, layers_for_sizes: int,
                   size_for_layers: float, dpi: float = 150.0) -> dict[str, Path]:
@@ -98,26 +62,29 @@ def plot_rve_size(summary: pd.DataFrame, folder: str | Path, *, layers_for_sizes
             for ax, letter in ((top, "ab"[column]), (bottom, "cd"[column])):
                 ax.set_title(f"{letter})", loc="left", fontsize=10)
         n = sorted({int(v) for v in summary["n"]}) if "n" in summary else []
-        count = f" {n[0] if len(n) == 1 else f'{n[0]}-{n[-1]}'}" if n else ""
-        fig.suptitle(f"{title} versus RVE size (mean ± sd over{count} realizations)")
+        spread = f"mean ± sd, n = {n[0] if len(n) == 1 else f'{n[0]}-{n[-1]}'} realizations" if n else "mean ± sd"
+        fig.suptitle(f"{title} versus RVE size ({spread})")
         files[f"rve_size_{name}"] = save_figure(fig, Path(folder) / f"rve_size_{name.removesuffix('_MPa')}.png", dpi)
     return files
 
 
 def plot_curve_band(strain: np.ndarray, stress: np.ndarray, path: str | Path, *, label: str = "",
                     dpi: float = 150.0) -> Path:
-    """Mean curve (line) and +- one sd (shaded) of stacked curves ``stress`` (n, n_points), Fig. A.18."""
+    """Mean curve (line) and +- one sample sd (shaded) of stacked curves ``stress`` (n, n_points)
+    [MPa] over ``strain`` (dimensionless), Fig. A.18; ``label`` (mathtext allowed) names the
+    RVE in the title."""
     stress = np.atleast_2d(stress)
     mean = stress.mean(axis=0)
     sd = stress.std(axis=0, ddof=1) if len(stress) > 1 else np.zeros_like(mean)
     fig = Figure(figsize=(5.5, 4.0), layout="constrained")
     ax = fig.subplots()
-    ax.fill_between(100 * strain, mean - sd, mean + sd, color="C0", alpha=0.3, lw=0, label="+- sd")
-    ax.plot(100 * strain, mean, color="C0", label=f"mean of {len(stress)}")
+    ax.fill_between(100 * strain, mean - sd, mean + sd, color="C0", alpha=0.3, lw=0,
+                    label=f"mean ± sd, n = {len(stress)} realizations")
+    ax.plot(100 * strain, mean, color="C0")
     ax.set_xlabel("strain [%]")
     ax.set_ylabel("stress [MPa]")
     ax.set_title(f"stress-strain spread over realizations{', ' + label if label else ''}", fontsize=10)
-    ax.legend(frameon=False)
+    ax.legend(frameon=False, loc="lower right")
     return save_figure(fig, path, dpi)
 
 
@@ -135,7 +102,7 @@ def plot_sweep(summary: pd.DataFrame, parameters: list[str], folder: str | Path,
     """
     files = {}
     for name, (title, unit) in PROPERTY_LABELS.items():
-        fig = Figure(figsize=(4.2 * len(parameters), 3.6), layout="constrained")
+        fig = Figure(figsize=(max(4.2 * len(parameters), 6.0), 4.0), layout="constrained")
         axes = np.atleast_1d(fig.subplots(1, len(parameters)))
         for ax, parameter in zip(axes, parameters):
             others = [p for p in parameters if p != parameter]
@@ -147,7 +114,7 @@ def plot_sweep(summary: pd.DataFrame, parameters: list[str], folder: str | Path,
                 for values, group in groups:
                     values = values if isinstance(values, tuple) else (values,)
                     group = group.sort_values(parameter)
-                    label = ", ".join(_legend(p, v) for p, v in zip(others, values)) or None
+                    label = ", ".join(parameter_value(p, v) for p, v in zip(others, values)) or None
                     ax.errorbar(group[parameter], group[f"{name}_mean"], yerr=group[f"{name}_sd"].fillna(0.0),
                                 marker="o", capsize=3, label=label)
             ax.set_xlabel(parameter_label(parameter))
@@ -155,12 +122,7 @@ def plot_sweep(summary: pd.DataFrame, parameters: list[str], folder: str | Path,
             if ax.get_legend_handles_labels()[1]:
                 ax.legend(frameon=False, fontsize=7)
         n = sorted({int(v) for v in summary["n"]}) if "n" in summary else []
-        spread = f"mean ± sd over {n[0] if len(n) == 1 else f'{n[0]}-{n[-1]}'} realizations" if n else "mean ± sd"
-        fig.suptitle(f"{title} versus swept parameters ({spread})")
+        spread = f"mean ± sd, n = {n[0] if len(n) == 1 else f'{n[0]}-{n[-1]}'} realizations" if n else "mean ± sd"
+        fig.suptitle(f"{title} versus swept parameters\n({spread})", fontsize="medium")
         files[f"sweep_{name}"] = save_figure(fig, Path(folder) / f"sweep_{name.removesuffix('_MPa')}.png", dpi)
     return files
-
-
-def _format(value: object) -> str:
-    """A grid value for a legend: numbers compactly, anything else as text."""
-    return f"{value:g}" if isinstance(value, (int, float)) and not isinstance(value, bool) else str(value)

@@ -140,7 +140,7 @@ def rve_size_study(
                 result.files[name] = path
             largest = max(ensemble.records, key=lambda r: (r["parameters"]["rve.size_ratio"], r["parameters"]["rve.layers"]))
             strain, stress = ensemble.curves(**{k.replace(".", "__"): v for k, v in largest["parameters"].items()})
-            label = f"L/D = {largest['parameters']['rve.size_ratio']:g}, N_l = {largest['parameters']['rve.layers']}"
+            label = rf"$\tilde L$ = {largest['parameters']['rve.size_ratio']:g}, $N_l$ = {largest['parameters']['rve.layers']}"
             result.files["curves"] = plot_curve_band(strain, stress, folder / "rve_size_curves.png", label=label)
     return result
 

@@ -15,7 +15,7 @@ from matplotlib.figure import Figure
 
 from espin.analysis.calibration.curves import FittedCurve
 from espin.core.config import Config
-from espin.core.figures import save_figure
+from espin.core.figures import parameter_label, parameter_value, save_figure
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
@@ -50,18 +50,18 @@ def _curves(ax: Axes, result: Fit) -> None:
         rate = f"{curve.strain_rate_per_s:.3g} 1/s"
         if curve.sd_MPa is not None:
             ax.fill_between(x, curve.stress_MPa - curve.sd_MPa, curve.stress_MPa + curve.sd_MPa,
-                            color="0.8", linewidth=0, label="measured mean +- sd" if k == 0 else None)
+                            color="0.8", linewidth=0, label="measured, mean ± sd of the specimens" if k == 0 else None)
         ax.plot(x, curve.stress_MPa, "o", color="k", markersize=3, markerfacecolor="none",
                 label=f"measured, {rate}")
         ax.fill_between(x, curve.model_MPa - curve.model_sd_MPa, curve.model_MPa + curve.model_sd_MPa,
                         color=f"C{k}", alpha=0.25, linewidth=0)
         ax.plot(x, curve.model_MPa, color=f"C{k}",
-                label=f"model, {rate} (mean +- sd of {len(result.seeds)} RVEs)")
+                label=f"model, {rate} (mean ± sd, n = {len(result.seeds)} RVE{'s' if len(result.seeds) != 1 else ''})")
     ax.set_xlabel("strain [%]")
-    ax.set_ylabel(f"mat stress, {result.config.output.stress_measure} [MPa]")
+    ax.set_ylabel(f"mat stress ({result.config.output.stress_measure}) [MPa]")
     ax.set_xlim(left=0.0)
     ax.set_ylim(bottom=0.0)
-    ax.set_title(f"mat: R^2 = {result.r_squared:.4f}")
+    ax.set_title(f"mat: $R^2$ = {result.r_squared:.4f}")
     ax.legend(fontsize="small")
 
 
@@ -75,9 +75,9 @@ def _fiber(ax: Axes, result: Fit) -> None:
         history = pull_fiber(law, *constant_rate_history(1.0 + curve.max_strain, curve.strain_rate_per_s,
                                                          FIBER_STEPS))
         ax.plot(100.0 * (history.stretch - 1.0), history.stress, color=f"C{k}",
-                label=f"{curve.strain_rate_per_s:.3g} 1/s")
-    ax.set_xlabel("fiber stretch - 1 [%]")
-    ax.set_ylabel("fiber stress t [MPa]")
+                label=f"strain rate {curve.strain_rate_per_s:.3g} 1/s")
+    ax.set_xlabel(r"fiber stretch $\lambda - 1$ [%]")
+    ax.set_ylabel("fiber stress $t$ [MPa]")
     ax.set_xlim(left=0.0)
     ax.set_ylim(bottom=0.0)
     ax.set_title("single fiber, fitted law")
@@ -93,11 +93,11 @@ def _profile(ax: Axes, result: Fit) -> None:
     for k, failed in enumerate(eta[~finite]):
         ax.axvline(failed, color="0.5", linestyle=":", linewidth=0.8, label="fit failed" if k == 0 else None)
     best = result.values["rve.volume_fraction"]
-    ax.axvline(best, color="C3", linewidth=0.8, label=f"eta = {best:.4g}")
+    ax.axvline(best, color="C3", linewidth=0.8, label=rf"fitted $\eta$ = {best:.4g}")
     ax.set_yscale("log")
-    ax.set_xlabel("volume fraction eta")
-    ax.set_ylabel("least SSE [MPa^2]")
-    ax.set_title("profile over eta")
+    ax.set_xlabel(parameter_label("rve.volume_fraction"))
+    ax.set_ylabel("least SSE [MPa$^2$]")
+    ax.set_title(r"profile over $\eta$")
     ax.legend(fontsize="small")
 
 
@@ -127,6 +127,6 @@ def plot_fit(result: Fit, path: str | Path, *, dpi: float = 150.0) -> Path:
     fig = Figure(figsize=(4.5 * len(panels), 4.5), layout="constrained")
     for k, draw in enumerate(panels):
         draw(fig.add_subplot(1, len(panels), k + 1), result)
-    names = ", ".join(f"{key.split('.')[1]} = {value:.4g}" for key, value in result.values.items())
+    names = ", ".join(parameter_value(key, value) for key, value in result.values.items())
     fig.suptitle(names, fontsize="medium")
     return save_figure(fig, path, dpi)

@@ -100,8 +100,8 @@ def save_comparison(image: np.ndarray, rendering: np.ndarray, um_per_px: float, 
         ax.imshow(picture, cmap="gray", vmin=low, vmax=max(high, low + 1e-9), extent=extent,
                   interpolation="antialiased")
         ax.set_title(label, fontsize=10)
-        ax.set_xlabel("x (µm)")
-    axes[0].set_ylabel("y (µm)")
+        ax.set_xlabel("x [µm]")
+    axes[0].set_ylabel("y [µm]")
     fig.suptitle(f"same pixel size ({um_per_px:.4g} µm/px) and field of view "
                  f"({cols * um_per_px:.3g} × {rows * um_per_px:.3g} µm)", fontsize=10)
     return save_figure(fig, path, dpi=110)
