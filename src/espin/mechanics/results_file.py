@@ -333,16 +333,16 @@ _STEP_CHECKS: dict[str, tuple[str, tuple, str, dict]] = {
 def load_results(path: str | Path) -> ResultsFile:
     """Read a file written by :func:`write_results`, or the ``results.h5`` of a results folder.
 
+    Every dataset is checked (type, shape, finite values, fractions in [0, 1], counts >= 0,
+    one row per step throughout) before it is used. A file whose folder's ``run.json`` says
+    the run is not complete, or names another run, is read with a
+    :class:`PartialResultWarning`.
+
     Parameters
     ----------
     path
         A ``results.h5`` file, or the folder ``espin simulate`` wrote (its ``results.h5`` is
         read).
-
-    Every dataset is checked (type, shape, finite values, fractions in [0, 1], counts >= 0,
-    one row per step throughout) before it is used. A file whose folder's ``run.json`` says
-    the run is not complete, or names another run, is read with a
-    :class:`PartialResultWarning`.
 
     Raises
     ------
