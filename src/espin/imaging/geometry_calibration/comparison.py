@@ -93,7 +93,7 @@ def save_comparison(image: np.ndarray, rendering: np.ndarray, um_per_px: float, 
 
     rows, cols = image.shape
     extent = (0.0, cols * um_per_px, 0.0, rows * um_per_px)
-    fig = Figure(figsize=(12.0, 12.0 * rows / (2.0 * cols) + 1.0), layout="constrained")
+    fig = Figure(figsize=(12.0, 11.0 * rows / (2.0 * cols) + 0.9), layout="constrained")
     axes = fig.subplots(1, 2, sharex=True, sharey=True)
     for ax, picture, label in ((axes[0], image, image_label), (axes[1], rendering, rendering_label)):
         low, high = np.percentile(picture, [0.5, 99.5])
