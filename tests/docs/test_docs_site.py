@@ -1,0 +1,79 @@
+"""The docs site builds with ``mkdocs build --strict``, its tutorials executed, offline.
+
+One build covers both: the tutorial notebooks (jupytext scripts in docs/tutorials/) are
+executed by mkdocs-jupyter while the site is built, at the small sizes their
+``ESPIN_TUTORIAL_QUICK`` switch selects; a failing cell fails the build. Any network request
+during the build would go to a closed port and fail it (no web fonts, no remote inventories).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+DEAD_PROXY = "http://127.0.0.1:9"
+"""A port nothing listens on: every HTTP(S) request through it fails."""
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("site")
+    env = os.environ | {"ESPIN_TUTORIAL_QUICK": "1", "NO_MKDOCS_2_WARNING": "1", "MPLBACKEND": "Agg",
+                        "HTTP_PROXY": DEAD_PROXY, "HTTPS_PROXY": DEAD_PROXY, "http_proxy": DEAD_PROXY,
+                        "https_proxy": DEAD_PROXY, "NO_PROXY": "", "no_proxy": ""}
+    run = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--config-file",
+                          str(ROOT / "mkdocs.yml"), "--site-dir", str(out)],
+                         cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, f"mkdocs build --strict failed:\n{run.stdout[-4000:]}\n{run.stderr[-8000:]}"
+    return out
+
+
+def _page(site: Path, name: str) -> str:
+    return (site / name / "index.html").read_text(encoding="utf-8")
+
+
+def test_every_page_of_the_nav_is_built(site):
+    nav = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
+    pages = re.findall(r":\s+(\S+\.(?:md|py))\s*$", nav, flags=re.M) + re.findall(r"^\s+- (\S+\.md)\s*$", nav, flags=re.M)
+    assert len(pages) >= 25
+    for page in pages:
+        stem = page.rsplit(".", 1)[0]
+        built = site / "index.html" if stem == "index" else site / stem.removesuffix("/index") / "index.html"
+        assert built.exists(), f"{page} was not built"
+
+
+def test_api_reference_is_rendered_from_the_docstrings(site):
+    mechanics = _page(site, "api/mechanics")
+    # The signature and a sentence of the numpy docstring of espin.simulate and its parameters.
+    assert "simulate" in mechanics and "Pull on a virtual mat and record its stress-strain response" in mechanics
+    assert "overwrite" in mechanics and "on_step" in mechanics
+    datasets = _page(site, "api/datasets")
+    assert "SEM-like image" in datasets and "calibrated_config" in datasets
+
+
+def test_tutorials_are_executed_with_their_outputs(site):
+    # Jupyter shows espin's objects by their _repr_html_ tables; matplotlib figures as PNG.
+    first = _page(site, "tutorials/fifteen_minutes")
+    for caption in ("RVE", "SimulationResult", "ResultsFile"):
+        assert f"<caption>{caption}</caption>" in first
+    # espin.simulate's notebook progress bar, in its final state.
+    assert re.search(r'<progress[^>]*value="15"', first) and "step 15/15" in first
+    assert first.count("data:image/png;base64") >= 3  # the 3-D mat, the curve, curve.png
+    sem = _page(site, "tutorials/sem_to_curve")
+    assert "<caption>SEMMeasurement of" in sem and "<caption>GeometryCalibration of" in sem
+    fit = _page(site, "tutorials/fit_curves")
+    assert "<caption>FitResult" in fit and "chord modulus" in fit
+    # The fit's own status line, and no progress bar of each simulation it ran.
+    assert re.search(r"evaluation \d+  SSE", fit) and "<progress" not in fit
+
+
+def test_home_page_links_the_guides(site):
+    home = (site / "index.html").read_text(encoding="utf-8")
+    for target in ("getting_started/", "tutorials/fifteen_minutes/", "api/", "model/"):
+        assert f'href="{target}' in home or f'href="./{target}' in home, target
