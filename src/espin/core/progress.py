@@ -1,8 +1,8 @@
 """Progress of a long run in a Jupyter notebook: one HTML bar updated in place.
 
-The command line draws its bars with rich; in a notebook, :func:`espin.simulate` and the
-studies show this bar instead (``progress=None`` means: shown in a notebook only, so that
-scripts stay silent).
+The command line draws its bars with rich; in a notebook, :func:`espin.simulate`, the studies
+and the fit show this bar instead (shown in a notebook only by default, so that scripts stay
+silent). A simulation run inside a study or a fit shows none of its own.
 """
 
 from __future__ import annotations
@@ -35,15 +35,16 @@ class NotebookProgress:
     Parameters
     ----------
     total
-        Number of units of work (steps, tensile tests).
+        Number of units of work (steps, tensile tests); None when not known in advance (the
+        evaluations of a fit): then only the count and the elapsed time are shown.
     what
         What a unit is, for the text ("step", "test").
     """
 
-    def __init__(self, total: int, what: str) -> None:
+    def __init__(self, total: int | None, what: str) -> None:
         from IPython.display import HTML, display
 
-        self.total = max(int(total), 1)
+        self.total = None if total is None else max(int(total), 1)
         self.what = what
         self._html = HTML
         self._start = time.perf_counter()
@@ -51,6 +52,8 @@ class NotebookProgress:
 
     def _render(self, done: int, info: str) -> str:
         elapsed = time.perf_counter() - self._start
+        if self.total is None:
+            return f"<code>{escape(self.what)} {done}  {escape(info)}  {_duration(elapsed)} elapsed</code>"
         left = f", about {_duration(elapsed / done * (self.total - done))} left" if 0 < done < self.total else ""
         return (f'<progress value="{done}" max="{self.total}" style="width:40%"></progress> '
                 f"<code>{escape(self.what)} {done}/{self.total}  {escape(info)}  "
@@ -58,4 +61,5 @@ class NotebookProgress:
 
     def update(self, done: int, info: str = "") -> None:
         """Show ``done`` units finished, with a short text (e.g. the strain reached)."""
-        self._handle.update(self._html(self._render(min(int(done), self.total), info)))
+        done = int(done) if self.total is None else min(int(done), self.total)
+        self._handle.update(self._html(self._render(done, info)))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -64,6 +65,7 @@ def simulate(
     overwrite: bool = False,
     allow_large: bool = False,
     curve_marks: Callable[[SimulationResult], CurveMarks | None] | None = None,
+    progress: bool | None = None,
     **overrides: Any,
 ) -> SimulationResult:
     """Pull on a virtual mat and record its stress-strain response (docs/model.md sections 3-6).
@@ -92,6 +94,10 @@ def simulate(
         Gives the bilinear fit (E, yield point, H) that ``curve.png`` marks, or None for no
         marks (e.g. :func:`espin.analysis.properties.curve_marks`: the fit belongs to the
         analysis stage, above this one). Default: no marks.
+    progress
+        Show the steps done, the strain reached and the time left: in a Jupyter notebook as a
+        bar updated in place, elsewhere as one line per step on stderr. Default (None): in a
+        notebook only.
     **overrides
         Config keys as ``section__key=value``, e.g. ``loading__max_strain=0.1``.
 
@@ -114,12 +120,36 @@ def simulate(
     program = load_program(config.loading)  # its tables are read and checked before any work
     if rve is None:
         check_size(config, allow_large=allow_large)  # before the folder is claimed
+    on_step = _with_progress(on_step, program, progress)
     if out is None:
         return _run(config, rve, program, None, on_step, threads, allow_large, curve_marks)
     outputs = SIMULATION_OUTPUTS + (RVE_OUTPUTS if rve is None else ())
     with OutputFolder.claim(out, "simulate", config_digest(config), outputs, overwrite=overwrite,
                             inputs=[rve.path] if rve is not None and rve.path is not None else []) as claimed:
         return _run(config, rve, program, claimed, on_step, threads, allow_large, curve_marks)
+
+
+def _with_progress(on_step: Callable[[StepRecord], None] | None, program: LoadProgram,
+                   progress: bool | None) -> Callable[[StepRecord], None] | None:
+    """``on_step`` followed by the progress display asked for (see :func:`simulate`)."""
+    from espin.core.progress import NotebookProgress, in_notebook
+
+    notebook = in_notebook()
+    if not (progress or (progress is None and notebook)):
+        return on_step
+    total = program.n_steps
+    bar = NotebookProgress(total, "step") if notebook else None
+
+    def show(record: StepRecord) -> None:
+        if on_step is not None:
+            on_step(record)
+        info = f"strain {record.strain:.4f}"
+        if bar is not None:
+            bar.update(record.index, info)
+        else:
+            print(f"step {record.index}/{total}: {info}", file=sys.stderr, flush=True)
+
+    return show
 
 
 def _run(config: Config, rve: RVE | None, program: LoadProgram, claimed: OutputFolder | None,

@@ -144,7 +144,7 @@ def run_tensile(task: TensileTask) -> dict[str, Any]:
 
     start = time.perf_counter()
     rve = generate(task.config, allow_large=task.allow_large)
-    result = simulate(rve)
+    result = simulate(rve, progress=False)  # the ensemble shows its own progress
     strain, stress = np.asarray(result.strain), np.asarray(result.stress())
     try:
         props = curve_properties(strain, stress)
@@ -280,6 +280,8 @@ def run_ensemble(
         properties, ``has_yield``, ``strain``, ``stress_MPa``) counts as a failed task.
     on_outcome
         Called in this process after each task finishes or fails (e.g. a progress bar).
+        Default: in a Jupyter notebook, a bar of the tasks done with the time left; elsewhere
+        nothing.
 
     Returns
     -------
@@ -300,6 +302,8 @@ def run_ensemble(
     failures: dict[str, dict[str, Any]] = {}
     if todo:
         log.info("%d tasks to run, %d already finished", len(todo), len(done))
+        if on_outcome is None:
+            on_outcome = _notebook_bar(len(todo))
         with TaskPool(workers, scheduler, blas_threads, security) as pool:
             for outcome in pool.map(task_function, todo):
                 task = todo[outcome.index]
@@ -324,6 +328,24 @@ def run_ensemble(
     if folder is not None:
         _write_table(ensemble, folder)
     return ensemble
+
+
+def _notebook_bar(total: int) -> Callable[[TaskOutcome, TensileTask], None] | None:
+    """In a notebook, a progress bar of ``total`` tasks as the ``on_outcome`` of
+    :func:`run_ensemble`; None elsewhere."""
+    from espin.core.progress import NotebookProgress, in_notebook
+
+    if not in_notebook():
+        return None
+    bar = NotebookProgress(total, "test")
+    finished = 0
+
+    def show(outcome: TaskOutcome, task: TensileTask) -> None:
+        nonlocal finished
+        finished += 1
+        bar.update(finished, "" if outcome.ok else f"last failed (seed {task.seed})")
+
+    return show
 
 
 def _collect(tasks: Sequence[TensileTask], done: dict[str, dict[str, Any]], failures: dict[str, dict[str, Any]],

@@ -163,7 +163,8 @@ def fit(
     read_options
         Keyword arguments of ``espin.analysis.experiments.read_curve`` for CSV paths.
     on_evaluation
-        Called with each history record (progress display).
+        Called with each history record (progress display). Default: in a Jupyter notebook,
+        a line with the evaluations done, the last SSE and the time elapsed; elsewhere nothing.
 
     Returns
     -------
@@ -189,7 +190,7 @@ def fit(
     )
     with pool:
         # the task function as named in this package (where it can be replaced)
-        model = _Model(problem, pool, on_evaluation, simulate=_simulate_task)
+        model = _Model(problem, pool, on_evaluation or _notebook_line(), simulate=_simulate_task)
         search = _search(model)
         best = search.best
         if best.evaluation.failures:
@@ -199,3 +200,13 @@ def fit(
             )
         uncertainty = _uncertainty(model, best, search.solved)
     return _result(problem, model, search, uncertainty, fixed or {}, time.perf_counter() - start)
+
+
+def _notebook_line() -> Callable[[dict[str, Any]], None] | None:
+    """In a notebook, a status line updated with each evaluation of the fit; None elsewhere."""
+    from espin.core.progress import NotebookProgress, in_notebook
+
+    if not in_notebook():
+        return None
+    line = NotebookProgress(None, "evaluation")
+    return lambda record: line.update(record["evaluation"], f"SSE {record['sse_MPa2']:.4g} MPa^2")

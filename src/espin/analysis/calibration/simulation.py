@@ -149,7 +149,7 @@ def _simulate_task(task: _Task) -> tuple[np.ndarray, str | None]:
         "loading__program": task.steps.program(task.strain_rate_per_s),
     }
     try:
-        result, failure = simulate(_rve(task.rve_toml), **overrides), None
+        result, failure = simulate(_rve(task.rve_toml), progress=False, **overrides), None
     except SimulationFailed as exc:
         result, failure = exc.partial, str(exc)
     if result is None:
