@@ -137,4 +137,5 @@ def test_sem_measurement_repr_and_html():
     assert text.startswith("SEMMeasurement(array, ")
     assert_short(text, f"{result.um_per_px:.4g} um/px", f"{len(result.fibers)} fibers",
                  f"diameter {d.mean_um:.3g} +- {d.sd_um:.2g} um")
-    assert_html(result._repr_html_(), "um/px", "fibers traced")
+    assert_html(result._repr_html_(), "µm/px", "fibers traced")
+    assert " um" not in result._repr_html_()  # the unit typeset in the notebook's table

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+import re
 from html import escape
 
 __all__ = ["html_table"]
+
+_MICROMETRE = re.compile(r"\bum\b")
 
 
 def html_table(caption: str, rows: Sequence[tuple[str, str]]) -> str:
@@ -16,7 +19,8 @@ def html_table(caption: str, rows: Sequence[tuple[str, str]]) -> str:
     caption
         The table's caption (the class name).
     rows
-        (quantity, value with its unit) pairs, one row each; the text is escaped.
+        (quantity, value with its unit) pairs, one row each; the text is escaped and the
+        unit ``um`` (as the one-line reprs write it) is shown as µm.
 
     Returns
     -------
@@ -24,5 +28,6 @@ def html_table(caption: str, rows: Sequence[tuple[str, str]]) -> str:
         ``<table>...</table>``.
     """
     body = "".join(f'<tr><th style="text-align:left">{escape(name)}</th>'
-                   f'<td style="text-align:left">{escape(value)}</td></tr>' for name, value in rows)
+                   f'<td style="text-align:left">{escape(_MICROMETRE.sub("µm", value))}</td></tr>'
+                   for name, value in rows)
     return f"<table><caption>{escape(caption)}</caption>{body}</table>"
