@@ -34,3 +34,28 @@ def test_simulate_progress_lines_off_a_notebook(capfd):
     assert lines == ["step 0/2: strain 0.0000", "step 1/2: strain 0.0100", "step 2/2: strain 0.0200"]
     espin.simulate("plla", rve__size_ratio=30, rve__layers=2, loading__max_strain=0.02, loading__steps=2)
     assert "step " not in capfd.readouterr().err  # default: silent outside a notebook
+
+
+def test_ensemble_shows_one_bar_of_tests_in_a_notebook(monkeypatch):
+    import espin.core.progress as progress
+    from espin.core.config import load_config
+    from espin.studies.ensemble import plan_tasks, run_ensemble
+
+    bars = []
+
+    class Recorder:
+        def __init__(self, total, what):
+            self.total, self.what, self.shown = total, what, []
+            bars.append(self)
+
+        def update(self, done, info=""):
+            self.shown.append(done)
+
+    monkeypatch.setattr(progress, "in_notebook", lambda: True)
+    monkeypatch.setattr(progress, "NotebookProgress", Recorder)
+    base = load_config("plla", {"rve.size_ratio": 30, "rve.layers": 2, "loading.max_strain": 0.04,
+                                "loading.steps": 4})
+    ensemble = run_ensemble(plan_tasks(base, [{}], [1, 2]), workers=1)
+    assert len(ensemble.records) == 2
+    # One bar for the two tests, none for each test's simulation (they run with progress=False).
+    assert [(b.total, b.what, b.shown) for b in bars] == [(2, "test", [1, 2])]
