@@ -38,7 +38,7 @@ fig, ax = plt.subplots(figsize=(6, 4))
 for path, curve in zip(files, specimens):
     ax.plot(100 * curve.strain, curve.stress_MPa, lw=0.8, label=path.name)
 ax.fill_between(100 * average.strain, average.mean_MPa - average.sd_MPa, average.mean_MPa + average.sd_MPa,
-                color="k", alpha=0.2, label=f"mean ± sd (n = {average.n})")
+                color="k", alpha=0.2, label=f"mean ± sd (n = {len(specimens)})")
 ax.set_xlabel("strain [%]")
 ax.set_ylabel("stress [MPa]")
 ax.legend(loc="lower right")
