@@ -283,6 +283,26 @@ def test_readme_table_covers_every_command():
         assert isinstance(run, Run) and run.command != AS_WRITTEN, f"a long line must run small: {command.text!r}"
 
 
+def test_readme_checks_catch_what_they_should():
+    """The parsing and the honesty checks on small made-up README text."""
+    commands = shell_commands([
+        "espin a --x 1 -o out   # long: about 20 min on 2 cores",
+        "espin b --grid k=1,2 \\",
+        "      --n 5 -o b   # what '#' means",
+        "espin c 'a # b'      # first line",
+        "                     # second line",
+    ])
+    assert [c.text for c in commands] == ["espin a --x 1 -o out", "espin b --grid k=1,2 --n 5 -o b", "espin c 'a # b'"]
+    assert is_long(commands[0]) and DURATION.search(commands[0].comment)
+    assert not is_long(commands[1]) and commands[2].comment == "first line second line"
+    assert not DURATION.search("long: many tests")
+    assert only_adds_arguments("python3 -m venv env && . env/bin/activate && pip install . && espin s plla --out t",
+                               "espin s plla --out t --set rve.layers=3")
+    assert only_adds_arguments("espin b --n 5 -o b", "espin b --n 5 -o b --n 1")  # the last --n wins
+    assert not only_adds_arguments("espin b --n 5 -o b", "espin b --n 1 -o b")  # changed, not added
+    assert not only_adds_arguments("espin g x && espin s x", "espin s x --set a=1")  # a part dropped
+
+
 def test_readme_python_lines_are_covered():
     lines = [line for kind, code in readme_steps() if kind == "python" for line in python_espin_lines(code)]
     missing = [line for line in lines if line not in PYTHON_RUNS]
@@ -385,7 +405,7 @@ def test_readme_runs_in_order(tmp_path):
     promised files, and no folder overwritten by a later command."""
     cwd = tmp_path / "work"
     cwd.mkdir()
-    shutil.copytree(ROOT / "examples", cwd / "examples")
+    shutil.copytree(ROOT / "examples", cwd / "examples")  # README paths are relative to a clone
     env = dict(os.environ)
     env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env.get('PATH', '')}"  # espin, python
     env.setdefault("MPLBACKEND", "Agg")
