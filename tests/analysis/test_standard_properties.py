@@ -112,3 +112,23 @@ def test_curve_below_the_offset_line_from_the_start_says_so():
     assert np.isnan(p.offset_yield_stress_MPa) and "lies below the chord line" in p.note
     q = standard_properties(strain, -100.0 * strain)  # compression only
     assert "never positive" in q.note
+
+
+def test_command_prints_each_note_once_below_its_table(tmp_path):
+    from typer.testing import CliRunner
+
+    from espin.cli import app
+
+    strain = np.linspace(0.0, 0.3, 301)  # rising to the last point: no strength, no break
+    paths = []
+    for k in range(3):
+        paths.append(tmp_path / f"s{k}.csv")
+        np.savetxt(paths[-1], np.c_[strain, (200.0 + k) * np.minimum(strain, 0.03) + 5.0 * strain],
+                   delimiter=",", header="strain,stress_MPa", comments="")
+    result = CliRunner().invoke(app, ["properties", *map(str, paths)])
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    rows = [line for line in lines if any(f"s{k}.csv" in line for k in range(3)) and "[1]" in line]
+    assert len(rows) >= 3  # each curve's row points to the note
+    notes = [line for line in lines if line.startswith("  [1] ")]
+    assert len(notes) == 1 and "no tensile strength or break" in notes[0]

@@ -6,6 +6,7 @@ command, so ``espin --help`` stays fast.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
@@ -259,6 +260,23 @@ def _claim(out: Path | None, paths: list[Path], options: list[Any], overwrite: b
                               overwrite=overwrite)
 
 
+def _print_table(console: Any, header: Sequence[str], rows: Sequence[Sequence[str]], title: str) -> None:
+    """A table whose last column (the notes) holds footnote marks [1], [2], ..., the notes
+    printed in full below it (the same note once), so that long reasons do not stretch rows."""
+    from rich.table import Table
+    from rich.text import Text
+
+    notes: list[str] = []
+    table = Table(*header, title=title)
+    for *cells, note in rows:
+        if note and note not in notes:
+            notes.append(note)
+        table.add_row(*cells, Text(f"[{notes.index(note) + 1}]") if note else "")
+    console.print(table)
+    for k, note in enumerate(notes, start=1):
+        console.print(f"  [{k}] {note}", highlight=False, markup=False)
+
+
 def register(app: typer.Typer) -> None:
     """Add the ``properties`` command to ``app``."""
 
@@ -312,7 +330,6 @@ def register(app: typer.Typer) -> None:
         docs/properties.md): chord modulus, offset yield, tensile strength, strain at break.
         """
         from rich.console import Console
-        from rich.table import Table
 
         from espin.analysis.experiments import read_curve
         from espin.core.errors import EspinError
@@ -329,17 +346,12 @@ def register(app: typer.Typer) -> None:
                     written = [] if out is None else _write_outputs(analysis, out)
         except EspinError as err:
             fail(err)
-        table = Table(*_HEADER, title="bilinear fit: E = initial slope, yield = intersection of the lines")
-        for row in analysis.rows:
-            table.add_row(*row)
         console = Console(width=140)
-        console.print(table)
-        standard_table = Table(*_STANDARD_HEADER, title=(
+        _print_table(console, _HEADER, analysis.rows,
+                     "bilinear fit: E = initial slope, yield = intersection of the lines")
+        _print_table(console, _STANDARD_HEADER, analysis.standard_rows, (
             f"testing standards: chord modulus over {_percent(analysis.standard_options['chord_range'])} strain, "
             f"offset yield at {analysis.standard_options['offset'] * 100:g} %, break at a "
             f"{analysis.standard_options['break_drop'] * 100:g} % drop"))
-        for row in analysis.standard_rows:
-            standard_table.add_row(*row)
-        console.print(standard_table)
         if out is not None:
             console.print(f"wrote {out}/: " + ", ".join(p.name for p in written), highlight=False)
