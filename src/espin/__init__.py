@@ -40,12 +40,15 @@ _EXPORTS = {
     "dof_study": "espin.studies.dof",
     "measure": "espin.imaging.measurement",
     "calibrate_geometry": "espin.imaging.geometry_calibration",
+    "design": "espin.design",
 }
 
 __all__ = ["__version__", *_EXPORTS]
 
 
 def __getattr__(name: str) -> Any:
+    if name == "design":  # the package, callable as its function (espin.design(...))
+        return importlib.import_module("espin.design")
     if name in _EXPORTS:
         return getattr(importlib.import_module(_EXPORTS[name]), name)
     raise AttributeError(f"module 'espin' has no attribute {name!r}")

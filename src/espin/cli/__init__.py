@@ -14,6 +14,7 @@ import typer
 from espin.cli import (
     calibrate_geometry,
     config,
+    design,
     example_data,
     fit,
     generate,
@@ -88,7 +89,8 @@ def _configure_logging(verbose: bool, log_file: Path | None) -> None:
         logger.setLevel(logging.DEBUG if log_file is not None else logging.INFO)
 
 
-for _group in (generate, simulate, config, measure, properties, fit, study, calibrate_geometry, example_data):
+for _group in (generate, simulate, config, measure, properties, fit, study, design, calibrate_geometry,
+               example_data):
     _group.register(app)
 
 if __name__ == "__main__":  # pragma: no cover

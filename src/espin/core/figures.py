@@ -19,6 +19,7 @@ _PARAMETER_LABELS = {
     "rve.waviness_length_ratio": "waviness length / $D$",
     "rve.diameter_um": "fiber diameter $D$ [µm]",
     "rve.diameter_sd_um": "diameter sd [µm]",
+    "diameter_cv": "diameter CV (sd / $D$)",
     "rve.size_ratio": r"RVE size $\tilde L = L / D$",
     "rve.layers": "layers $N_l$",
     "rve.segment_ratio": r"segment $\tilde l_s = l_s / D$",

@@ -1,0 +1,108 @@
+"""The ``espin design`` command: the microstructure that meets target properties."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any, Optional
+
+import typer
+
+from espin.cli.common import OverwriteOpt, PlanOpt, SetOpt, fail, parse_set, print_plan
+
+__all__ = ["register"]
+
+
+def _plan_text(space: Any, targets: Any, budget: int, verify: int, workers: int | None, calibration: Any) -> str:
+    from espin.mechanics.cost import plan
+
+    middle = space.config([0.5] * space.dimension)
+    n_tests = budget + verify * len(targets.directions)
+    return plan([middle] * n_tests, workers, calibration).text() + " (the search's budget plus the verification)"
+
+
+def design_command(
+    base: Annotated[Optional[str], typer.Argument(
+        help="Preset or TOML config holding everything not searched: the fiber law (e.g. espin fit's "
+             "fitted.toml), the RVE size and sampling, the loading. Default: plla.")] = None,
+    target: Annotated[Optional[list[str]], typer.Option(
+        "--target", "-t", help="A target: NAME[@DIR]=VALUE[+-TOL%] (E=150, sigma_y=5+-3%, E@90=70) or a ratio "
+                               "E@0/E@90=3. NAME: E, sigma_y, H, eps_y or modulus_MPa ... Tolerance default "
+                               "5 %. Repeatable.")] = None,
+    var: Annotated[Optional[list[str]], typer.Option(
+        "--var", "-v", help="A design variable with bounds: NAME=LOW:HIGH (eta=0.1:0.3, kappa=0:8, "
+                            "waviness_deg=0:20, diameter_cv=0:0.4, layers=3:15; log:LOW:HIGH for a log "
+                            "scale). Repeatable.")] = None,
+    constraint: Annotated[Optional[list[str]], typer.Option(
+        "--constraint", "-c", help="QUANTITY>=BOUND or <=BOUND: porosity, volume_fraction, diameter_um, "
+                                   "diameter_sd_um, diameter_cv, layers. Repeatable.")] = None,
+    budget: Annotated[int, typer.Option(help="Tensile tests the search may run (one design, one direction, one "
+                                             "seed each).")] = 60,
+    batch: Annotated[int, typer.Option(help="Designs run together per round.")] = 2,
+    initial: Annotated[Optional[int], typer.Option(help="Designs of the initial sample (default 2 d + 2, "
+                                                        "at least 6).")] = None,
+    replicates: Annotated[int, typer.Option(help="Seeds run at the first and the best design to measure "
+                                                 "the realization scatter.")] = 3,
+    verify: Annotated[int, typer.Option(help="Fresh seeds the best design is verified on.")] = 5,
+    seed: Annotated[int, typer.Option(help="Seed of the search (initial sample, candidates).")] = 0,
+    workers: Annotated[Optional[int], typer.Option(help="Worker processes (default: all cores; 1 = serial).")] = None,
+    scheduler: Annotated[Optional[str], typer.Option(
+        help="Dask scheduler: 'local', tcp://host:port (the tests then run on its workers).")] = None,
+    set_: SetOpt = None,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for design.toml, design.json, "
+                                                         "evaluations.csv and the figures.")] = Path("design"),
+    overwrite: OverwriteOpt = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or report.")] = False,
+    plan: PlanOpt = None,
+) -> None:
+    """Find the microstructure whose tensile properties meet target values (paper 4.3).
+
+    Bayesian optimization over the design variables within their bounds and constraints;
+    the best design is verified on fresh seeds against its 95 % prediction interval. Writes
+    design.toml (runs with espin generate / simulate), design.json, evaluations.csv,
+    convergence.png, maps.png, verification.png. A rerun with the same inputs resumes.
+    """
+    from rich.console import Console
+
+    from espin.core.errors import EspinError
+    from espin.core.parallel import default_workers
+    from espin.design import design
+    from espin.design.targets import parse_targets
+    from espin.design.variables import DesignSpace
+    from espin.geometry.rve import resolve_config
+    from espin.mechanics.cost import REFERENCE_CALIBRATION
+
+    console = Console(stderr=True, quiet=quiet, width=140)
+    try:
+        targets = parse_targets(target or [])
+        config = resolve_config(base, **{k.replace(".", "__"): v for k, v in parse_set(set_).items()})
+        space = DesignSpace.build(config, var or [], constraint or [])
+        n_workers = None if scheduler is not None else (workers or default_workers())
+        print_plan(lambda calibration: _plan_text(space, targets, budget, verify, n_workers, calibration), console,
+                   plan, lambda: _plan_seconds(space, targets, budget, verify, REFERENCE_CALIBRATION))
+
+        def on_batch(evaluations: list, best: Any) -> None:
+            ids = f"{evaluations[0].id}-{evaluations[-1].id}" if len(evaluations) > 1 else str(evaluations[0].id)
+            shown = ", ".join(f"{key.removeprefix('rve.')} {value:.4g}" for key, value in best.values.items())
+            console.print(f"designs {ids} ({evaluations[-1].stage}) done; best so far #{best.id}: {shown}",
+                          highlight=False, soft_wrap=True)
+
+        result = design(targets, var or [], base=config, constraints=constraint or [], budget=budget, batch=batch,
+                        initial=initial, replicates=replicates, verify=verify, seed=seed, folder=out,
+                        workers=workers, scheduler=scheduler, overwrite=overwrite, on_batch=on_batch)
+    except EspinError as err:
+        fail(err)
+    console.print(result.format_table(), highlight=False, soft_wrap=True)
+    console.print(f"wrote {out}/: " + ", ".join(p.name for p in result.files.values()), highlight=False)
+    console.print(f"next: espin simulate {out}/design.toml -o {out}/check", highlight=False, soft_wrap=True)
+
+
+def _plan_seconds(space: Any, targets: Any, budget: int, verify: int, calibration: Any) -> float:
+    from espin.mechanics.cost import predict_test
+
+    middle = space.config([0.5] * space.dimension)
+    return predict_test(middle, calibration).seconds * (budget + verify * len(targets.directions))
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``design`` command to ``app``."""
+    app.command("design")(design_command)

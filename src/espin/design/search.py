@@ -1,0 +1,399 @@
+"""The design loop: Bayesian optimization of a microstructure against target properties.
+
+1. **Initial design**: a scrambled Sobol' sample of the feasible unit cube (2 d + 2 points, at
+   least 6), and replicates of its first point on other seeds, which measure the realization
+   scatter of every property.
+   The best design is replicated on the same seeds at the end.
+2. **Surrogates** (:mod:`espin.design.surrogate`) of every targeted (property, direction),
+   fitted to the evaluations on the search seed (common random numbers: every candidate is
+   the same realization seed, so the differences between candidates are not seed noise).
+3. **Proposals**: the expected improvement of the targets' objective (mean squared
+   normalized error, :mod:`espin.design.targets`), estimated by Monte Carlo through the
+   surrogates (fixed normal draws), maximized over a Sobol' set of feasible candidates and
+   perturbations of the best points; a batch of ``batch`` proposals by the kriging believer
+   (each proposal joins the data at its predicted value before the next is chosen), evaluated
+   together on the task pool. Proposals depend only on the evaluations sorted by id, so a
+   run gives the same designs with any number of workers, and a rerun in the same folder
+   repeats no tensile test (finished tests are read back from ``runs/tasks``).
+4. Until the best design meets every target within its tolerance, or the budget of tensile
+   tests is spent. The best is the evaluated design with the least objective predicted by
+   the surrogates (noise-aware, not the luckiest evaluation); it is then **verified** on
+   fresh seeds the search never used, against its 95 % prediction interval.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from espin.core.config import Config
+from espin.core.errors import ConfigError, SolverError
+from espin.design.surrogate import PropertySurrogate, fit_surrogate
+from espin.design.targets import DesignTargets, parse_targets
+from espin.design.variables import Constraint, DesignSpace, DesignVariable
+from espin.geometry.rve import resolve_config
+from espin.studies.ensemble import TensileTask, plan_tasks, run_ensemble
+
+__all__ = ["Evaluation", "DesignRun", "run_design", "MC_DRAWS", "CANDIDATES", "Z_95"]
+
+log = logging.getLogger(__name__)
+
+MC_DRAWS = 256
+"""Monte Carlo draws of the surrogates per candidate (expected improvement, prediction intervals)."""
+CANDIDATES = 1024
+"""Sobol' candidates per proposal (plus 128 perturbations of each of the three best points)."""
+Z_95 = 1.959963984540054
+"""Two-sided 95 % normal quantile."""
+MIN_SEPARATION = 0.02
+"""Least distance in the unit cube between a proposal and any evaluated or proposed design (a
+closer one repeats a mat that differs by a fiber or none)."""
+VERIFY_SEED_OFFSET = 100_000
+"""Verification seeds start this far above the search seed (never used by the search)."""
+
+
+@dataclass
+class Evaluation:
+    """One design evaluated on one seed in every direction the targets need.
+
+    Attributes
+    ----------
+    id : int
+        Order of proposal (0, 1, ...).
+    stage : str
+        ``initial``, ``replicate``, ``search`` or ``verify``.
+    unit : (d,) float64
+        Point in the unit cube.
+    values : dict
+        Variable key -> value.
+    seed : int
+        ``rve.seed`` of the realization.
+    outputs : dict
+        (property, direction) -> value; NaN where the curve has none (no yield) or a test failed.
+    seconds : float [s]
+        Wall time of its tensile tests (summed over directions).
+    error : str
+        Why a test failed, else empty.
+    curves : dict
+        direction -> (strain, stress [MPa]) of its tests.
+    """
+
+    id: int
+    stage: str
+    unit: np.ndarray
+    values: dict[str, float]
+    seed: int
+    outputs: dict[tuple[str, float], float] = field(default_factory=dict)
+    seconds: float = 0.0
+    error: str = ""
+    curves: dict[float, tuple[list[float], list[float]]] = field(default_factory=dict)
+
+    def output_array(self, outputs: Sequence[tuple[str, float]]) -> np.ndarray:
+        """The outputs in the given order (NaN where missing)."""
+        return np.array([self.outputs.get(o, math.nan) for o in outputs], dtype=float)
+
+
+@dataclass
+class DesignRun:
+    """Everything the loop produced; :mod:`espin.design.result` turns it into a report."""
+
+    targets: DesignTargets
+    space: DesignSpace
+    evaluations: list[Evaluation]
+    surrogates: dict[tuple[str, float], PropertySurrogate]
+    best: Evaluation
+    realization_sd: dict[tuple[str, float], tuple[float, int]]
+    verification: list[Evaluation]
+    tests: int
+    budget: int
+    seconds: float
+    met: bool
+    folder: Path | None
+
+
+def _sobol(d: int, n: int, seed: int) -> np.ndarray:
+    from scipy.stats import qmc
+
+    m = max(int(math.ceil(math.log2(max(n, 2)))), 1)
+    return qmc.Sobol(d, scramble=True, seed=seed).random_base2(m)[:n]
+
+
+def _snap(space: DesignSpace, unit: np.ndarray) -> np.ndarray:
+    """Unit points of the values actually used (integers rounded)."""
+    unit = np.clip(np.atleast_2d(unit), 0.0, 1.0).copy()
+    for j, v in enumerate(space.variables):
+        if v.integer:
+            unit[:, j] = v.unit(v.value(unit[:, j]))
+    return unit
+
+
+def _tasks(space: DesignSpace, directions: Sequence[float], evaluation: Evaluation) -> list[TensileTask]:
+    overrides = space.overrides(evaluation.values)
+    return [task for direction in directions
+            for task in plan_tasks(space.base, [overrides | {"loading.direction_deg": float(direction)}],
+                                   [evaluation.seed])]
+
+
+Evaluator = Callable[[DesignSpace, DesignTargets, Sequence[Evaluation], Path | None, Mapping[str, Any]], None]
+"""Fills the outputs of evaluations: (space, targets, evaluations, folder, pool) -> None."""
+
+
+def _evaluate(space: DesignSpace, targets: DesignTargets, evaluations: Sequence[Evaluation],
+              folder: Path | None, pool: Mapping[str, Any]) -> None:
+    """Run the tensile tests of ``evaluations`` (every direction) together and fill their outputs."""
+    directions = targets.directions
+    planned = [(evaluation, direction, task) for evaluation in evaluations
+               for direction, task in zip(directions, _tasks(space, directions, evaluation))]
+    unique = list({task.key: task for _, _, task in planned}.values())
+    ensemble = run_ensemble(unique, None if folder is None else folder / "runs", **pool)
+    records = {r["key"]: r for r in ensemble.records}
+    failures = {f["key"]: f for f in ensemble.failures}
+    for evaluation, direction, task in planned:
+        record = records.get(task.key)
+        if record is None:
+            evaluation.error = str(failures.get(task.key, {}).get("error", "the tensile test failed"))
+            for name, d in targets.outputs:
+                if d == direction:
+                    evaluation.outputs[(name, d)] = math.nan
+            continue
+        evaluation.seconds += float(record.get("seconds") or 0.0)
+        evaluation.curves[direction] = (record["strain"], record["stress_MPa"])
+        for name, d in targets.outputs:
+            if d == direction:
+                value = record.get(name)
+                evaluation.outputs[(name, d)] = math.nan if value is None else float(value)
+
+
+def _fit(targets: DesignTargets, evaluations: Sequence[Evaluation], seed: int) -> dict[tuple[str, float], PropertySurrogate]:
+    """Surrogates of every output from the search-seed evaluations, sorted by id."""
+    usable = sorted((e for e in evaluations if e.stage in ("initial", "search")), key=lambda e: e.id)
+    surrogates = {}
+    for output in targets.outputs:
+        rows = [(e.unit, e.outputs.get(output, math.nan)) for e in usable]
+        rows = [(u, y) for u, y in rows if math.isfinite(y)]
+        if len(rows) < 3:
+            raise SolverError(f"design: only {len(rows)} evaluations give {output[0]} at {output[1]:g} deg; the "
+                              "curves show no yield or the tests fail in this design space: narrow the bounds")
+        surrogates[output] = fit_surrogate(np.array([u for u, _ in rows]), np.array([y for _, y in rows]), seed=seed)
+    return surrogates
+
+
+def _draws(n_outputs: int, seed: int) -> np.ndarray:
+    """Fixed standard normal draws (MC_DRAWS, n_outputs)."""
+    return np.random.default_rng([seed, 7]).standard_normal((MC_DRAWS, n_outputs))
+
+
+def _objective_samples(targets: DesignTargets, surrogates: Mapping[tuple[str, float], PropertySurrogate],
+                       unit: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Objective draws (n, MC_DRAWS) at the rows of ``unit`` through the surrogates' latent sd."""
+    props = {}
+    for j, output in enumerate(targets.outputs):
+        mean, sd = surrogates[output].predict(unit)
+        props[output] = surrogates[output].to_property(mean[:, None] + sd[:, None] * z[None, :, j])
+    return targets.objective(props)
+
+
+def predicted_objective(targets: DesignTargets, surrogates: Mapping[tuple[str, float], PropertySurrogate],
+                        unit: np.ndarray) -> np.ndarray:
+    """The objective of the surrogates' median properties at the rows of ``unit``."""
+    return targets.objective({o: surrogates[o].median(unit) for o in targets.outputs})
+
+
+def _candidates(space: DesignSpace, best: np.ndarray, seed: int) -> np.ndarray:
+    rng = np.random.default_rng([seed, 11])
+    local = [np.clip(b + rng.normal(0.0, 0.05, (128, space.dimension)), 0.0, 1.0) for b in best]
+    unit = _snap(space, np.vstack([_sobol(space.dimension, CANDIDATES, seed), *local]))
+    return unit[space.feasible(unit)]
+
+
+def _believed(surrogates: dict[tuple[str, float], PropertySurrogate], x: np.ndarray) -> dict[tuple[str, float], PropertySurrogate]:
+    """The surrogates with ``x`` added at its predicted mean, hyperparameters kept (kriging believer)."""
+    from sklearn.gaussian_process import GaussianProcessRegressor
+
+    out = {}
+    for output, s in surrogates.items():
+        model = s.model
+        X = np.vstack([model.X_train_, x[None, :]])
+        y_train = model.y_train_ * model._y_train_std + model._y_train_mean
+        y = np.append(y_train, model.predict(x[None, :]))
+        refit = GaussianProcessRegressor(model.kernel_, optimizer=None, normalize_y=True).fit(X, y)
+        out[output] = PropertySurrogate(refit, s.log, s.noise_sd)
+    return out
+
+
+def _propose(space: DesignSpace, targets: DesignTargets, evaluations: Sequence[Evaluation],
+             surrogates: dict[tuple[str, float], PropertySurrogate], batch: int, seed: int) -> list[np.ndarray]:
+    """``batch`` proposals by expected improvement with the kriging believer."""
+    evaluated = np.array([e.unit for e in evaluations if e.stage in ("initial", "search")])
+    z = _draws(len(targets.outputs), seed)
+    proposals: list[np.ndarray] = []
+    current = surrogates
+    for k in range(batch):
+        incumbent = predicted_objective(targets, current, evaluated)
+        order = np.argsort(incumbent, kind="stable")[:3]
+        candidates = _candidates(space, evaluated[order], seed * 1000 + k)
+        taken = np.vstack([evaluated, *proposals]) if proposals else evaluated
+        distance = np.min(np.linalg.norm(candidates[:, None, :] - taken[None, :, :], axis=-1), axis=1)
+        candidates = candidates[distance > MIN_SEPARATION]
+        if len(candidates) == 0:
+            break
+        samples = _objective_samples(targets, current, candidates, z)
+        improvement = np.maximum(incumbent.min() - samples, 0.0).mean(axis=1)
+        pick = int(np.argmax(improvement)) if improvement.max() > 0.0 else int(np.argmin(samples.mean(axis=1)))
+        proposals.append(candidates[pick])
+        if k + 1 < batch:
+            current = _believed(current, candidates[pick])
+    return proposals
+
+
+def _initial(space: DesignSpace, n: int, seed: int) -> np.ndarray:
+    draw = _snap(space, _sobol(space.dimension, 4096, seed))
+    feasible = draw[space.feasible(draw)]
+    if len(feasible) == 0:
+        raise ConfigError("constraints: no point inside the variables' bounds meets them ("
+                          + ", ".join(map(str, space.constraints)) + "); widen the bounds or relax a constraint")
+    unique = np.unique(feasible, axis=0, return_index=True)[1]
+    return feasible[np.sort(unique)][:n]
+
+
+def _realization_sd(targets: DesignTargets, evaluations: Sequence[Evaluation]) -> dict[tuple[str, float], tuple[float, int]]:
+    """Pooled sd of each output over the replicate groups (a design on several seeds: the first
+    initial design and the best), in the surrogates' scale (log: relative), with its degrees of
+    freedom."""
+    groups: dict[bytes, list[Evaluation]] = {}
+    for e in evaluations:
+        if e.stage in ("initial", "search", "replicate"):
+            groups.setdefault(np.round(e.unit, 12).tobytes(), []).append(e)
+    out = {}
+    for output in targets.outputs:
+        squares, dof = 0.0, 0
+        for group in groups.values():
+            values = np.array([e.outputs.get(output, math.nan) for e in group], dtype=float)
+            values = values[np.isfinite(values)]
+            if len(values) < 2:
+                continue
+            scaled = np.log(values) if np.all(values > 0) else values
+            squares += float(np.sum((scaled - scaled.mean()) ** 2))
+            dof += len(values) - 1
+        out[output] = (math.sqrt(squares / dof) if dof else math.nan, dof)
+    return out
+
+
+def run_design(
+    targets: Iterable[str] | Mapping[str, float] | DesignTargets,
+    variables: Iterable[str | tuple[str, float, float] | DesignVariable] | Mapping[str, tuple[float, float]],
+    *,
+    base: Config | str | Path | None = "plla",
+    constraints: Iterable[str | Constraint] = (),
+    budget: int = 60,
+    batch: int = 2,
+    initial: int | None = None,
+    replicates: int = 3,
+    verify: int = 5,
+    seed: int = 0,
+    folder: str | Path | None = None,
+    pool: Mapping[str, Any] | None = None,
+    on_batch: Callable[[list[Evaluation], Evaluation], None] | None = None,
+    evaluator: Evaluator | None = None,
+    **overrides: Any,
+) -> DesignRun:
+    """Run the design loop (module docstring); :func:`espin.design.design` is the public entry.
+
+    Parameters are those of :func:`espin.design.design`; ``pool`` holds ``workers``,
+    ``scheduler``, ``blas_threads`` and ``security`` of the task pool. ``evaluator`` replaces
+    the tensile tests (it fills the outputs of the evaluations it is given; e.g. a known
+    function to check the optimizer).
+    """
+    start = time.perf_counter()
+    targets = parse_targets(targets)
+    base = resolve_config(base, **overrides)
+    if base.loading.test != "uniaxial" or base.loading.program is not None:
+        raise ConfigError("design: the targets are properties of a uniaxial tensile test; the base config's "
+                          f"loading must be loading.test = 'uniaxial' without a program (got {base.loading.test!r})")
+    space = DesignSpace.build(base, variables, constraints)
+    d = space.dimension
+    n_initial = max(2 * d + 2, 6) if initial is None else int(initial)
+    n_dir = len(targets.directions)
+    for name, value, low in (("budget", budget, 1), ("batch", batch, 1), ("initial", n_initial, 3),
+                             ("replicates", replicates, 2), ("verify", verify, 2)):
+        if int(value) != value or value < low:
+            raise ConfigError(f"{name}: an integer >= {low} (got {value})")
+    needed = (n_initial + replicates - 1) * n_dir
+    if budget < needed + n_dir:
+        raise ConfigError(f"budget: {budget} tensile tests cannot hold the initial design ({n_initial} designs + "
+                          f"{replicates - 1} replicates) x {n_dir} direction(s) = {needed} tests and one proposal; "
+                          f"give at least {needed + n_dir}")
+    pool = dict(pool or {})
+    folder = None if folder is None else Path(folder)
+    evaluate = evaluator or _evaluate
+    search_seed = base.rve.seed
+    evaluations: list[Evaluation] = []
+
+    def new(stage: str, unit: np.ndarray, seed_: int) -> Evaluation:
+        evaluation = Evaluation(len(evaluations), stage, unit, space.values(unit), seed_)
+        evaluations.append(evaluation)
+        return evaluation
+
+    first = _initial(space, n_initial, seed)
+    if len(first) < 3:
+        raise ConfigError(f"constraints: only {len(first)} distinct feasible points found for the initial design; "
+                          "widen the bounds or relax a constraint")
+    batch_ = [new("initial", u, search_seed) for u in first]
+    batch_ += [new("replicate", first[0], search_seed + k) for k in range(1, replicates)]
+    evaluate(space, targets, batch_, folder, pool)
+    tests = len(batch_) * n_dir
+    surrogates = _fit(targets, evaluations, seed)
+    best = _best(targets, evaluations, surrogates)
+    if on_batch is not None:
+        on_batch(batch_, best)
+    round_ = 1
+    while not _meets(targets, best) and tests + n_dir <= budget:
+        q = min(batch, (budget - tests) // n_dir)
+        proposals = _propose(space, targets, evaluations, surrogates, q, seed + round_)
+        if not proposals:
+            log.info("design: no new candidate left to propose")
+            break
+        batch_ = [new("search", u, search_seed) for u in proposals]
+        evaluate(space, targets, batch_, folder, pool)
+        tests += len(batch_) * n_dir
+        surrogates = _fit(targets, evaluations, seed)
+        best = _best(targets, evaluations, surrogates)
+        round_ += 1
+        if on_batch is not None:
+            on_batch(batch_, best)
+    # Replicates at the best design too: the realization scatter varies over the design space
+    # (a sparse mat scatters more), and the prediction interval is for this design.
+    again = [new("replicate", best.unit, search_seed + k) for k in range(1, replicates)]
+    evaluate(space, targets, again, folder, pool)
+    tests += len(again) * n_dir
+    sd = _realization_sd(targets, evaluations)
+    verification = [Evaluation(len(evaluations) + k, "verify", best.unit, dict(best.values),
+                               search_seed + VERIFY_SEED_OFFSET + k) for k in range(verify)]
+    evaluate(space, targets, verification, folder, pool)
+    return DesignRun(targets, space, evaluations, surrogates, best, sd, verification, tests, budget,
+                     time.perf_counter() - start, _meets(targets, best), folder)
+
+
+def _best(targets: DesignTargets, evaluations: Sequence[Evaluation],
+          surrogates: Mapping[tuple[str, float], PropertySurrogate]) -> Evaluation:
+    """The evaluated search-seed design whose surrogate-predicted objective is least (ties: lowest id)."""
+    usable = [e for e in evaluations if e.stage in ("initial", "search")
+              and np.all(np.isfinite(e.output_array(targets.outputs)))]
+    if not usable:
+        raise SolverError("design: no evaluated design gave every targeted property; the curves show no yield or "
+                          "the tests fail in this design space: narrow the bounds")
+    predicted = predicted_objective(targets, surrogates, np.array([e.unit for e in usable]))
+    return usable[int(np.argmin(predicted))]
+
+
+def _meets(targets: DesignTargets, evaluation: Evaluation) -> bool:
+    """Whether an evaluation's own outputs meet every target within its tolerance."""
+    props = {o: np.array(evaluation.outputs.get(o, math.nan)) for o in targets.outputs}
+    errors = targets.errors(props)
+    return bool(np.all(np.isfinite(errors)) and np.all(np.abs(errors) <= 1.0))

@@ -1,0 +1,177 @@
+"""espin design: targets and variables parsed and checked, the optimizer on known functions,
+and small real design runs (resumable, independent of the worker count, verified inside their
+prediction interval)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from espin.core.config import load_config
+from espin.core.errors import ConfigError
+from espin.design import design
+from espin.design.result import design_result
+from espin.design.search import run_design
+from espin.design.targets import PropertyTarget, RatioTarget, parse_target, parse_targets
+from espin.design.variables import DesignSpace, parse_constraint, parse_variable
+
+TINY = {"rve.size_ratio": 40, "rve.layers": 3, "rve.sampling": "balanced", "loading.max_strain": 0.04,
+        "loading.steps": 4}
+
+
+def test_targets_parse_with_tolerances_directions_and_ratios():
+    assert parse_target("E=150") == PropertyTarget("modulus_MPa", 150.0, 0.05, 0.0)
+    assert parse_target("sigma_y@90=4.5+-3%") == PropertyTarget("yield_stress_MPa", 4.5, 0.03, 90.0)
+    assert parse_target("E@0/E@90=3") == RatioTarget("modulus_MPa", 3.0, 0.05, 0.0, 90.0)
+    targets = parse_targets({"modulus_MPa": 200, "E@90": 70})
+    assert targets.directions == (0.0, 90.0)
+    assert targets.outputs == (("modulus_MPa", 0.0), ("modulus_MPa", 90.0))
+    # errors are (achieved - target) / (tolerance target); the objective their mean square
+    errors = targets.errors({("modulus_MPa", 0.0): np.array(210.0), ("modulus_MPa", 90.0): np.array(70.0)})
+    assert errors == pytest.approx([1.0, 0.0])
+
+
+@pytest.mark.parametrize("text, message", [
+    ("E=-5", "target modulus_MPa: must be in (0, inf)"),
+    ("Young=5", "unknown property 'Young'"),
+    ("E=5+-150%", "tolerance: must be in (0, 1)"),
+    ("E@0/sigma_y@90=3", "a ratio compares one property"),
+    ("E@0/E@0=3", "the two directions must differ"),
+    ("E 150", "write NAME[@DIR]=VALUE"),
+])
+def test_bad_targets_are_refused_with_the_rule(text, message):
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(")", r"\)").replace("[", r"\[")):
+        parse_target(text)
+
+
+def test_variables_and_constraints_are_checked_against_the_config():
+    base = load_config("plla")
+    assert parse_variable("eta=0.1:0.3").key == "rve.volume_fraction"
+    assert parse_variable("layers=3:9").integer
+    assert parse_variable("kappa=log:0.5:8").log
+    with pytest.raises(ConfigError, match="the fiber diameter does not change the stresses"):
+        parse_variable("diameter_um=0.2:0.9")
+    with pytest.raises(ConfigError, match="variable rve.volume_fraction: bound 1.2 is not allowed"):
+        DesignSpace.build(base, ["eta=0.1:1.2"])
+    with pytest.raises(ConfigError, match="bounds must be finite with low < high"):
+        parse_variable("eta=0.3:0.1")
+    space = DesignSpace.build(base, ["eta=0.1:0.3", "diameter_cv=0:0.4"], ["porosity>=0.8"])
+    unit = np.array([[0.0, 0.5], [0.5, 0.5], [1.0, 0.5]])  # eta 0.1, 0.2, 0.3
+    assert space.feasible(unit).tolist() == [True, True, False]
+    assert space.overrides(space.values([0.5, 0.5]))["rve.diameter_sd_um"] == pytest.approx(0.2 * 0.45)
+    with pytest.raises(ConfigError, match="unknown quantity 'density'"):
+        parse_constraint("density>=3")
+
+
+def _known(function):
+    """An evaluator from a known function of the variable values (and the seed, for noise)."""
+    def evaluate(space, targets, evaluations, folder, pool):
+        for e in evaluations:
+            for output, value in function(e.values, e.seed).items():
+                e.outputs[output] = value
+    return evaluate
+
+
+def _noise(values, seed, scale):
+    """Deterministic noise of relative size ``scale`` for one design and seed."""
+    key = int(1e6 * sum(values.values())) % 2**31
+    return 1.0 + scale * np.random.default_rng([key, seed]).standard_normal()
+
+
+def test_optimizer_finds_a_known_noisy_optimum_in_two_variables():
+    # A smooth anisotropic response with 1 % realization noise: E(eta, kappa), E90(eta, kappa).
+    def response(values, seed):
+        eta, kappa = values["rve.volume_fraction"], values["rve.orientation.von_mises.kappa"]
+        e0 = 1100.0 * eta * (1.0 + 0.15 * kappa)
+        e90 = 1100.0 * eta / (1.0 + 0.1 * kappa)
+        return {("modulus_MPa", 0.0): e0 * _noise(values, seed, 0.01),
+                ("modulus_MPa", 90.0): e90 * _noise(values, seed + 7, 0.01)}
+
+    # target: eta = 0.2, kappa = 4 -> E0 = 352, E0 / E90 = 1.6 * 1.4 = 2.24
+    run = run_design(["E=352", "E@0/E@90=2.24"], ["eta=0.1:0.3", "kappa=0:8"], base="plla", budget=40,
+                     evaluator=_known(response), seed=3)
+    best = run.best.values
+    assert best["rve.volume_fraction"] == pytest.approx(0.2, rel=0.05)
+    assert best["rve.orientation.von_mises.kappa"] == pytest.approx(4.0, abs=0.6)
+    assert run.met and run.tests <= 40
+    result = design_result(run)
+    assert result.reached and all(t["met"] and t["inside"] for t in result.targets.values())
+
+
+def test_unreachable_target_names_the_binding_bound():
+    def response(values, seed):
+        return {("modulus_MPa", 0.0): 1000.0 * values["rve.volume_fraction"] * _noise(values, seed, 0.005)}
+
+    result = design_result(run_design(["E=500"], ["eta=0.1:0.3"], base="plla", budget=16,
+                                      evaluator=_known(response)))
+    assert not result.reached
+    assert "rve.volume_fraction = 0.3 (upper bound)" in result.message
+    assert result.values["rve.volume_fraction"] > 0.29  # the nearest achievable design
+    # a constraint that binds first is named instead
+    result = design_result(run_design(["E=500"], ["eta=0.1:0.3"], base="plla", budget=16,
+                                      constraints=["porosity>=0.8"], evaluator=_known(response)))
+    assert "constraint porosity >= 0.8" in result.message and result.values["rve.volume_fraction"] <= 0.2 + 1e-9
+
+
+def test_budget_and_base_are_checked_before_any_work():
+    with pytest.raises(ConfigError, match="budget: 5 tensile tests cannot hold the initial design"):
+        run_design(["E=150"], ["eta=0.1:0.3"], budget=5, evaluator=_known(lambda v, s: {}))
+    with pytest.raises(ConfigError, match="loading must be loading.test = 'uniaxial'"):
+        run_design(["E=150"], ["eta=0.1:0.3"], loading__test="equibiaxial", evaluator=_known(lambda v, s: {}))
+    with pytest.raises(ConfigError, match="no point inside the variables' bounds meets them"):
+        run_design(["E=150"], ["eta=0.2:0.3"], constraints=["porosity>=0.9"], evaluator=_known(lambda v, s: {}))
+
+
+@pytest.fixture(scope="module")
+def small_design(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("design") / "run"
+    overrides = {k.replace(".", "__"): v for k, v in TINY.items()}
+    result = design(["E=150"], ["eta=0.1:0.3"], base="plla", budget=12, folder=folder, workers=1, **overrides)
+    return folder, overrides, result
+
+
+def test_small_design_meets_its_target_and_writes_its_files(small_design):
+    folder, _, result = small_design
+    for name in ("design.toml", "design.json", "evaluations.csv", "convergence.png", "maps.png", "verification.png"):
+        assert (folder / name).is_file(), name
+    # design.toml runs as it is and is the best design
+    assert load_config(folder / "design.toml").rve.volume_fraction == pytest.approx(
+        result.values["rve.volume_fraction"])
+    target = result.targets["modulus_MPa@0"]
+    # The verification mean of 5 fresh seeds falls inside the 95 % prediction interval.
+    assert target["low"] <= target["verified"] <= target["high"] and target["inside"]
+    assert result.evaluations["stage"].tolist().count("verify") == 5
+    assert math.isfinite(result.evaluations["objective"].iloc[0])
+
+
+def test_rerun_repeats_no_tensile_test(small_design, monkeypatch):
+    folder, overrides, result = small_design
+    import espin.studies.ensemble as ensemble
+
+    ran = []
+    monkeypatch.setattr(ensemble, "run_tensile", lambda task: ran.append(task) or pytest.fail("ran a test again"))
+    again = design(["E=150"], ["eta=0.1:0.3"], base="plla", budget=12, folder=folder, workers=1, **overrides)
+    assert not ran
+    assert again.values == result.values
+    # other inputs in the same folder are refused, not mixed in
+    with pytest.raises(ConfigError, match="overwrite"):
+        design(["E=160"], ["eta=0.1:0.3"], base="plla", budget=12, folder=folder, workers=1, **overrides)
+
+
+def test_same_seed_same_designs_with_two_workers(small_design, tmp_path):
+    _, overrides, result = small_design
+    parallel = design(["E=150"], ["eta=0.1:0.3"], base="plla", budget=12, folder=tmp_path / "two", workers=2,
+                      **overrides)
+    columns = ["id", "stage", "seed", "rve.volume_fraction", "modulus_MPa@0"]
+    assert parallel.evaluations[columns].equals(result.evaluations[columns])
+
+
+def test_stresses_do_not_depend_on_the_fiber_diameter():
+    # Every length is a multiple of D and the RVE volume scales with it: P is unchanged.
+    import espin
+
+    curves = [espin.simulate("plla", rve__diameter_um=d, rve__size_ratio=30, rve__layers=2,
+                             loading__max_strain=0.06, loading__steps=6).stress() for d in (0.45, 1.8)]
+    assert np.max(np.abs(curves[0] - curves[1])) <= 1e-9 * np.max(np.abs(curves[0]))
