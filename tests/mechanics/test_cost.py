@@ -22,6 +22,7 @@ from espin.mechanics.cost import (
     pool_seconds,
     predict_test,
 )
+from espin.mechanics.linear_solvers import make_linear_solver
 from espin.mechanics.run import simulate
 
 TINY = ["--set", "rve.size_ratio=30", "--set", "rve.layers=2", "--set", "loading.max_strain=0.02",
@@ -40,13 +41,14 @@ def test_calibration_stays_within_its_budget_and_is_cached():
 
 
 def test_prediction_within_2x_of_a_small_tensile_test():
-    config = resolve_config("plla", rve__size_ratio=60, rve__layers=3, loading__max_strain=0.1, loading__steps=10)
+    config = resolve_config("plla", rve__size_ratio=60, rve__layers=3)  # to 30 % in 30 steps, about 0.5 s
+    make_linear_solver(config.solver.linear).release()  # its library loaded, as in a worker past its first test
     cost = predict_test(config, calibrate(refresh=True))
     start = time.perf_counter()
     result = simulate(generate(config))
     measured = time.perf_counter() - start
     assert 0.5 <= cost.seconds / measured <= 2.0, (cost, measured)
-    assert cost.steps == 10 and cost.substeps >= 10
+    assert cost.steps == 30 and cost.substeps >= 30
     assert cost.dof == pytest.approx(result.final.positions.size, rel=0.3)  # estimated DOF, not counted
 
 

@@ -226,7 +226,7 @@ def _fit_plan(problem: Any, workers: int | None, calibration: Any) -> tuple[str,
             f"{dof:,.0f} DOF ({steps} load steps) -> about {format_duration(evaluation_s)} on {where}; "
             "the number of evaluations is not known up front: ")
     if problem.fits_eta:
-        text += (f"the {etas}-point eta grid needs at least {etas * (1 + k)} (one"
+        text += (f"the {etas}-point eta grid needs at least {etas * (1 + k)} evaluations (1"
                  + (f" + {k} Jacobian columns" if k else "") + f" per eta) -> at least {format_duration(least)}, "
                  "then the eta bracket search adds etas; ")
     if k:

@@ -20,7 +20,8 @@ depend on the machine:
 
     t = t_cal (n_it u(DOF) + n_rec r DOF) + slowness t_gen segments
 
-- DOF and segments from :func:`espin.geometry.size_estimate.estimate_size` (no mat is made);
+- DOF and segments from :func:`espin.geometry.size_estimate.estimate_size` (no mat is made),
+  the DOF scaled by :func:`crossing_factor` for aligned fibers (which cross less);
 - n_rec, the recorded steps of the loading program (:func:`espin.mechanics.loading.load_program`);
 - n_sub, the time steps: the program's steps with ``solver.time_rtol = "off"`` or an elastic
   law, else at least ``SUBSTEPS_PER_STRAIN`` per unit of strain travelled (the adaptive control
@@ -28,7 +29,8 @@ depend on the machine:
 - n_it = ``ITERATIONS_PER_SUBSTEP`` n_sub + W min(1, strain / ``YIELD_STRAIN_SPAN``): every
   time step costs about one iteration, and the yield region (about 1-9 % strain) a number
   that grows slowly with the mat, W = ``YIELD_ITERATIONS`` (DOF / 10^4)^``YIELD_EXPONENT``
-  (half of it for an elastic law);
+  (half of it for an elastic law), times ``TEST_ITERATIONS`` for an equibiaxial test, and
+  more for tortuous fibers (``TURN_EXPONENT``);
 - u(DOF) = ``ITERATION_BASE`` + ``ITERATION_SCALE`` (DOF / 10^4)^``ITERATION_EXPONENT`` per
   Newton iteration (fiber law, assembly, factorization, line search; PARDISO, one BLAS
   thread; the growing part ``SUPERLU_FACTOR`` times larger with SuperLU), r = ``RECORD_PER_DOF`` per DOF of a recorded step (stresses, fractions), and
@@ -60,7 +62,7 @@ from espin.core.config import Config
 from espin.geometry.size_estimate import estimate_size
 from espin.mechanics.loading import load_program
 
-__all__ = ["Calibration", "TensileCost", "Plan", "calibrate", "predict_test", "plan", "pool_seconds",
+__all__ = ["Calibration", "TensileCost", "Plan", "calibrate", "predict_test", "plan", "pool_seconds", "crossing_factor",
            "format_duration", "CALIBRATION_BUDGET_S", "REFERENCE_CALIBRATION"]
 
 log = logging.getLogger(__name__)
@@ -73,11 +75,11 @@ CALIBRATION_MAT = {"rve.size_ratio": 80.0, "rve.layers": 4, "rve.seed": 1, "load
 REFERENCE_SECONDS_PER_ITERATION = 0.0054
 """Seconds per Newton iteration of the calibration test on the development machine, quiet [s]."""
 
-ITERATION_BASE = 0.6
+ITERATION_BASE = 0.45
 """Cost of one Newton iteration of a small mat [calibration iterations]."""
-ITERATION_SCALE = 3.1
+ITERATION_SCALE = 2.4
 """Cost of one Newton iteration at 10^4 DOF beyond the base [calibration iterations]."""
-ITERATION_EXPONENT = 1.3
+ITERATION_EXPONENT = 1.55
 """Growth of an iteration's cost with the DOF (factorization fill)."""
 RECORD_PER_DOF = 1.6e-4
 """Cost of one recorded step per DOF (stresses, fractions, the step's record) [calibration
@@ -96,6 +98,16 @@ YIELD_STRAIN_SPAN = 0.09
 SUPERLU_FACTOR = 3.0
 """SuperLU's iterations against PARDISO's, the DOF-growing part (docs/performance.md: the plla
 test in 117 s against 36 s)."""
+TURN_REFERENCE_DEG = {"paper": 5.0, "smooth": 8.0}
+"""Fiber turns of the mats behind ``YIELD_ITERATIONS``: the paper walk's ``max_deviation_deg``
+(plla: 5), the smooth walk's ``waviness_deg`` [deg]."""
+TURN_EXPONENT = 0.6
+"""Tortuous fibers make Newton work harder: the yield region's iterations grow as (turn /
+reference turn)^0.6 (paper walk at 20 deg: 313-547 against 127-151 at 5 deg, L/D 100 with 5
+layers, von Mises kappa 0.5-10), the time steps by a quarter of that growth."""
+TEST_ITERATIONS = {"equibiaxial": 0.78}
+"""Newton iterations of a test against the uniaxial test's on the same mat (equibiaxial: 190
+against 242 on the plla mat at L/D 100 with 5 layers); tests not listed count as uniaxial."""
 SUBSTEPS_PER_STRAIN = 270.0
 """Time steps per unit strain travelled with the adaptive time steps (plla: about 80 to 30 %)."""
 START_S = 3.0
@@ -225,6 +237,43 @@ def _pardiso(linear: str) -> bool:
     return linear == "pardiso" or (linear == "auto" and importlib.util.find_spec("pypardiso") is not None)
 
 
+def crossing_factor(config: Config) -> float:
+    """Cross-links of the config's fibers relative to isotropic fibers of the same length:
+    E|sin(theta_1 - theta_2)| / (2 / pi) over pairs of segment directions (1 for ``uniform``).
+
+    :func:`espin.geometry.size_estimate.estimate_size` counts the crossings of isotropic fibers,
+    an upper bound for aligned mats; the DOF follow the cross-links. The segments' directions
+    are the orientation distribution (``rve.orientation``) smeared by the walk: a normal of sd
+    ``waviness_deg`` for the smooth walk; for the paper walk, turns uniform within
+    +-``max_deviation_deg`` add up along a fiber of n = L / l_s segments, sd
+    max_deviation_deg sqrt(n / 6) on average over the fiber.
+    """
+    import numpy as np
+
+    from espin.geometry.orientation import UniformOrientation, orientation_distribution
+
+    rve = config.rve
+    distribution = orientation_distribution(rve.orientation)
+    if isinstance(distribution, UniformOrientation):
+        return 1.0
+    theta = (np.arange(360) + 0.5) * np.pi / 360
+    p = np.clip(distribution.pdf(theta), 0.0, None)
+    if not np.isfinite(p).all() or p.sum() <= 0:
+        return 1.0
+    if rve.walk == "smooth":
+        sd = math.radians(rve.waviness_deg or 0.0)
+    else:
+        sd = math.radians(rve.max_deviation_deg or 0.0) * math.sqrt(rve.side_um / rve.segment_length_um / 6.0)
+    if sd > 0:
+        lag = (theta - theta[0] + np.pi / 2) % np.pi - np.pi / 2  # circular lags, period pi
+        kernel = sum(np.exp(-0.5 * ((lag + k * np.pi) / sd) ** 2) for k in range(-3, 4))
+        p = np.real(np.fft.ifft(np.fft.fft(p) * np.fft.fft(kernel)))
+    p = np.clip(p, 0.0, None)
+    p = p / p.sum()
+    mean_sin = float(p @ np.abs(np.sin(theta[:, None] - theta[None, :])) @ p)
+    return min(1.0, mean_sin / (2.0 / np.pi))
+
+
 def _strain_path(program) -> float:
     """Strain travelled by a program (sum of |changes| of its load parameter)."""
     strain = program.strain
@@ -247,20 +296,25 @@ def predict_test(config: Config, calibration: Calibration | None = None) -> Tens
     """
     calibration = calibration or calibrate()
     size = estimate_size(config)
+    dof = size.dof * crossing_factor(config)
     program = load_program(config.loading)
     steps = program.n_steps
     path = _strain_path(program)
     adaptive = config.solver.time_rtol != "off" and config.fiber.flow_rate_per_s > 0
-    substeps = max(float(steps), SUBSTEPS_PER_STRAIN * path) if adaptive else float(steps)
-    plastic = 1.0 if config.fiber.flow_rate_per_s > 0 else 0.5
-    yield_part = plastic * YIELD_ITERATIONS * (size.dof / 1e4) ** YIELD_EXPONENT * min(1.0, path / YIELD_STRAIN_SPAN)
-    iterations = ITERATIONS_PER_SUBSTEP * substeps + yield_part
-    x = size.dof / 1e4
+    rve = config.rve
+    turn = rve.max_deviation_deg if rve.walk == "paper" else rve.waviness_deg
+    tortuous = max(1.0, (turn or 0.0) / TURN_REFERENCE_DEG[rve.walk]) ** TURN_EXPONENT
+    substeps = max(float(steps), SUBSTEPS_PER_STRAIN * path * (1.0 + 0.25 * (tortuous - 1.0))) if adaptive \
+        else float(steps)
+    plastic = tortuous * (1.0 if config.fiber.flow_rate_per_s > 0 else 0.5)
+    yield_part = plastic * YIELD_ITERATIONS * (dof / 1e4) ** YIELD_EXPONENT * min(1.0, path / YIELD_STRAIN_SPAN)
+    iterations = (ITERATIONS_PER_SUBSTEP * substeps + yield_part) * TEST_ITERATIONS.get(program.test, 1.0)
+    x = dof / 1e4
     growth = ITERATION_SCALE * x**ITERATION_EXPONENT * (1.0 if _pardiso(config.solver.linear) else SUPERLU_FACTOR)
     units = (iterations * (ITERATION_BASE + growth)
-             + steps * RECORD_PER_DOF * size.dof)
+             + steps * RECORD_PER_DOF * dof)
     seconds = calibration.seconds_per_iteration * units + calibration.slowness * GENERATE_S_PER_SEGMENT * size.segments
-    return TensileCost(size.dof, steps, substeps, iterations, seconds)
+    return TensileCost(dof, steps, substeps, iterations, seconds)
 
 
 def format_duration(seconds: float) -> str:
