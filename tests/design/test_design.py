@@ -175,3 +175,25 @@ def test_stresses_do_not_depend_on_the_fiber_diameter():
     curves = [espin.simulate("plla", rve__diameter_um=d, rve__size_ratio=30, rve__layers=2,
                              loading__max_strain=0.06, loading__steps=6).stress() for d in (0.45, 1.8)]
     assert np.max(np.abs(curves[0] - curves[1])) <= 1e-9 * np.max(np.abs(curves[0]))
+
+
+def test_curve_target_recovers_a_known_design():
+    from espin.design.targets import CurveTarget
+
+    # The truth: a known design's curve, mean of its own seeds; the search sees only the curve.
+    def response(values, seed):
+        eta, wav = values["rve.volume_fraction"], values["rve.waviness_deg"]
+        strain = np.linspace(0.01, 0.1, 10)
+        stress = 40.0 * eta * np.tanh(strain / (0.01 + 0.002 * wav)) * (1.0 + strain)
+        return {(f"stress_at_{e:.6g}", 0.0): s * _noise(values, seed, 0.005) for e, s in zip(strain, stress)}
+
+    truth = response({"rve.volume_fraction": 0.17, "rve.waviness_deg": 15.0}, 0)
+    strain = np.linspace(0.01, 0.1, 10)
+    target = CurveTarget.from_curve(strain, [truth[(f"stress_at_{e:.6g}", 0.0)] for e in strain],
+                                    strain_range=(0.01, 0.1), points=10, tolerance=0.02)
+    run = run_design([target], ["waviness_deg=0:30", "eta=0.1:0.3"], base="plla", rve__walk="smooth",
+                     loading__max_strain=0.1, budget=30, evaluator=_known(response))
+    assert run.best.values["rve.volume_fraction"] == pytest.approx(0.17, rel=0.05)
+    assert run.best.values["rve.waviness_deg"] == pytest.approx(15.0, abs=2.0)
+    with pytest.raises(ConfigError, match="raise it \\(--set loading.max_strain=0.1\\)"):
+        run_design([target], ["eta=0.1:0.3"], base="plla", loading__max_strain=0.05, evaluator=_known(response))

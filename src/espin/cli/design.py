@@ -28,6 +28,16 @@ def design_command(
         "--target", "-t", help="A target: NAME[@DIR]=VALUE[+-TOL%] (E=150, sigma_y=5+-3%, E@90=70) or a ratio "
                                "E@0/E@90=3. NAME: E, sigma_y, H, eps_y or modulus_MPa ... Tolerance default "
                                "5 %. Repeatable.")] = None,
+    target_curve: Annotated[Optional[list[str]], typer.Option(
+        "--target-curve", help="A whole target curve: CSV FILE[@DIR] (strain, stress [MPa] columns as espin "
+                               "properties reads them), compared at --curve-points strains. Repeatable (one "
+                               "per direction).")] = None,
+    curve_range: Annotated[Optional[str], typer.Option(
+        help="Strain range of the curve comparison, LOW:HIGH (fractions). Default: from a --curve-points-th "
+             "of the last strain to it.")] = None,
+    curve_points: Annotated[int, typer.Option(help="Strains at which a target curve is compared.")] = 12,
+    curve_tolerance: Annotated[float, typer.Option(
+        help="Largest RMS deviation from a target curve, as a fraction of its largest stress.")] = 0.05,
     var: Annotated[Optional[list[str]], typer.Option(
         "--var", "-v", help="A design variable with bounds: NAME=LOW:HIGH (eta=0.1:0.3, kappa=0:8, "
                             "waviness_deg=0:20, diameter_cv=0:0.4, layers=3:15; log:LOW:HIGH for a log "
@@ -73,7 +83,8 @@ def design_command(
 
     console = Console(stderr=True, quiet=quiet, width=140)
     try:
-        targets = parse_targets(target or [])
+        targets = parse_targets([*(target or []), *_curves(target_curve or [], curve_range, curve_points,
+                                                            curve_tolerance)])
         config = resolve_config(base, **{k.replace(".", "__"): v for k, v in parse_set(set_).items()})
         space = DesignSpace.build(config, var or [], constraint or [])
         n_workers = None if scheduler is not None else (workers or default_workers())
@@ -94,6 +105,34 @@ def design_command(
     console.print(result.format_table(), highlight=False, soft_wrap=True)
     console.print(f"wrote {out}/: " + ", ".join(p.name for p in result.files.values()), highlight=False)
     console.print(f"next: espin simulate {out}/design.toml -o {out}/check", highlight=False, soft_wrap=True)
+
+
+def _curves(items: list[str], strain_range: str | None, points: int, tolerance: float) -> list[Any]:
+    """Curve targets from ``FILE[@DIR]`` items."""
+    from espin.analysis.experiments import read_curve
+    from espin.core.errors import ConfigError
+    from espin.design.targets import CurveTarget
+
+    bounds = None
+    if strain_range is not None:
+        low, sep, high = strain_range.partition(":")
+        try:
+            bounds = (float(low), float(high)) if sep else None
+        except ValueError:
+            bounds = None
+        if bounds is None:
+            raise ConfigError(f"--curve-range {strain_range!r}: write LOW:HIGH strains, e.g. 0.005:0.2")
+    out = []
+    for item in items:
+        path, _, direction = item.rpartition("@") if "@" in Path(item).name else (item, "", "0")
+        try:
+            angle = float(direction)
+        except ValueError:
+            raise ConfigError(f"--target-curve {item!r}: the direction after @ is an angle in degrees") from None
+        curve = read_curve(path)
+        out.append(CurveTarget.from_curve(curve.strain, curve.stress_MPa, points=points, strain_range=bounds,
+                                          tolerance=tolerance, direction_deg=angle, source=Path(path).name))
+    return out
 
 
 def _plan_seconds(space: Any, targets: Any, budget: int, verify: int, calibration: Any) -> float:

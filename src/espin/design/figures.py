@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
+
 import numpy as np
 import pandas as pd
 
 from espin.core.figures import parameter_label, save_figure
 from espin.design.search import DesignRun
+from espin.design.targets import STRESS_AT, CurveTarget
 
 __all__ = ["plot_convergence", "plot_maps", "plot_verification", "PROPERTY_SYMBOLS"]
 
@@ -18,6 +21,8 @@ PROPERTY_SYMBOLS = {"modulus_MPa": ("$E$", "MPa"), "yield_stress_MPa": (r"$\sigm
 
 
 def _output_label(name: str, direction: float) -> str:
+    if name.startswith(STRESS_AT):
+        return f"stress at {100 * float(name.removeprefix(STRESS_AT)):.3g} %, {direction:g}° [MPa]"
     symbol, unit = PROPERTY_SYMBOLS[name]
     return f"{symbol} at {direction:g}°" + (f" [{unit}]" if unit else "")
 
@@ -52,6 +57,18 @@ def plot_convergence(run: DesignRun, table: pd.DataFrame, path: str | Path) -> P
     return save_figure(fig, path, dpi=150)
 
 
+def _mapped_outputs(targets: Any) -> list[tuple[str, float]]:
+    """The outputs drawn in the maps: every property, and three strains of each curve target."""
+    out = []
+    for t in targets.targets:
+        if isinstance(t, CurveTarget):
+            picks = sorted({0, len(t.outputs) // 2, len(t.outputs) - 1})
+            out += [t.outputs[k] for k in picks]
+        else:
+            out += list(t.outputs)
+    return list(dict.fromkeys(out))
+
+
 def plot_maps(run: DesignRun, path: str | Path) -> Path:
     """Each targeted property against each variable, from the surrogate through the best design
     (the other variables held at their best values): median and 95 % band of the surrogate,
@@ -59,7 +76,7 @@ def plot_maps(run: DesignRun, path: str | Path) -> Path:
     from matplotlib.figure import Figure
 
     space, targets = run.space, run.targets
-    outputs = list(targets.outputs)
+    outputs = _mapped_outputs(targets)
     evaluated = [e for e in run.evaluations if e.stage in ("initial", "search")]
     n_rows, n_cols = len(outputs), space.dimension
     fig = Figure(figsize=(max(3.2 * n_cols + 0.6, 7.0), 2.6 * n_rows + 1.2))
@@ -93,7 +110,8 @@ def plot_maps(run: DesignRun, path: str | Path) -> Path:
     handles, labels = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="lower center", ncol=3, fontsize="small", bbox_to_anchor=(0.5, 0.0))
     fig.suptitle("properties against each variable through the best design (surrogate)", fontsize="medium")
-    fig.tight_layout(rect=(0, 0.1 + 0.3 / (n_rows + 1), 1, 0.96))
+    height = 2.6 * n_rows + 1.2
+    fig.tight_layout(rect=(0, 0.75 / height, 1, 1 - 0.35 / height))
     return save_figure(fig, path, dpi=150)
 
 
@@ -114,7 +132,9 @@ def plot_verification(run: DesignRun, path: str | Path) -> Path:
         for t in run.targets.targets:
             if getattr(t, "over_direction_deg", None) is not None or t.direction_deg != direction:
                 continue
-            if t.name == "modulus_MPa":
+            if isinstance(t, CurveTarget):
+                ax.plot(100 * np.asarray(t.strain), t.stress_MPa, "ko", ms=4, label=f"target curve ({t.source})")
+            elif t.name == "modulus_MPa":
                 strain = np.linspace(0.0, 0.02, 2)
                 ax.plot(100 * strain, t.value * strain, "C2--", lw=1.2, label=f"target $E$ = {t.value:.4g} MPa")
             elif t.name == "yield_stress_MPa":

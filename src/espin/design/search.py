@@ -36,7 +36,7 @@ import numpy as np
 from espin.core.config import Config
 from espin.core.errors import ConfigError, SolverError
 from espin.design.surrogate import PropertySurrogate, fit_surrogate
-from espin.design.targets import DesignTargets, parse_targets
+from espin.design.targets import STRESS_AT, CurveTarget, DesignTargets, parse_targets
 from espin.design.variables import Constraint, DesignSpace, DesignVariable
 from espin.geometry.rve import resolve_config
 from espin.studies.ensemble import TensileTask, plan_tasks, run_ensemble
@@ -166,8 +166,17 @@ def _evaluate(space: DesignSpace, targets: DesignTargets, evaluations: Sequence[
         evaluation.curves[direction] = (record["strain"], record["stress_MPa"])
         for name, d in targets.outputs:
             if d == direction:
-                value = record.get(name)
-                evaluation.outputs[(name, d)] = math.nan if value is None else float(value)
+                evaluation.outputs[(name, d)] = _output(record, name)
+
+
+def _output(record: Mapping[str, Any], name: str) -> float:
+    """An output of a tensile test's record: a property, or the stress at a strain (a curve target's)."""
+    if name.startswith(STRESS_AT):
+        strain, stress = np.asarray(record["strain"]), np.asarray(record["stress_MPa"])
+        at = float(name.removeprefix(STRESS_AT))
+        return float(np.interp(at, strain, stress)) if at <= strain.max() * (1 + 1e-9) else math.nan
+    value = record.get(name)
+    return math.nan if value is None else float(value)
 
 
 def _fit(targets: DesignTargets, evaluations: Sequence[Evaluation], seed: int) -> dict[tuple[str, float], PropertySurrogate]:
@@ -316,6 +325,11 @@ def run_design(
     if base.loading.test != "uniaxial" or base.loading.program is not None:
         raise ConfigError("design: the targets are properties of a uniaxial tensile test; the base config's "
                           f"loading must be loading.test = 'uniaxial' without a program (got {base.loading.test!r})")
+    for target in targets.targets:
+        if isinstance(target, CurveTarget) and max(target.strain) > base.loading.max_strain * (1 + 1e-9):
+            raise ConfigError(f"curve target {target.source}: it reaches strain {max(target.strain):g} but the tests "
+                              f"stop at loading.max_strain = {base.loading.max_strain:g}; raise it "
+                              f"(--set loading.max_strain={max(target.strain):g}) or narrow the curve's strain range")
     space = DesignSpace.build(base, variables, constraints)
     d = space.dimension
     n_initial = max(2 * d + 2, 6) if initial is None else int(initial)

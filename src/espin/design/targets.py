@@ -3,9 +3,10 @@
 A target is a property of the bilinear fit of the tensile curve (modulus, yield stress,
 post-yield modulus, yield strain; :mod:`espin.analysis.properties`) in a loading direction,
 with a relative tolerance; a ratio target compares one property in two directions (an
-anisotropy E_0 / E_90 = 3). A design meets its targets when every normalized error
+anisotropy E_0 / E_90 = 3). A curve target compares a whole stress-strain curve at a few strains (relative RMS
+deviation). A design meets its targets when every normalized error
 
-    e = (achieved - target) / (tolerance * target)
+    e = (achieved - target) / (tolerance * target)   (a curve: RMS deviation / tolerance)
 
 lies in [-1, 1]; the search minimizes the mean of e^2.
 
@@ -26,7 +27,8 @@ import numpy as np
 
 from espin.core.errors import ConfigError
 
-__all__ = ["PROPERTY_NAMES", "SYMBOLS", "DEFAULT_TOLERANCE", "PropertyTarget", "RatioTarget", "DesignTargets",
+__all__ = ["PROPERTY_NAMES", "SYMBOLS", "DEFAULT_TOLERANCE", "STRESS_AT", "PropertyTarget", "RatioTarget",
+           "CurveTarget", "DesignTargets",
            "parse_target", "parse_targets"]
 
 PROPERTY_NAMES = ("modulus_MPa", "yield_stress_MPa", "post_yield_modulus_MPa", "yield_strain")
@@ -92,9 +94,22 @@ class PropertyTarget:
         """``modulus_MPa@0`` style label."""
         return f"{self.name}@{self.direction_deg:g}"
 
+    @property
+    def outputs(self) -> tuple[tuple[str, float], ...]:
+        """The (property, direction) it reads."""
+        return ((self.name, self.direction_deg),)
+
     def achieved(self, properties: Mapping[tuple[str, float], np.ndarray]) -> np.ndarray:
         """The property achieved, from (name, direction) -> values (any shape)."""
         return np.asarray(properties[(self.name, self.direction_deg)], dtype=float)
+
+    def error(self, properties: Mapping[tuple[str, float], np.ndarray]) -> np.ndarray:
+        """Normalized error (achieved - target) / (tolerance target)."""
+        return (self.achieved(properties) - self.value) / (self.tolerance * self.value)
+
+    def meets(self, achieved: float) -> bool:
+        """Whether an achieved value is within the tolerance."""
+        return bool(abs(achieved - self.value) <= self.tolerance * self.value)
 
 
 @dataclass(frozen=True)
@@ -135,13 +150,120 @@ class RatioTarget:
         """``modulus_MPa@0/modulus_MPa@90`` style label."""
         return f"{self.name}@{self.direction_deg:g}/{self.name}@{self.over_direction_deg:g}"
 
+    @property
+    def outputs(self) -> tuple[tuple[str, float], ...]:
+        """The (property, direction) pairs it reads."""
+        return ((self.name, self.direction_deg), (self.name, self.over_direction_deg))
+
     def achieved(self, properties: Mapping[tuple[str, float], np.ndarray]) -> np.ndarray:
         """The ratio achieved, from (name, direction) -> values (any shape)."""
         return (np.asarray(properties[(self.name, self.direction_deg)], dtype=float)
                 / np.asarray(properties[(self.name, self.over_direction_deg)], dtype=float))
 
+    error = PropertyTarget.error
+    meets = PropertyTarget.meets
 
-Target = PropertyTarget | RatioTarget
+
+STRESS_AT = "stress_at_"
+"""Prefix of the outputs of a curve target: the stress [MPa] at a strain (``stress_at_0.05``)."""
+
+
+@dataclass(frozen=True)
+class CurveTarget:
+    """A whole stress-strain curve in one loading direction, compared at ``points`` strains.
+
+    The curve's error is the root mean square of the stress differences at its strains over
+    the largest target stress there; it is met when that relative RMS deviation is at most
+    ``tolerance``. Each strain's stress is an output the search models.
+
+    Attributes
+    ----------
+    strain : tuple of float
+        The compared strains (> 0, increasing).
+    stress_MPa : tuple of float [MPa]
+        The target stress at each (> 0).
+    tolerance : float
+        Largest RMS deviation as a fraction of the largest target stress (0.05: 5 %).
+    direction_deg : float [deg]
+        Loading direction.
+    source : str
+        Where the curve came from.
+    """
+
+    strain: tuple[float, ...]
+    stress_MPa: tuple[float, ...]
+    tolerance: float = DEFAULT_TOLERANCE
+    direction_deg: float = 0.0
+    source: str = "curve"
+
+    def __post_init__(self) -> None:
+        strain, stress = np.asarray(self.strain, dtype=float), np.asarray(self.stress_MPa, dtype=float)
+        if strain.ndim != 1 or strain.shape != stress.shape or len(strain) < 3:
+            raise ConfigError(f"curve target {self.source}: at least 3 (strain, stress) points of equal count")
+        if not (np.all(np.isfinite(strain)) and np.all(strain > 0) and np.all(np.diff(strain) > 0)):
+            raise ConfigError(f"curve target {self.source}: strains must be positive and increasing")
+        if not (np.all(np.isfinite(stress)) and np.all(stress > 0)):
+            raise ConfigError(f"curve target {self.source}: stresses must be positive at the compared strains "
+                              "(leave out the toe's zero stresses with a strain range)")
+        object.__setattr__(self, "strain", tuple(map(float, strain)))
+        object.__setattr__(self, "stress_MPa", tuple(map(float, stress)))
+        object.__setattr__(self, "tolerance", _check_number(f"curve target {self.source} tolerance", self.tolerance,
+                                                            0.0, 1.0))
+        object.__setattr__(self, "direction_deg", _direction(self.direction_deg))
+
+    @classmethod
+    def from_curve(cls, strain: Sequence[float], stress_MPa: Sequence[float], *, points: int = 12,
+                   strain_range: tuple[float, float] | None = None, tolerance: float = DEFAULT_TOLERANCE,
+                   direction_deg: float = 0.0, source: str = "curve") -> CurveTarget:
+        """A target from a measured or wanted curve, interpolated at ``points`` evenly spaced
+        strains over ``strain_range`` (default: from a ``points``-th of the last strain to it)."""
+        strain, stress = np.asarray(strain, dtype=float), np.asarray(stress_MPa, dtype=float)
+        if int(points) != points or points < 3:
+            raise ConfigError(f"curve target {source}: points must be an integer >= 3 (got {points})")
+        high = float(strain.max())
+        low, high = strain_range if strain_range is not None else (high / points, high)
+        if not (0.0 < low < high <= strain.max() + 1e-12):
+            raise ConfigError(f"curve target {source}: strain range {low:g}:{high:g} must lie in (0, "
+                              f"{strain.max():g}], the curve's strains")
+        grid = np.linspace(low, high, int(points))
+        return cls(tuple(grid), tuple(np.interp(grid, strain, stress)), tolerance, direction_deg, source)
+
+    @property
+    def name(self) -> str:
+        """``curve``."""
+        return "curve"
+
+    @property
+    def value(self) -> float:
+        """The target of the achieved RMS deviation: 0."""
+        return 0.0
+
+    @property
+    def label(self) -> str:
+        """``curve@0`` style label."""
+        return f"curve@{self.direction_deg:g}"
+
+    @property
+    def outputs(self) -> tuple[tuple[str, float], ...]:
+        """One (stress at strain, direction) output per compared strain."""
+        return tuple((f"{STRESS_AT}{e:.6g}", self.direction_deg) for e in self.strain)
+
+    def achieved(self, properties: Mapping[tuple[str, float], np.ndarray]) -> np.ndarray:
+        """RMS stress deviation over the largest target stress (relative, any shape)."""
+        target = np.asarray(self.stress_MPa)
+        model = np.stack([np.asarray(properties[o], dtype=float) for o in self.outputs], axis=-1)
+        return np.sqrt(np.mean((model - target) ** 2, axis=-1)) / target.max()
+
+    def error(self, properties: Mapping[tuple[str, float], np.ndarray]) -> np.ndarray:
+        """The achieved relative RMS deviation over the tolerance."""
+        return self.achieved(properties) / self.tolerance
+
+    def meets(self, achieved: float) -> bool:
+        """Whether an achieved relative RMS deviation is within the tolerance."""
+        return bool(achieved <= self.tolerance)
+
+
+Target = PropertyTarget | RatioTarget | CurveTarget
 
 
 @dataclass(frozen=True)
@@ -166,27 +288,16 @@ class DesignTargets:
     @property
     def directions(self) -> tuple[float, ...]:
         """The loading directions the targets need [deg], sorted."""
-        out = set()
-        for t in self.targets:
-            out.add(t.direction_deg)
-            if isinstance(t, RatioTarget):
-                out.add(t.over_direction_deg)
-        return tuple(sorted(out))
+        return tuple(sorted({d for t in self.targets for _, d in t.outputs}))
 
     @property
     def outputs(self) -> tuple[tuple[str, float], ...]:
-        """The (property, direction) pairs the targets read, in a fixed order."""
-        pairs = set()
-        for t in self.targets:
-            pairs.add((t.name, t.direction_deg))
-            if isinstance(t, RatioTarget):
-                pairs.add((t.name, t.over_direction_deg))
-        return tuple(sorted(pairs, key=lambda p: (PROPERTY_NAMES.index(p[0]), p[1])))
+        """The (output, direction) pairs the targets read, each once, in the targets' order."""
+        return tuple(dict.fromkeys(o for t in self.targets for o in t.outputs))
 
     def errors(self, properties: Mapping[tuple[str, float], np.ndarray]) -> np.ndarray:
-        """Normalized errors (achieved - target) / (tolerance target), last axis one per target."""
-        return np.stack([(t.achieved(properties) - t.value) / (t.tolerance * t.value) for t in self.targets],
-                        axis=-1)
+        """Normalized errors (1: at the tolerance), last axis one per target."""
+        return np.stack([t.error(properties) for t in self.targets], axis=-1)
 
     def objective(self, properties: Mapping[tuple[str, float], np.ndarray]) -> np.ndarray:
         """Mean squared normalized error (<= 1 for every target within its tolerance alone)."""

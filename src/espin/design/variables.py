@@ -50,6 +50,8 @@ SHORT_NAMES = {
 DERIVED_KEYS = {"diameter_cv": "coefficient of variation of the fiber diameter, sd / mean"}
 """Variables that are not config keys themselves (see :meth:`DesignSpace.overrides`)."""
 _INTEGER_KEYS = {"rve.layers"}
+_FIBER_SYMBOLS = {"E_t", "E_b", "a_p", "b_p", "c_p", "taut_modulus_MPa", "slack_modulus_MPa", "flow_rate_per_s",
+                  "flow_resistance_MPa", "hardening_exponent"}
 _NOT_VARIABLES = {
     "rve.diameter_um": "the fiber diameter does not change the stresses (every length scales with it); "
                        "bound it with a constraint instead",
@@ -180,6 +182,9 @@ def parse_variable(text: str | tuple[str, float, float]) -> DesignVariable:
     else:
         name, low, high = text
         log = False
+    if name in _FIBER_SYMBOLS or name.startswith("fiber."):
+        raise ConfigError(f"variable {name}: the fiber law is the material's, not the microstructure's: fit it to "
+                          "your tensile tests with espin fit and give its fitted.toml as the base config")
     key = SHORT_NAMES.get(name, name if "." in name or name in DERIVED_KEYS else f"rve.{name}")
     if key in _NOT_VARIABLES:
         raise ConfigError(f"variable {name}: not a design variable: {_NOT_VARIABLES[key]}")
@@ -228,6 +233,11 @@ class DesignSpace:
         if len(set(keys)) != len(keys):
             raise ConfigError(f"variables: each key once (got {', '.join(keys)})")
         space = cls(base, parsed, tuple(parse_constraint(c) for c in constraints))
+        for variable in parsed:  # each key alone first, so that an unknown key is named as such
+            try:
+                apply_overrides(base, space.overrides({variable.key: float(variable.value(0.5))}))
+            except ConfigError as err:
+                raise ConfigError(f"variable {variable.key}: {err}") from None
         for variable in parsed:
             for end in (0.0, 1.0):
                 unit = np.full(len(parsed), 0.5)
