@@ -96,6 +96,9 @@ def test_study_prints_the_plan_and_quiet_hides_it(tmp_path):
     assert "plan: 2 tensile tests x " in shown.output and "on 1 worker -> about" in shown.output
     assert "(speed calibration " in shown.output
     assert shown.output.index("plan: ") < shown.output.index("wrote ")  # before the work
+    resumed = _sweep(tmp_path, "--plan")  # the same study again: its finished tests are not planned
+    assert resumed.exit_code == 0, resumed.output
+    assert "plan: nothing to run; 2 tensile tests already finished in " in " ".join(resumed.output.split())
     quiet = _sweep(tmp_path, "--plan", "--quiet", "--overwrite")
     assert quiet.exit_code == 0, quiet.output
     assert "plan:" not in quiet.output

@@ -90,27 +90,44 @@ def _overrides(set_: list[str] | None) -> dict[str, Any]:
 
 
 def _print_study_plan(base: str | None, set_: list[str] | None, points: list[dict[str, Any]], realizations: int,
-                      workers: int | None, scheduler: str | None, plan: bool | None, quiet: bool) -> None:
-    """Print the plan of a study's tensile tests (``points`` x ``realizations``) before it runs."""
+                      seed_start: int | None, out: Path, workers: int | None, scheduler: str | None,
+                      plan: bool | None, quiet: bool) -> None:
+    """Print the plan of a study's tensile tests (``points`` x ``realizations``, less those
+    already finished in ``out``) before it runs."""
     from rich.console import Console
 
-    from espin.core.config import apply_overrides
     from espin.core.parallel import default_workers
     from espin.geometry.rve import resolve_config
     from espin.mechanics.cost import REFERENCE_CALIBRATION
     from espin.mechanics.cost import plan as make_plan
+    from espin.studies.ensemble import plan_tasks
+    from espin.studies.sweeps import realization_seeds
 
-    configs: list[Any] = []
+    todo: list[Any] = []
+    finished: list[int] = []
 
     def tests() -> list[Any]:
-        if not configs:
+        if not todo and not finished:
             config = resolve_config(base, **_overrides(set_))
-            configs.extend(apply_overrides(config, point) for point in points)
-        return [c for c in configs for _ in range(realizations)]
+            seeds = realization_seeds(config, realizations, seed_start)
+            tasks = plan_tasks(config, points, seeds, allow_large=True)
+            per_point = {}  # one config object per point: the cost does not depend on the seed
+            for i, task in enumerate(tasks):
+                if (out / "tasks" / f"{task.key}.json").is_file():
+                    finished.append(i)
+                else:
+                    todo.append(per_point.setdefault(i // len(seeds), task.config))
+        return todo
+
+    def text(calibration: Any) -> str:
+        line = make_plan(tests(), n_workers, calibration).text() if tests() else "plan: nothing to run"
+        if finished:
+            line += f"; {len(finished)} tensile test{'s' * (len(finished) != 1)} already finished in {out}/ not run again"
+        return line
 
     n_workers = None if scheduler is not None else (workers or default_workers())
-    print_plan(lambda calibration: make_plan(tests(), n_workers, calibration).text(), Console(stderr=True, quiet=quiet),
-               plan, lambda: make_plan(tests(), n_workers, REFERENCE_CALIBRATION).seconds)
+    print_plan(text, Console(stderr=True, quiet=quiet), plan,
+               lambda: make_plan(tests(), n_workers, REFERENCE_CALIBRATION).seconds)
 
 
 def _run_with_progress(run, n_tasks: int, quiet: bool):
@@ -227,7 +244,7 @@ def rve_size(
         points = list(dict.fromkeys([*((s, layers_for_sizes) for s in sizes), *((size_for_layers, n) for n in layers)]))
         n_points = len(points)
         _print_study_plan(base, set_, [{"rve.size_ratio": float(s), "rve.layers": int(n)} for s, n in points],
-                          realizations, workers, scheduler, plan, quiet)
+                          realizations, seed_start, out, workers, scheduler, plan, quiet)
         return (lambda on_outcome: rve_size_study(
             base, size_ratios=sizes, layer_counts=layers, layers_for_sizes=layers_for_sizes,
             size_for_layers=size_for_layers, realizations=realizations, seed_start=seed_start,
@@ -278,7 +295,7 @@ def sweep(
         parsed = parse_grid(grid)
         n_points = math.prod(len(values) for values in parsed.values())
         points = [dict(zip(parsed, combo)) for combo in itertools.product(*parsed.values())]
-        _print_study_plan(base, set_, points, realizations, workers, scheduler, plan, quiet)
+        _print_study_plan(base, set_, points, realizations, seed_start, out, workers, scheduler, plan, quiet)
         return (lambda on_outcome: run_sweep(
             base, parsed, realizations=realizations, seed_start=seed_start, folder=out,
             table_format=table_format, workers=workers, scheduler=scheduler, blas_threads=blas_threads,

@@ -1,7 +1,8 @@
 """How long tensile tests will take on this machine: a speed calibration, a cost model, a plan.
 
-Before a long command (``espin fit``, ``espin study``) the command line prints its plan, e.g.
-``plan: 30 tensile tests x 60,146 DOF on 2 workers -> about 20 min (speed calibration 1.4 s)``.
+Before a long command (``espin fit``, ``espin study sweep`` / ``rve-size``) the command line
+prints its plan, e.g. ``plan: 30 tensile tests x 64,082 DOF on 2 workers -> about 37 min (speed
+calibration 0.4 s)``.
 
 **Calibration** (:func:`calibrate`, at most ``CALIBRATION_BUDGET_S`` = 2 s, cached per
 process). A fixed small tensile test is run: the ``plla`` mat at L/D 80 with 4 layers (seed 1,
@@ -9,9 +10,9 @@ process). A fixed small tensile test is run: the ``plla`` mat at L/D 80 with 4 l
 one BLAS thread as a study's worker runs, with SuperLU (PARDISO's library takes 1-2 s to load
 into a process, more than the calibration may take; the main process of a study or fit does
 not need it). Its seconds per Newton iteration after the first solve, divided by those of the
-development machine (``REFERENCE_SECONDS_PER_ITERATION``), is this machine's *slowness* now,
-other jobs on it included. The test stops after the step past which the next might exceed the
-budget, and is timed on the iterations done. The modules it imports (generation, solver),
+development machine, quiet (``REFERENCE_SECONDS_PER_ITERATION``), is this machine's
+*slowness* now, other jobs on it included (it takes 0.4 s there). The test stops after the
+step past which the next might exceed the budget, and is timed on the iterations done. The modules it imports (generation, solver),
 which every command that plans needs anyway, are not counted in its time.
 
 **Cost of one tensile test** (:func:`predict_test`), in *calibration iterations* (the time of
@@ -33,13 +34,14 @@ depend on the machine:
   more for tortuous fibers (``TURN_EXPONENT``);
 - u(DOF) = ``ITERATION_BASE`` + ``ITERATION_SCALE`` (DOF / 10^4)^``ITERATION_EXPONENT`` per
   Newton iteration (fiber law, assembly, factorization, line search; PARDISO, one BLAS
-  thread; the growing part ``SUPERLU_FACTOR`` times larger with SuperLU), r = ``RECORD_PER_DOF`` per DOF of a recorded step (stresses, fractions), and
-  t_gen = ``GENERATE_S_PER_SEGMENT`` per segment for the mat's generation.
+  thread; the growing part ``SUPERLU_FACTOR`` times larger with SuperLU), r =
+  ``RECORD_PER_DOF`` per DOF of a recorded step (stresses, fractions), and t_gen =
+  ``GENERATE_S_PER_SEGMENT`` per segment for the mat's generation.
 
 The constants were fitted to ``benchmarks/bench_cost_model.py`` (``plla`` at L/D 60-200 with
 3-15 layers, a wavy, an aligned and an equibiaxial mat, a fit-like program of 300 uniform
-steps); its table in docs/performance.md ("Planning long runs") shows predictions within 2x
-of the measured time. Newton's iteration count is the model's weakest part: a mat that
+steps); its table in docs/performance.md ("Planning long runs") shows predictions within
+0.90-1.22 of the measured time on a quiet machine, three cases not used in the fit included. Newton's iteration count is the model's weakest part: a mat that
 stalls near yield (a free lateral stress, shear, unloading) can take longer than predicted.
 
 **Plan** (:class:`Plan`): n tests on w workers take about sum(t) / (w e) with the parallel
@@ -162,7 +164,8 @@ def calibrate(*, budget_s: float = CALIBRATION_BUDGET_S, refresh: bool = False) 
     Parameters
     ----------
     budget_s
-        Most wall time to spend [s]; the test stops after the step that reaches 80 % of it.
+        Most wall time to spend [s]; the test stops after a step when the next (taken as 1.5
+        times the last) might overrun it.
     refresh
         Ignore the cached calibration.
 
