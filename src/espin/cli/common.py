@@ -71,9 +71,10 @@ def print_plan(make_text: Callable[[Any], str], console: Any, plan: bool | None,
     reference_seconds
         The work's expected time at the reference speed [s] (no calibration needed).
 
-    A plan that cannot be made (a config error the command itself will report) is left out.
+    A plan that cannot be made (a config error the command itself will report, a calibration
+    that failed) is left out: the command goes on.
     """
-    from espin.core.errors import EspinError
+    import logging
 
     if plan is False or getattr(console, "quiet", False):
         return
@@ -83,7 +84,8 @@ def print_plan(make_text: Callable[[Any], str], console: Any, plan: bool | None,
         from espin.mechanics.cost import calibrate
 
         text = make_text(calibrate())
-    except (EspinError, OSError, ValueError):
+    except Exception as exc:  # noqa: BLE001 - the plan is an extra: the command itself goes on
+        logging.getLogger("espin.cli").debug("no plan: %s", exc)
         return
     console.print(text, highlight=False, soft_wrap=True)
 
