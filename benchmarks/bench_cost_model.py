@@ -18,8 +18,9 @@ Cases: ``plla`` (Table 2 mat, uniaxial to 30 % in 30 steps) at L/D 60 / 100 / 20
 15 layers, a wavy mat (``rve.walk = "smooth"``, ``rve.waviness_deg = 12``), an aligned mat
 (von Mises, kappa 2, with the README's ``rve.max_deviation_deg = 20``), an equibiaxial test and a fit-like program (300 uniform steps to 30 %,
 ``solver.time_rtol = "off"``); the constants of the model were fitted to those. Two cases were
-not: ``plla`` at L/D 150 with 10 layers, a shorter test (10 % in 10 steps) and an aligned mat
-with the plla's turns (von Mises kappa 5, ``rve.max_deviation_deg`` 5).
+not: ``plla`` at L/D 150 with 10 layers, a shorter test (10 % in 10 steps), an aligned mat
+with the plla's turns (von Mises kappa 5, ``rve.max_deviation_deg`` 5), and two mats of the
+README's sweep (turns of 15 deg; volume fraction 0.23 with them), at smaller sizes.
 """
 
 from __future__ import annotations
@@ -48,6 +49,9 @@ CASES = {
     "held out: to 10 % in 10 steps, L/D 100, 5 layers": {**SMALL, "loading.max_strain": 0.1, "loading.steps": 10},
     "held out: aligned (kappa 5, turns 5 deg), L/D 100, 5 layers": {
         **SMALL, "rve.orientation": {"von_mises": {"mean_deg": 0.0, "kappa": 5.0}}},
+    "held out: turns 15 deg, L/D 100, 5 layers": {**SMALL, "rve.max_deviation_deg": 15.0},
+    "held out: volume fraction 0.23, turns 15 deg, L/D 100, 15 layers": {
+        "rve.size_ratio": 100.0, "rve.layers": 15, "rve.volume_fraction": 0.23, "rve.max_deviation_deg": 15.0},
 }
 
 
