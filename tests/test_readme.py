@@ -115,6 +115,14 @@ RUNS: dict[str, Run | Skip] = {
         Run(f"espin fit spec1.csv spec2.csv spec3.csv --params eta,b_p,c_p --realizations 3 -o fit "
             f"--params eta --realizations 1 --eta-points 2 --eta-tolerance 0.05 --step-strain 0.01 {TINY}",
             outputs=_in("fit", ("fitted.toml", "fit.csv", "fit.json", "fit.png")), folders={"fit": "fit"}),
+    "espin design --target E=150 --target sigma_y=4.5 --var eta=0.1:0.3 --var kappa=0:4 --budget 30 "
+    "--set rve.size_ratio=100 --set rve.layers=5 --set rve.sampling=balanced -o design":  # about 30 s as written
+        Run("espin design --target E=150 --target sigma_y=4.5 --var eta=0.1:0.3 --var kappa=0:4 --budget 30 "
+            f"--set rve.size_ratio=100 --set rve.layers=5 --set rve.sampling=balanced -o design --budget 12 {TINY} "
+            f"{SHORT}",
+            outputs=_in("design", ("design.toml", "design.json", "evaluations.csv", "convergence.png", "maps.png",
+                                   "verification.png")),
+            folders={"design": "design"}),
     "espin study sweep plla --grid rve.volume_fraction=0.15,0.19,0.23 --grid rve.max_deviation_deg=5,15 "
     "--realizations 5 -o sweep":  # long
         Run("espin study sweep plla --grid rve.volume_fraction=0.15,0.19,0.23 --grid rve.max_deviation_deg=5,15 "

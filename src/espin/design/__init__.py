@@ -65,7 +65,9 @@ def design(
         ``["porosity>=0.8", "diameter_cv<=0.3"]``.
     budget
         Tensile tests the search may run (one design in one direction on one seed is one
-        test); the verification's ``verify`` x directions tests come on top.
+        test); the best design's ``replicates - 1`` replicates and ``verify`` fresh seeds (x
+        directions) come on top. The search stops early when the best design is within half
+        of every tolerance.
     batch
         Designs proposed and run together per round (in parallel on the workers).
     initial

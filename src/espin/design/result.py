@@ -66,7 +66,8 @@ class DesignResult:
     evaluations : pandas.DataFrame
         One row per evaluation (id, stage, seed, variables, outputs, objective, pareto).
     tests : int
-        Tensile tests the search ran (verification not counted); ``budget`` its budget.
+        Tensile tests the search ran; ``budget`` its budget (the best design's replicates and
+        verification, ``run.checks`` tests, come on top).
     seconds : float [s]
         Wall time of the run.
     files : dict
@@ -115,8 +116,8 @@ class DesignResult:
                          f"± {t['verified_sd']:.2g}  {'met' if t['met'] else 'NOT met'}"
                          f"{'' if t['inside'] else '  (outside the interval)'}")
         lines.append(self.message)
-        lines.append(f"{self.tests} tensile tests of a budget of {self.budget} (+ {n * len(self.run.targets.directions)} "
-                     f"to verify), {self.seconds:.0f} s")
+        lines.append(f"{self.tests} tensile tests of a budget of {self.budget} (+ {self.run.checks} to replicate and "
+                     f"verify the best), {self.seconds:.0f} s")
         return "\n".join(lines)
 
     def write(self, folder: str | Path) -> dict[str, Path]:
@@ -252,12 +253,13 @@ def design_result(run: DesignRun) -> DesignResult:
                    f"(seeds from {run.best.seed + VERIFY_SEED_OFFSET}, never used by the search)")
     else:
         missed = [label for label, r in rows.items() if not r["met"]]
-        scatter = max((100 * s for s, _ in run.realization_sd.values() if math.isfinite(s)), default=math.nan)
         if run.met:
+            scatter = ", ".join(f"{name}@{d:g} {100 * s:.2g} %" for (name, d), (s, _) in run.realization_sd.items()
+                                if math.isfinite(s))
             message = (f"target(s) {', '.join(missed)} not met by the fresh seeds' mean although the search seed's "
-                       f"mat met them: the realization scatter (up to {scatter:.2g} % between seeds) is comparable "
-                       "to the tolerance; use a larger RVE or balanced sampling (rve.sampling = 'balanced'), "
-                       "or widen the tolerance")
+                       f"mat met them: one realization differs from the seeds' mean (scatter between seeds: "
+                       f"{scatter}); give a larger budget (the search then aims at the tolerance's middle), a larger "
+                       "RVE or balanced sampling (rve.sampling = 'balanced'), or a wider tolerance")
         else:
             where = ("; it presses against " + ", ".join(binding)) if binding else \
                 "; no bound or constraint is active: a larger budget may get closer"
