@@ -40,7 +40,8 @@ def _page(site: Path, name: str) -> str:
 
 def test_every_page_of_the_nav_is_built(site):
     nav = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
-    pages = re.findall(r":\s+(\S+\.(?:md|py))\s*$", nav, flags=re.M) + re.findall(r"^\s+- (\S+\.md)\s*$", nav, flags=re.M)
+    pages = (re.findall(r":\s+(\S+\.(?:md|py))\s*$", nav, flags=re.M)
+             + re.findall(r"^\s+- (\S+\.md)\s*$", nav, flags=re.M))
     assert len(pages) >= 25
     for page in pages:
         stem = page.rsplit(".", 1)[0]
@@ -68,9 +69,11 @@ def test_tutorials_are_executed_with_their_outputs(site):
     sem = _page(site, "tutorials/sem_to_curve")
     assert "<caption>SEMMeasurement of" in sem and "<caption>GeometryCalibration of" in sem
     fit = _page(site, "tutorials/fit_curves")
-    assert "<caption>FitResult" in fit and "chord modulus" in fit
-    # The fit's own status line, and no progress bar of each simulation it ran.
-    assert re.search(r"evaluation \d+  SSE", fit) and "<progress" not in fit
+    assert "<caption>FitResult" in fit and "chord modulus" in fit and "<caption>DesignResult" in fit
+    # The fit's own status line, and no progress bar of each simulation it ran; the design's
+    # one bar of its budget's tests (none per batch or simulation).
+    assert re.search(r"evaluation \d+  SSE", fit)
+    assert fit.count("<progress") == 1 and re.search(r'<progress[^>]*max="10"', fit)
 
 
 def test_home_page_links_the_guides(site):

@@ -87,7 +87,8 @@ def design(
     overwrite
         Replace another run's results in ``folder`` instead of refusing.
     on_batch
-        Called after each round with its evaluations and the best design so far.
+        Called after each round with its evaluations and the best design so far. Default: in
+        a Jupyter notebook, a bar of the budget's tests done; elsewhere nothing.
 
     Returns
     -------
@@ -108,13 +109,15 @@ def design(
     base_config = resolve_config(base, **overrides)
     pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
     variables = list(variables.items()) if isinstance(variables, Mapping) else list(variables)
-    options = dict(constraints=[str(c) for c in constraints], budget=budget, batch=batch, initial=initial, replicates=replicates,
-                   verify=verify, seed=seed, pool=pool, on_batch=on_batch)
+    options = dict(constraints=[str(c) for c in constraints], budget=budget, batch=batch, initial=initial,
+                   replicates=replicates, verify=verify, seed=seed, pool=pool,
+                   on_batch=on_batch or _notebook_bar(budget, len(targets.directions)))
     if folder is None:
         return design_result(run_design(targets, variables, base=base_config, folder=None, **options))
     # A rerun with the same inputs resumes (its finished tests are read back); other inputs are refused.
     digest = inputs_digest([], config_digest(base_config), [t.label for t in targets.targets],
-                           [repr(t) for t in targets.targets], [str(v) for v in variables], options | {"on_batch": None})
+                           [repr(t) for t in targets.targets], [str(v) for v in variables],
+                           options | {"on_batch": None})
     with OutputFolder.claim(folder, "design", digest, DESIGN_OUTPUTS, overwrite=overwrite, resume="same-inputs"):
         result = design_result(run_design(targets, variables, base=base_config, folder=Path(folder), **options))
         result.write(folder)
@@ -122,6 +125,24 @@ def design(
 
 
 __all__ += ["DesignRun", "design_result", "run_design"]
+
+
+def _notebook_bar(budget: int, directions: int) -> Callable[[list[Evaluation], Evaluation], None] | None:
+    """In a notebook, a bar of the budget's tensile tests done, with the best design so far."""
+    from espin.core.progress import NotebookProgress, in_notebook
+
+    if not in_notebook():
+        return None
+    bar = NotebookProgress(budget, "test")
+    done = 0
+
+    def show(evaluations: list[Evaluation], best: Evaluation) -> None:
+        nonlocal done
+        done += len(evaluations) * directions
+        bar.update(done, "best so far: " + ", ".join(f"{k.removeprefix('rve.')} {v:.4g}"
+                                                      for k, v in best.values.items()))
+
+    return show
 
 
 class _DesignModule(types.ModuleType):

@@ -41,6 +41,9 @@ from espin.design.variables import Constraint, DesignSpace, DesignVariable
 from espin.geometry.rve import resolve_config
 from espin.studies.ensemble import TensileTask, plan_tasks, run_ensemble
 
+Output = tuple[str, float]
+"""(property or ``stress_at_<strain>``, loading direction [deg])."""
+
 __all__ = ["Evaluation", "DesignRun", "run_design", "MC_DRAWS", "CANDIDATES", "Z_95"]
 
 log = logging.getLogger(__name__)
@@ -157,7 +160,9 @@ def _evaluate(space: DesignSpace, targets: DesignTargets, evaluations: Sequence[
     planned = [(evaluation, direction, task) for evaluation in evaluations
                for direction, task in zip(directions, _tasks(space, directions, evaluation))]
     unique = list({task.key: task for _, _, task in planned}.values())
-    ensemble = run_ensemble(unique, None if folder is None else folder / "runs", **pool)
+    # no bar per batch: the design shows its own progress (espin.design.design)
+    ensemble = run_ensemble(unique, None if folder is None else folder / "runs", **pool,
+                            on_outcome=lambda outcome, task: None)
     records = {r["key"]: r for r in ensemble.records}
     failures = {f["key"]: f for f in ensemble.failures}
     for evaluation, direction, task in planned:
@@ -185,7 +190,7 @@ def _output(record: Mapping[str, Any], name: str) -> float:
     return math.nan if value is None else float(value)
 
 
-def _fit(targets: DesignTargets, evaluations: Sequence[Evaluation], seed: int) -> dict[tuple[str, float], PropertySurrogate]:
+def _fit(targets: DesignTargets, evaluations: Sequence[Evaluation], seed: int) -> dict[Output, PropertySurrogate]:
     """Surrogates of every output from the search-seed evaluations, sorted by id."""
     usable = sorted((e for e in evaluations if e.stage in ("initial", "search")), key=lambda e: e.id)
     surrogates = {}
@@ -227,7 +232,7 @@ def _candidates(space: DesignSpace, best: np.ndarray, seed: int) -> np.ndarray:
     return unit[space.feasible(unit)]
 
 
-def _believed(surrogates: dict[tuple[str, float], PropertySurrogate], x: np.ndarray) -> dict[tuple[str, float], PropertySurrogate]:
+def _believed(surrogates: dict[Output, PropertySurrogate], x: np.ndarray) -> dict[Output, PropertySurrogate]:
     """The surrogates with ``x`` added at its predicted mean, hyperparameters kept (kriging believer)."""
     from sklearn.gaussian_process import GaussianProcessRegressor
 
@@ -277,7 +282,7 @@ def _initial(space: DesignSpace, n: int, seed: int) -> np.ndarray:
     return feasible[np.sort(unique)][:n]
 
 
-def _realization_sd(targets: DesignTargets, evaluations: Sequence[Evaluation]) -> dict[tuple[str, float], tuple[float, int]]:
+def _realization_sd(targets: DesignTargets, evaluations: Sequence[Evaluation]) -> dict[Output, tuple[float, int]]:
     """Pooled sd of each output over the replicate groups (a design on several seeds: the first
     initial design and the best), in the surrogates' scale (log: relative), with its degrees of
     freedom."""
