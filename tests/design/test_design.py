@@ -63,6 +63,12 @@ def test_variables_and_constraints_are_checked_against_the_config():
     assert space.overrides(space.values([0.5, 0.5]))["rve.diameter_sd_um"] == pytest.approx(0.2 * 0.45)
     with pytest.raises(ConfigError, match="unknown quantity 'density'"):
         parse_constraint("density>=3")
+    with pytest.raises(ConfigError, match="a design variable is a key of the mat"):
+        parse_variable("loading.direction_deg=0:90")
+    with pytest.raises(ConfigError, match="as diameter_cv"):
+        parse_variable("diameter_sd_um=0:0.2")
+    # bounds as a mapping, as the docstring says
+    assert [v.key for v in DesignSpace.build(base, {"eta": (0.1, 0.3)}).variables] == ["rve.volume_fraction"]
 
 
 def _known(function):
@@ -122,6 +128,30 @@ def test_budget_and_base_are_checked_before_any_work():
         run_design(["E=150"], ["eta=0.1:0.3"], loading__test="equibiaxial", evaluator=_known(lambda v, s: {}))
     with pytest.raises(ConfigError, match="no point inside the variables' bounds meets them"):
         run_design(["E=150"], ["eta=0.2:0.3"], constraints=["porosity>=0.9"], evaluator=_known(lambda v, s: {}))
+    with pytest.raises(ConfigError, match="seed: an integer >= 0"):
+        run_design(["E=150"], ["eta=0.1:0.3"], seed=-1, evaluator=_known(lambda v, s: {}))
+    with pytest.raises(ConfigError, match="the bounds leave only 1 distinct design"):
+        run_design(["E=150"], ["layers=2.6:3.4"], evaluator=_known(lambda v, s: {}))
+
+
+def test_mapping_variables_and_the_scatter_message():
+    from espin.design.search import prepare_design
+
+    # bounds as a mapping go through the checks design() runs before claiming its folder
+    problem = prepare_design(["E=150"], {"eta": (0.1, 0.3)}, base="plla")
+    assert [v.key for v in problem.space.variables] == ["rve.volume_fraction"] and len(problem.first) == 6
+
+    # 12 % scatter between seeds against a 5 % tolerance, and a target out of reach: the report
+    # names the scatter.
+    def response(values, seed):
+        return {("modulus_MPa", 0.0): 1000.0 * values["rve.volume_fraction"] * _noise(values, seed, 0.12)}
+
+    result = design_result(run_design(["E=500"], {"eta": (0.1, 0.3)}, base="plla", budget=12, seed=1,
+                                      evaluator=_known(response)))
+    assert not result.reached and result.values["rve.volume_fraction"] > 0.28
+    assert "realization scatter is comparable to the tolerance (modulus_MPa@0" in result.message
+    sd, dof = result.run.realization_sd[("modulus_MPa", 0.0)]
+    assert dof == 4 and 0.04 < sd < 0.3  # two groups of three distinct seeds: the first and the best design
 
 
 @pytest.fixture(scope="module")
@@ -146,18 +176,30 @@ def test_small_design_meets_its_target_and_writes_its_files(small_design):
     assert math.isfinite(result.evaluations["objective"].iloc[0])
 
 
-def test_rerun_repeats_no_tensile_test(small_design, monkeypatch):
+def test_rerun_repeats_no_tensile_test_with_any_workers(small_design, monkeypatch):
     folder, overrides, result = small_design
-    import espin.studies.ensemble as ensemble
+    import espin.design.search as search
 
-    ran = []
-    monkeypatch.setattr(ensemble, "run_tensile", lambda task: ran.append(task) or pytest.fail("ran a test again"))
-    again = design(["E=150"], ["eta=0.1:0.3"], base="plla", budget=12, folder=folder, workers=1, **overrides)
-    assert not ran
+    def refusing(tasks, folder=None, **options):  # the ensemble may only read finished tests back
+        def task_function(task):
+            raise AssertionError(f"ran test {task.key} again")
+        return ensemble_run(tasks, folder, **options, task_function=task_function)
+
+    ensemble_run = search.run_ensemble
+    monkeypatch.setattr(search, "run_ensemble", refusing)
+    files = sorted((folder / "runs" / "tasks").glob("*.json"))
+    stamps = [f.stat().st_mtime_ns for f in files]
+    again = design(["E=150"], ["eta=0.1:0.3"], base="plla", budget=12, folder=folder, workers=2, **overrides)
+    assert sorted((folder / "runs" / "tasks").glob("*.json")) == files
+    assert [f.stat().st_mtime_ns for f in files] == stamps and not list((folder / "runs").glob("failed/*.json"))
     assert again.values == result.values
     # other inputs in the same folder are refused, not mixed in
     with pytest.raises(ConfigError, match="overwrite"):
         design(["E=160"], ["eta=0.1:0.3"], base="plla", budget=12, folder=folder, workers=1, **overrides)
+    # a refused input never touches the folder, even with overwrite
+    with pytest.raises(ConfigError, match="budget: 5 tensile tests"):
+        design(["E=150"], ["eta=0.1:0.3"], base="plla", budget=5, folder=folder, overwrite=True, **overrides)
+    assert sorted((folder / "runs" / "tasks").glob("*.json")) == files
 
 
 def test_same_seed_same_designs_with_two_workers(small_design, tmp_path):

@@ -12,12 +12,14 @@ from espin.cli.common import OverwriteOpt, PlanOpt, SetOpt, fail, parse_set, pri
 __all__ = ["register"]
 
 
-def _plan_text(space: Any, targets: Any, budget: int, verify: int, workers: int | None, calibration: Any) -> str:
+def _plan_text(space: Any, targets: Any, budget: int, replicates: int, verify: int, workers: int | None,
+               calibration: Any) -> str:
     from espin.mechanics.cost import plan
 
     middle = space.config([0.5] * space.dimension)
-    n_tests = budget + verify * len(targets.directions)
-    return plan([middle] * n_tests, workers, calibration).text() + " (the search's budget plus the verification)"
+    n_tests = budget + (replicates - 1 + verify) * len(targets.directions)
+    return plan([middle] * n_tests, workers, calibration).text() + " (the search's budget, then the best design's " \
+        "replicates and verification)"
 
 
 def design_command(
@@ -73,7 +75,7 @@ def design_command(
     """
     from rich.console import Console
 
-    from espin.core.errors import EspinError
+    from espin.core.errors import ConfigError, EspinError
     from espin.core.parallel import default_workers
     from espin.design import design
     from espin.design.targets import parse_targets
@@ -83,18 +85,22 @@ def design_command(
 
     console = Console(stderr=True, quiet=quiet, width=140)
     try:
+        if not target_curve and (curve_range is not None or curve_points != 12 or curve_tolerance != 0.05):
+            raise ConfigError("--curve-range, --curve-points and --curve-tolerance apply to a --target-curve; "
+                              "give one, or leave them out")
         targets = parse_targets([*(target or []), *_curves(target_curve or [], curve_range, curve_points,
                                                             curve_tolerance)])
         config = resolve_config(base, **{k.replace(".", "__"): v for k, v in parse_set(set_).items()})
         space = DesignSpace.build(config, var or [], constraint or [])
         n_workers = None if scheduler is not None else (workers or default_workers())
-        print_plan(lambda calibration: _plan_text(space, targets, budget, verify, n_workers, calibration), console,
-                   plan, lambda: _plan_seconds(space, targets, budget, verify, REFERENCE_CALIBRATION))
+        replicated = budget + (replicates - 1) * len(targets.directions)
+        print_plan(lambda calibration: _plan_text(space, targets, budget, replicates, verify, n_workers, calibration),
+                   console, plan, lambda: _plan_seconds(space, targets, replicated, verify, REFERENCE_CALIBRATION))
 
         def on_batch(evaluations: list, best: Any) -> None:
             ids = f"{evaluations[0].id}-{evaluations[-1].id}" if len(evaluations) > 1 else str(evaluations[0].id)
             shown = ", ".join(f"{key.removeprefix('rve.')} {value:.4g}" for key, value in best.values.items())
-            console.print(f"designs {ids} ({evaluations[-1].stage}) done; best so far #{best.id}: {shown}",
+            console.print(f"designs {ids} ({evaluations[0].stage}) done; best so far #{best.id}: {shown}",
                           highlight=False, soft_wrap=True)
 
         result = design(targets, var or [], base=config, constraints=constraint or [], budget=budget, batch=batch,

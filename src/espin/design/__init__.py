@@ -18,7 +18,7 @@ from typing import Any
 
 from espin.core.config import Config
 from espin.design.result import DESIGN_OUTPUTS, DesignResult, design_result
-from espin.design.search import DesignRun, Evaluation, run_design
+from espin.design.search import DesignRun, Evaluation, prepare_design, run_design
 from espin.design.targets import DesignTargets, PropertyTarget, RatioTarget, parse_targets
 from espin.design.variables import Constraint, DesignVariable
 
@@ -73,7 +73,8 @@ def design(
     initial
         Designs of the initial Sobol' sample (default 2 d + 2, at least 6).
     replicates
-        Seeds run at the first initial design to measure the realization scatter (>= 2).
+        Seeds run at the first initial design and at the best design to measure the
+        realization scatter (>= 2).
     verify
         Fresh seeds the best design is verified on (>= 2).
     seed
@@ -102,24 +103,23 @@ def design(
     from espin.core.config import config_digest
     from espin.core.output_folder import OutputFolder, inputs_digest
     from espin.core.parallel import check_pool
-    from espin.geometry.rve import resolve_config
 
     check_pool(workers, scheduler, blas_threads, security)
-    targets = parse_targets(targets)
-    base_config = resolve_config(base, **overrides)
+    counts = dict(budget=budget, batch=batch, initial=initial, replicates=replicates, verify=verify, seed=seed)
+    # every input is checked before the folder is claimed (a refused input never touches it)
+    problem = prepare_design(targets, variables, base=base, constraints=constraints, **counts, **overrides)
+    targets, space = problem.targets, problem.space
     pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
-    variables = list(variables.items()) if isinstance(variables, Mapping) else list(variables)
-    options = dict(constraints=[str(c) for c in constraints], budget=budget, batch=batch, initial=initial,
-                   replicates=replicates, verify=verify, seed=seed, pool=pool,
+    options = dict(base=space.base, constraints=space.constraints, pool=pool, **counts,
                    on_batch=on_batch or _notebook_bar(budget, len(targets.directions)))
     if folder is None:
-        return design_result(run_design(targets, variables, base=base_config, folder=None, **options))
-    # A rerun with the same inputs resumes (its finished tests are read back); other inputs are refused.
-    digest = inputs_digest([], config_digest(base_config), [t.label for t in targets.targets],
-                           [repr(t) for t in targets.targets], [str(v) for v in variables],
-                           options | {"on_batch": None})
+        return design_result(run_design(targets, space.variables, folder=None, **options))
+    # A rerun with the same inputs resumes (its finished tests are read back), with any workers;
+    # other inputs are refused.
+    digest = inputs_digest([], config_digest(space.base), [repr(t) for t in targets.targets],
+                           [repr(v) for v in space.variables], [str(c) for c in space.constraints], counts)
     with OutputFolder.claim(folder, "design", digest, DESIGN_OUTPUTS, overwrite=overwrite, resume="same-inputs"):
-        result = design_result(run_design(targets, variables, base=base_config, folder=Path(folder), **options))
+        result = design_result(run_design(targets, space.variables, folder=Path(folder), **options))
         result.write(folder)
     return result
 

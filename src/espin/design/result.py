@@ -218,6 +218,19 @@ def _table(run: DesignRun) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _noisy(run: DesignRun) -> str:
+    """The targets whose outputs scatter between seeds by more than half the tolerance
+    (relative sd), as ``modulus_MPa@0 11 % against 5 %``; empty when none do."""
+    out = []
+    for t in run.targets.targets:
+        if isinstance(t, RatioTarget) or t.name == "curve":
+            continue
+        s, _ = run.realization_sd.get((t.name, t.direction_deg), (math.nan, 0))
+        if math.isfinite(s) and s > 0.5 * t.tolerance:
+            out.append(f"{t.label} {100 * s:.2g} % between seeds against {100 * t.tolerance:.3g} %")
+    return ", ".join(out)
+
+
 def _binding(run: DesignRun) -> list[str]:
     space, best = run.space, run.best
     out = space.at_bounds(best.unit)
@@ -265,6 +278,10 @@ def design_result(run: DesignRun) -> DesignResult:
                 "; no bound or constraint is active: a larger budget may get closer"
             message = (f"target(s) {', '.join(missed)} not met: this is the nearest design found within the bounds"
                        f"{where}")
+        noisy = _noisy(run)
+        if noisy:
+            message += (f". The realization scatter is comparable to the tolerance ({noisy}): use a larger RVE or "
+                        "balanced sampling (rve.sampling = 'balanced'), or widen the tolerance")
     config = run.space.config(run.best.unit)
     return DesignResult(config, dict(run.best.values), rows, reached, message, binding, _table(run), run.tests,
                         run.budget, run.seconds, run, {})

@@ -44,7 +44,7 @@ from espin.studies.ensemble import TensileTask, plan_tasks, run_ensemble
 Output = tuple[str, float]
 """(property or ``stress_at_<strain>``, loading direction [deg])."""
 
-__all__ = ["Evaluation", "DesignRun", "run_design", "MC_DRAWS", "CANDIDATES", "Z_95"]
+__all__ = ["Evaluation", "DesignRun", "DesignProblem", "prepare_design", "run_design", "MC_DRAWS", "CANDIDATES", "Z_95"]
 
 log = logging.getLogger(__name__)
 
@@ -255,8 +255,10 @@ def _propose(space: DesignSpace, targets: DesignTargets, evaluations: Sequence[E
     proposals: list[np.ndarray] = []
     current = surrogates
     for k in range(batch):
-        incumbent = predicted_objective(targets, current, evaluated)
-        order = np.argsort(incumbent, kind="stable")[:3]
+        # the believed proposals count as data: no improvement is expected right beside them
+        known = np.vstack([evaluated, *proposals]) if proposals else evaluated
+        incumbent = predicted_objective(targets, current, known)
+        order = np.argsort(incumbent[:len(evaluated)], kind="stable")[:3]
         candidates = _candidates(space, evaluated[order], seed * 1000 + k)
         taken = np.vstack([evaluated, *proposals]) if proposals else evaluated
         distance = np.min(np.linalg.norm(candidates[:, None, :] - taken[None, :, :], axis=-1), axis=1)
@@ -286,15 +288,15 @@ def _realization_sd(targets: DesignTargets, evaluations: Sequence[Evaluation]) -
     """Pooled sd of each output over the replicate groups (a design on several seeds: the first
     initial design and the best), in the surrogates' scale (log: relative), with its degrees of
     freedom."""
-    groups: dict[bytes, list[Evaluation]] = {}
-    for e in evaluations:
+    groups: dict[bytes, dict[int, Evaluation]] = {}
+    for e in evaluations:  # one realization per (design, seed)
         if e.stage in ("initial", "search", "replicate"):
-            groups.setdefault(np.round(e.unit, 12).tobytes(), []).append(e)
+            groups.setdefault(np.round(e.unit, 12).tobytes(), {}).setdefault(e.seed, e)
     out = {}
     for output in targets.outputs:
         squares, dof = 0.0, 0
         for group in groups.values():
-            values = np.array([e.outputs.get(output, math.nan) for e in group], dtype=float)
+            values = np.array([e.outputs.get(output, math.nan) for e in group.values()], dtype=float)
             values = values[np.isfinite(values)]
             if len(values) < 2:
                 continue
@@ -303,6 +305,73 @@ def _realization_sd(targets: DesignTargets, evaluations: Sequence[Evaluation]) -
             dof += len(values) - 1
         out[output] = (math.sqrt(squares / dof) if dof else math.nan, dof)
     return out
+
+
+@dataclass(frozen=True)
+class DesignProblem:
+    """A design's checked inputs: its targets, its space (base config, variables, constraints)
+    and its initial designs (unit-cube points)."""
+
+    targets: DesignTargets
+    space: DesignSpace
+    first: np.ndarray
+
+
+def _count(name: str, value: Any, low: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+        raise ConfigError(f"{name}: an integer >= {low} (got {value!r})")
+    return int(value)
+
+
+def prepare_design(
+    targets: Iterable[str] | Mapping[str, float] | DesignTargets,
+    variables: Iterable[str | tuple[str, float, float] | DesignVariable] | Mapping[str, tuple[float, float]],
+    *,
+    base: Config | str | Path | None = "plla",
+    constraints: Iterable[str | Constraint] = (),
+    budget: int = 60,
+    batch: int = 2,
+    initial: int | None = None,
+    replicates: int = 3,
+    verify: int = 5,
+    seed: int = 0,
+    **overrides: Any,
+) -> DesignProblem:
+    """Check every input of a design (the parameters of :func:`espin.design.design`) before
+    any work or any file: the targets, the base config's loading, the variables' bounds, the
+    constraints (some initial designs must meet them), the counts and the budget.
+
+    Raises
+    ------
+    ConfigError
+        Naming the input and what is allowed.
+    """
+    targets = parse_targets(targets)
+    base = resolve_config(base, **overrides)
+    if base.loading.test != "uniaxial" or base.loading.program is not None:
+        raise ConfigError("design: the targets are properties of a uniaxial tensile test; the base config's "
+                          f"loading must be loading.test = 'uniaxial' without a program (got {base.loading.test!r})")
+    for target in targets.targets:
+        if isinstance(target, CurveTarget) and max(target.strain) > base.loading.max_strain * (1 + 1e-9):
+            raise ConfigError(f"curve target {target.source}: it reaches strain {max(target.strain):g} but the tests "
+                              f"stop at loading.max_strain = {base.loading.max_strain:g}; raise it "
+                              f"(--set loading.max_strain={max(target.strain):g}) or narrow the curve's strain range")
+    space = DesignSpace.build(base, variables, constraints)
+    budget, batch = _count("budget", budget, 1), _count("batch", batch, 1)
+    replicates, verify, seed = _count("replicates", replicates, 2), _count("verify", verify, 2), _count("seed", seed, 0)
+    n_initial = max(2 * space.dimension + 2, 6) if initial is None else _count("initial", initial, 3)
+    n_dir = len(targets.directions)
+    needed = (n_initial + replicates - 1) * n_dir
+    if budget < needed + n_dir:
+        raise ConfigError(f"budget: {budget} tensile tests cannot hold the initial design ({n_initial} designs + "
+                          f"{replicates - 1} replicates) x {n_dir} direction(s) = {needed} tests and one proposal; "
+                          f"give at least {needed + n_dir}")
+    first = _initial(space, n_initial, seed)
+    if len(first) < 3:
+        what = "bounds and constraints leave" if space.constraints else "bounds leave"
+        raise ConfigError(f"variables: the {what} only {len(first)} distinct design(s) (integer keys such as layers "
+                          "are rounded); widen the bounds" + (" or relax a constraint" if space.constraints else ""))
+    return DesignProblem(targets, space, first)
 
 
 def run_design(
@@ -331,29 +400,10 @@ def run_design(
     function to check the optimizer).
     """
     start = time.perf_counter()
-    targets = parse_targets(targets)
-    base = resolve_config(base, **overrides)
-    if base.loading.test != "uniaxial" or base.loading.program is not None:
-        raise ConfigError("design: the targets are properties of a uniaxial tensile test; the base config's "
-                          f"loading must be loading.test = 'uniaxial' without a program (got {base.loading.test!r})")
-    for target in targets.targets:
-        if isinstance(target, CurveTarget) and max(target.strain) > base.loading.max_strain * (1 + 1e-9):
-            raise ConfigError(f"curve target {target.source}: it reaches strain {max(target.strain):g} but the tests "
-                              f"stop at loading.max_strain = {base.loading.max_strain:g}; raise it "
-                              f"(--set loading.max_strain={max(target.strain):g}) or narrow the curve's strain range")
-    space = DesignSpace.build(base, variables, constraints)
-    d = space.dimension
-    n_initial = max(2 * d + 2, 6) if initial is None else int(initial)
+    problem = prepare_design(targets, variables, base=base, constraints=constraints, budget=budget, batch=batch,
+                             initial=initial, replicates=replicates, verify=verify, seed=seed, **overrides)
+    targets, space, base, first = problem.targets, problem.space, problem.space.base, problem.first
     n_dir = len(targets.directions)
-    for name, value, low in (("budget", budget, 1), ("batch", batch, 1), ("initial", n_initial, 3),
-                             ("replicates", replicates, 2), ("verify", verify, 2)):
-        if int(value) != value or value < low:
-            raise ConfigError(f"{name}: an integer >= {low} (got {value})")
-    needed = (n_initial + replicates - 1) * n_dir
-    if budget < needed + n_dir:
-        raise ConfigError(f"budget: {budget} tensile tests cannot hold the initial design ({n_initial} designs + "
-                          f"{replicates - 1} replicates) x {n_dir} direction(s) = {needed} tests and one proposal; "
-                          f"give at least {needed + n_dir}")
     pool = dict(pool or {})
     folder = None if folder is None else Path(folder)
     evaluate = evaluator or _evaluate
@@ -365,10 +415,6 @@ def run_design(
         evaluations.append(evaluation)
         return evaluation
 
-    first = _initial(space, n_initial, seed)
-    if len(first) < 3:
-        raise ConfigError(f"constraints: only {len(first)} distinct feasible points found for the initial design; "
-                          "widen the bounds or relax a constraint")
     batch_ = [new("initial", u, search_seed) for u in first]
     batch_ += [new("replicate", first[0], search_seed + k) for k in range(1, replicates)]
     evaluate(space, targets, batch_, folder, pool)
@@ -394,7 +440,8 @@ def run_design(
             on_batch(batch_, best)
     # Replicates at the best design too: the realization scatter varies over the design space
     # (a sparse mat scatters more), and the prediction interval is for this design.
-    again = [new("replicate", best.unit, search_seed + k) for k in range(1, replicates)]
+    # seeds the first design's replicates did not use: the best may be that design
+    again = [new("replicate", best.unit, search_seed + replicates - 1 + k) for k in range(1, replicates)]
     evaluate(space, targets, again, folder, pool)
     sd = _realization_sd(targets, evaluations)
     verification = [Evaluation(len(evaluations) + k, "verify", best.unit, dict(best.values),

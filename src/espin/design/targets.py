@@ -272,7 +272,7 @@ class DesignTargets:
 
     Attributes
     ----------
-    targets : tuple of PropertyTarget and RatioTarget
+    targets : tuple of PropertyTarget, RatioTarget and CurveTarget
         At least one; no two with the same label.
     """
 
@@ -342,7 +342,7 @@ def parse_targets(targets: Iterable[str | Target] | Mapping[str, float] | Design
     ----------
     targets
         ``["E=200", "E@0/E@90=3"]``, ``{"modulus_MPa": 200, "yield_stress_MPa": 6}``, or
-        :class:`PropertyTarget` / :class:`RatioTarget` objects.
+        :class:`PropertyTarget` / :class:`RatioTarget` / :class:`CurveTarget` objects.
     """
     if isinstance(targets, DesignTargets):
         return targets

@@ -58,6 +58,7 @@ _NOT_VARIABLES = {
     "rve.seed": "realizations are chosen by the design run",
     "rve.size_ratio": "the RVE size is a numerical choice, not a property of the mat",
     "rve.size_um": "the RVE size is a numerical choice, not a property of the mat",
+    "rve.diameter_sd_um": "search the diameter's spread as diameter_cv (sd / mean diameter)",
 }
 
 
@@ -186,6 +187,10 @@ def parse_variable(text: str | tuple[str, float, float]) -> DesignVariable:
         raise ConfigError(f"variable {name}: the fiber law is the material's, not the microstructure's: fit it to "
                           "your tensile tests with espin fit and give its fitted.toml as the base config")
     key = SHORT_NAMES.get(name, name if "." in name or name in DERIVED_KEYS else f"rve.{name}")
+    if not (key.startswith("rve.") or key in DERIVED_KEYS):
+        raise ConfigError(f"variable {name}: a design variable is a key of the mat, [rve] (or "
+                          f"{', '.join(DERIVED_KEYS)}); the loading and the solver are the test's, set them in the "
+                          "base config")
     if key in _NOT_VARIABLES:
         raise ConfigError(f"variable {name}: not a design variable: {_NOT_VARIABLES[key]}")
     return DesignVariable(key, float(low), float(high), integer=key in _INTEGER_KEYS, log=log)
@@ -275,7 +280,7 @@ class DesignSpace:
         return apply_overrides(self.base, self.overrides(self.values(unit)))
 
     def feasible(self, unit: np.ndarray) -> np.ndarray:
-        """Whether each row of ``unit`` (n, d) meets every constraint (checked on its config)."""
+        """Whether each row of ``unit`` (n, d) meets every constraint (from its variable values)."""
         if not self.constraints:
             return np.ones(len(unit), dtype=bool)
         out = np.empty(len(unit), dtype=bool)
