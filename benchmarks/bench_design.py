@@ -22,8 +22,9 @@ balanced sampling; workers=2 on this 2-core machine):
 * ``unreachable``: E = 1500 MPa with eta <= 0.3: must be reported as not reached, naming the
   volume fraction's upper bound.
 
-Per (benchmark, method, seed): tensile tests used by the search (deterministic) and for the
-verification, wall seconds, the verified relative error of every target (mean of the fresh
+Per (benchmark, method, seed): tensile tests used by the search (deterministic, within the
+budget) and for the checks (``verify_tests``: the verification seeds; for espin design also the
+best design's replicates, which it runs outside the budget), wall seconds, the verified relative error of every target (mean of the fresh
 seeds), the largest one, success. Each run lives in its own folder under the work directory
 (default benchmarks/runs/design/, gitignored; espin design resumes its finished tests there,
 the baselines and truths resume through the ensemble's task files), and each finished run
@@ -181,7 +182,8 @@ def run_espin(mode, bench, targets, seed, folder: Path, workers: int) -> dict:
     result = design(targets, spec["variables"], base="plla", budget=spec["budget"], batch=2, seed=seed,
                     verify=mode["verify"], folder=folder, workers=workers, **overrides)
     errors, worst, met = verified_errors(result.run.targets, result.run.verification)
-    return {"tests": result.tests, "verify_tests": len(result.run.verification) * len(result.run.targets.directions),
+    checks = getattr(result.run, "checks", len(result.run.verification) * len(result.run.targets.directions))
+    return {"tests": result.tests, "verify_tests": checks,
             "errors": errors, "max_error_pct": worst, "success": met, "reached": result.reached,
             "best": result.values, "message": result.message, "verification": result.run.verification,
             "targets": result.run.targets}
