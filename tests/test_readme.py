@@ -121,7 +121,7 @@ RUNS: dict[str, Run | Skip] = {
             f"--set rve.size_ratio=100 --set rve.layers=5 --set rve.sampling=balanced -o design --budget 12 {TINY} "
             f"{SHORT}",
             outputs=_in("design", ("design.toml", "design.json", "evaluations.csv", "convergence.png", "maps.png",
-                                   "verification.png")),
+                                   "verification.png", "pareto.png")),
             folders={"design": "design"}),
     "espin study sweep plla --grid rve.volume_fraction=0.15,0.19,0.23 --grid rve.max_deviation_deg=5,15 "
     "--realizations 5 -o sweep":  # long

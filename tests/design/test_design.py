@@ -121,6 +121,24 @@ def test_unreachable_target_names_the_binding_bound():
     assert "constraint porosity >= 0.8" in result.message and result.values["rve.volume_fraction"] <= 0.2 + 1e-9
 
 
+def test_competing_targets_give_a_pareto_front(tmp_path):
+    # E_0 = 1000 eta and E_90 = 500 eta: E_0 = 200 wants eta 0.2, E_90 = 150 wants eta 0.3.
+    def response(values, seed):
+        eta = values["rve.volume_fraction"]
+        return {("modulus_MPa", 0.0): 1000.0 * eta * _noise(values, seed, 0.002),
+                ("modulus_MPa", 90.0): 500.0 * eta * _noise(values, seed + 1, 0.002)}
+
+    result = design_result(run_design(["E=200", "E@90=150"], ["eta=0.1:0.3"], base="plla", budget=24,
+                                      evaluator=_known(response)))
+    table = result.evaluations
+    front = table[table["pareto"]]["rve.volume_fraction"]
+    # the trade-off lies between the two targets' own optima; designs outside it are dominated
+    assert len(front) >= 2 and front.between(0.195, 0.305).all()
+    assert not result.reached
+    files = result.write(tmp_path)
+    assert files["pareto"].is_file()
+
+
 def test_budget_and_base_are_checked_before_any_work():
     with pytest.raises(ConfigError, match="budget: 5 tensile tests cannot hold the initial design"):
         run_design(["E=150"], ["eta=0.1:0.3"], budget=5, evaluator=_known(lambda v, s: {}))

@@ -11,9 +11,9 @@ import pandas as pd
 
 from espin.core.figures import parameter_label, save_figure
 from espin.design.search import DesignRun
-from espin.design.targets import STRESS_AT, CurveTarget
+from espin.design.targets import STRESS_AT, CurveTarget, RatioTarget
 
-__all__ = ["plot_convergence", "plot_maps", "plot_verification", "PROPERTY_SYMBOLS"]
+__all__ = ["plot_convergence", "plot_maps", "plot_verification", "plot_pareto", "PROPERTY_SYMBOLS"]
 
 PROPERTY_SYMBOLS = {"modulus_MPa": ("$E$", "MPa"), "yield_stress_MPa": (r"$\sigma_y$", "MPa"),
                     "post_yield_modulus_MPa": ("$H$", "MPa"), "yield_strain": (r"$\varepsilon_y$", "")}
@@ -25,6 +25,16 @@ def _output_label(name: str, direction: float) -> str:
         return f"stress at {100 * float(name.removeprefix(STRESS_AT)):.3g} %, {direction:g}° [MPa]"
     symbol, unit = PROPERTY_SYMBOLS[name]
     return f"{symbol} at {direction:g}°" + (f" [{unit}]" if unit else "")
+
+
+def _target_label(target: Any) -> str:
+    """A target's quantity in the figures: ``$E$ at 0°``, ``$E$ at 0° / $E$ at 90°``, ``curve at 0°``."""
+    if isinstance(target, CurveTarget):
+        return f"curve at {target.direction_deg:g}°"
+    symbol = PROPERTY_SYMBOLS[target.name][0]
+    if isinstance(target, RatioTarget):
+        return f"{symbol} at {target.direction_deg:g}° / {symbol} at {target.over_direction_deg:g}°"
+    return f"{symbol} at {target.direction_deg:g}°"
 
 
 def plot_convergence(run: DesignRun, table: pd.DataFrame, path: str | Path) -> Path:
@@ -82,7 +92,8 @@ def plot_maps(run: DesignRun, path: str | Path) -> Path:
     fig = Figure(figsize=(max(3.2 * n_cols + 0.6, 7.0), 2.6 * n_rows + 1.2))
     axes = fig.subplots(n_rows, n_cols, squeeze=False)
     grid = np.linspace(0.0, 1.0, 101)
-    target_of = {(t.name, t.direction_deg): t for t in targets.targets if not hasattr(t, "over_direction_deg")}
+    target_of = {(t.name, t.direction_deg): t for t in targets.targets
+                 if not isinstance(t, (RatioTarget, CurveTarget))}
     for i, output in enumerate(outputs):
         surrogate = run.surrogates[output]
         for j, variable in enumerate(space.variables):
@@ -130,7 +141,7 @@ def plot_verification(run: DesignRun, path: str | Path) -> Path:
                 ax.plot(100 * np.asarray(strain), stress, color="C0", lw=1, alpha=0.8,
                         label=f"best design, {len(run.verification)} fresh seeds" if k == 0 else None)
         for t in run.targets.targets:
-            if getattr(t, "over_direction_deg", None) is not None or t.direction_deg != direction:
+            if isinstance(t, RatioTarget) or t.direction_deg != direction:
                 continue
             if isinstance(t, CurveTarget):
                 ax.plot(100 * np.asarray(t.strain), t.stress_MPa, "ko", ms=4, label=f"target curve ({t.source})")
@@ -143,4 +154,33 @@ def plot_verification(run: DesignRun, path: str | Path) -> Path:
         ax.set_ylabel("stress [MPa]")
         ax.set_title(f"loading at {direction:g}°")
         ax.legend(loc="lower right", fontsize="small")
+    return save_figure(fig, path, dpi=150)
+
+
+def plot_pareto(run: DesignRun, table: pd.DataFrame, path: str | Path) -> Path:
+    """The designs' absolute normalized errors for the first two targets (1 = at the tolerance),
+    the Pareto front (designs no other beats on every target) joined, the best design starred:
+    where two targets compete, the front is the trade-off on offer."""
+    from matplotlib.figure import Figure
+
+    first, second = run.targets.targets[:2]
+    search = table[table["stage"].isin(["initial", "search"])]
+    x = search[f"error_{first.label}"].abs().to_numpy(dtype=float)
+    y = search[f"error_{second.label}"].abs().to_numpy(dtype=float)
+    front = search["pareto"].to_numpy(dtype=bool)
+    fig = Figure(figsize=(5.6, 4.6))
+    ax = fig.subplots()
+    ax.fill_between([0.0, 1.0], 0.0, 1.0, color="0.9", lw=0, zorder=0, label="both within tolerance")
+    ax.plot(x[~front], y[~front], "k.", ms=5, alpha=0.6, label="evaluated design")
+    order = np.argsort(x[front])
+    ax.plot(x[front][order], y[front][order], "C3o-", ms=5, lw=1, label="Pareto front")
+    best = search["id"].to_numpy() == run.best.id
+    ax.plot(x[best], y[best], "C0*", ms=14, label="best design")
+    ax.set_xscale("symlog", linthresh=1.0)
+    ax.set_yscale("symlog", linthresh=1.0)
+    ax.set_xlabel(f"|error| of {_target_label(first)} / tolerance")
+    ax.set_ylabel(f"|error| of {_target_label(second)} / tolerance")
+    n_front = int(np.count_nonzero(front))
+    ax.set_title(f"{n_front} design{'s' * (n_front != 1)} on the Pareto front of two targets")
+    ax.legend(loc="lower right", fontsize="small")
     return save_figure(fig, path, dpi=150)

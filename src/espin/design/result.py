@@ -35,7 +35,7 @@ from espin.design.variables import constraint_value
 __all__ = ["DesignResult", "DESIGN_OUTPUTS", "design_result"]
 
 DESIGN_OUTPUTS = ("design.toml", "design.json", "evaluations.csv", "convergence.png", "maps.png",
-                  "verification.png", "runs/tasks/*.json", "runs/failed/*.json", "runs/results.csv")
+                  "verification.png", "pareto.png", "runs/tasks/*.json", "runs/failed/*.json", "runs/results.csv")
 """The files a design run writes (glob patterns relative to its folder)."""
 PI_DRAWS = 4000
 """Monte Carlo draws of the prediction interval."""
@@ -124,7 +124,7 @@ class DesignResult:
         """Write ``design.toml``, ``design.json``, ``evaluations.csv`` and the figures."""
         from espin.core.atomic import atomic_write, atomic_write_bytes
         from espin.core.config import write_config
-        from espin.design.figures import plot_convergence, plot_maps, plot_verification
+        from espin.design.figures import plot_convergence, plot_maps, plot_pareto, plot_verification
 
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
@@ -136,6 +136,8 @@ class DesignResult:
         files["convergence"] = plot_convergence(self.run, self.evaluations, folder / "convergence.png")
         files["maps"] = plot_maps(self.run, folder / "maps.png")
         files["verification"] = plot_verification(self.run, folder / "verification.png")
+        if len(self.run.targets.targets) >= 2:
+            files["pareto"] = plot_pareto(self.run, self.evaluations, folder / "pareto.png")
         self.files.update(files)
         return files
 
