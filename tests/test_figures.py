@@ -23,6 +23,7 @@ def caught(monkeypatch) -> list[Figure]:
     """The figures passed to ``save_figure`` (none is written)."""
     import espin.analysis.calibration.figures
     import espin.core.figures
+    import espin.design.figures
     import espin.geometry.figures
     import espin.imaging.figures
     import espin.mechanics.figures
@@ -35,7 +36,7 @@ def caught(monkeypatch) -> list[Figure]:
         return Path(path)
 
     for module in (espin.core.figures, espin.analysis.calibration.figures, espin.geometry.figures,
-                   espin.imaging.figures, espin.mechanics.figures, espin.studies.figures):
+                   espin.imaging.figures, espin.mechanics.figures, espin.studies.figures, espin.design.figures):
         monkeypatch.setattr(module, "save_figure", catch)
     return figures
 
@@ -238,10 +239,28 @@ def _figures_of_every_stage(pulled, tmp_path) -> None:
                         for s in (10, 20, 30) for n in (2, 3) for seed in (1, 2)])
     plot_dof_study(dof, tmp_path / "dof.png")
 
+    from espin.design.figures import plot_convergence, plot_maps, plot_pareto, plot_verification
+    from espin.design.result import design_result
+    from espin.design.search import run_design
+
+    def evaluate(space, targets, evaluations, folder, pool):  # a known anisotropic response
+        for e in evaluations:
+            eta, kappa = e.values["rve.volume_fraction"], e.values["rve.orientation.von_mises.kappa"]
+            e.outputs.update({("modulus_MPa", 0.0): 1100.0 * eta * (1 + 0.15 * kappa) * (1 + 0.001 * e.seed % 7),
+                              ("modulus_MPa", 90.0): 1100.0 * eta / (1 + 0.1 * kappa)})
+            e.curves = {d: (list(strain), list(stress)) for d in (0.0, 90.0)}
+
+    designed = design_result(run_design(["E=352", "E@0/E@90=2.24"], ["eta=0.1:0.3", "kappa=0:8"], budget=22,
+                                        evaluator=evaluate))
+    plot_convergence(designed.run, designed.evaluations, tmp_path / "convergence.png")
+    plot_maps(designed.run, tmp_path / "maps.png")
+    plot_verification(designed.run, tmp_path / "verification.png")
+    plot_pareto(designed.run, designed.evaluations, tmp_path / "pareto.png")
+
 
 def test_every_figure_types_units_and_symbols(pulled, caught, tmp_path):
     _figures_of_every_stage(pulled, tmp_path)
-    assert len(caught) == 19
+    assert len(caught) == 23
     problems = [f"{text!r}: {why}" for fig in caught for text in texts(fig) for why in untypeset(text)]
     assert not problems, "\n".join(problems)
     # Every error bar says what it is: mean ± sd and n, in the figure's titles or legends.
