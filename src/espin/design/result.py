@@ -220,6 +220,13 @@ def _table(run: DesignRun) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _remedy(run: DesignRun) -> str:
+    """What lowers the scatter between seeds of this run's mats."""
+    if run.space.base.rve.sampling == "balanced":
+        return "a larger RVE (rve.size_ratio, rve.layers)"
+    return "a larger RVE or balanced sampling (rve.sampling = 'balanced')"
+
+
 def _noisy(run: DesignRun) -> str:
     """The targets whose outputs scatter between seeds by more than half the tolerance
     (relative sd), as ``modulus_MPa@0 11 % against 5 %``; empty when none do."""
@@ -273,8 +280,8 @@ def design_result(run: DesignRun) -> DesignResult:
                                 if math.isfinite(s))
             message = (f"target(s) {', '.join(missed)} not met by the fresh seeds' mean although the search seed's "
                        f"mat met them: one realization differs from the seeds' mean (scatter between seeds: "
-                       f"{scatter}); give a larger budget (the search then aims at the tolerance's middle), a larger "
-                       "RVE or balanced sampling (rve.sampling = 'balanced'), or a wider tolerance")
+                       f"{scatter}); give a larger budget (the search then aims at the tolerance's middle), "
+                       f"{_remedy(run)}, or a wider tolerance")
         else:
             where = ("; it presses against " + ", ".join(binding)) if binding else \
                 "; no bound or constraint is active: a larger budget may get closer"
@@ -282,8 +289,8 @@ def design_result(run: DesignRun) -> DesignResult:
                        f"{where}")
         noisy = _noisy(run)
         if noisy:
-            message += (f". The realization scatter is comparable to the tolerance ({noisy}): use a larger RVE or "
-                        "balanced sampling (rve.sampling = 'balanced'), or widen the tolerance")
+            message += (f". The realization scatter is comparable to the tolerance ({noisy}): use {_remedy(run)}, or "
+                        "widen the tolerance")
     config = run.space.config(run.best.unit)
     return DesignResult(config, dict(run.best.values), rows, reached, message, binding, _table(run), run.tests,
                         run.budget, run.seconds, run, {})
