@@ -297,11 +297,14 @@ def main() -> None:
     parser.add_argument("--seeds", default=None, help="optimizer seeds, comma separated (default 0,1,2)")
     parser.add_argument("--only", default="recovery,anisotropy,unreachable,curve", help="benchmarks to run")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--archive", type=Path, default=None,
+                        help="CSV of finished rows (default benchmarks/data/design/results.csv; another file reruns "
+                             "rows already archived there, e.g. after a change to espin design)")
     args = parser.parse_args()
 
     mode = QUICK if args.quick else FULL
     work = args.work / ("quick" if args.quick else "full")
-    archive = DATA / ("results_quick.csv" if args.quick else "results.csv")
+    archive = args.archive or DATA / ("results_quick.csv" if args.quick else "results.csv")
     seeds = mode["seeds"] if args.seeds is None else [int(s) for s in args.seeds.split(",")]
     benches = args.only.split(",")
     done = {(r["benchmark"], r["method"], r["seed"]) for r in read_archive(archive)}
