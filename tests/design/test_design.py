@@ -25,6 +25,7 @@ def test_targets_parse_with_tolerances_directions_and_ratios():
     assert parse_target("E=150") == PropertyTarget("modulus_MPa", 150.0, 0.05, 0.0)
     assert parse_target("sigma_y@90=4.5+-3%") == PropertyTarget("yield_stress_MPa", 4.5, 0.03, 90.0)
     assert parse_target("E@0/E@90=3") == RatioTarget("modulus_MPa", 3.0, 0.05, 0.0, 90.0)
+    assert parse_target("E@-90=70") == parse_target("E@90=70")  # the same test of a planar mat
     targets = parse_targets({"modulus_MPa": 200, "E@90": 70})
     assert targets.directions == (0.0, 90.0)
     assert targets.outputs == (("modulus_MPa", 0.0), ("modulus_MPa", 90.0))
@@ -39,6 +40,7 @@ def test_targets_parse_with_tolerances_directions_and_ratios():
     ("E=5+-150%", "tolerance: must be in (0, 1)"),
     ("E@0/sigma_y@90=3", "a ratio compares one property"),
     ("E@0/E@0=3", "the two directions must differ"),
+    ("E@0/E@180=3", "the two directions must differ"),
     ("E 150", "write NAME[@DIR]=VALUE"),
 ])
 def test_bad_targets_are_refused_with_the_rule(text, message):
@@ -146,6 +148,8 @@ def test_budget_and_base_are_checked_before_any_work():
         run_design(["E=150"], ["eta=0.1:0.3"], loading__test="equibiaxial", evaluator=_known(lambda v, s: {}))
     with pytest.raises(ConfigError, match="no point inside the variables' bounds meets them"):
         run_design(["E=150"], ["eta=0.2:0.3"], constraints=["porosity>=0.9"], evaluator=_known(lambda v, s: {}))
+    with pytest.raises(ConfigError, match="target yield_strain 0.04: the tests stop at loading.max_strain = 0.03"):
+        run_design(["eps_y=0.04"], ["eta=0.1:0.3"], loading__max_strain=0.03, evaluator=_known(lambda v, s: {}))
     with pytest.raises(ConfigError, match="seed: an integer >= 0"):
         run_design(["E=150"], ["eta=0.1:0.3"], seed=-1, evaluator=_known(lambda v, s: {}))
     with pytest.raises(ConfigError, match="the bounds leave only 1 distinct design"):

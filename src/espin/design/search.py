@@ -355,6 +355,10 @@ def prepare_design(
         raise ConfigError("design: the targets are properties of a uniaxial tensile test; the base config's "
                           f"loading must be loading.test = 'uniaxial' without a program (got {base.loading.test!r})")
     for target in targets.targets:
+        if target.name == "yield_strain" and target.value * (1 + target.tolerance) >= base.loading.max_strain:
+            raise ConfigError(f"target yield_strain {target.value:g}: the tests stop at loading.max_strain = "
+                              f"{base.loading.max_strain:g}, before such a yield could show; raise loading.max_strain "
+                              "to a few times the target")
         if isinstance(target, CurveTarget) and max(target.strain) > base.loading.max_strain * (1 + 1e-9):
             raise ConfigError(f"curve target {target.source}: it reaches strain {max(target.strain):g} but the tests "
                               f"stop at loading.max_strain = {base.loading.max_strain:g}; raise it "

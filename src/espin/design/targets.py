@@ -55,10 +55,12 @@ def _check_number(what: str, value: float, low: float, high: float) -> float:
 
 
 def _direction(value: float) -> float:
+    """A loading direction in [0, 180) deg: a planar mat pulled at theta and theta + 180 (or
+    -theta + 180) is the same test."""
     value = float(value)
     if not (math.isfinite(value) and -180.0 <= value <= 180.0):
         raise ConfigError(f"target direction: an angle in degrees in [-180, 180] (got {value:g})")
-    return value
+    return value % 180.0
 
 
 @dataclass(frozen=True)
