@@ -261,3 +261,24 @@ def test_curve_target_recovers_a_known_design():
     assert run.best.values["rve.waviness_deg"] == pytest.approx(15.0, abs=2.0)
     with pytest.raises(ConfigError, match="raise it \\(--set loading.max_strain=0.1\\)"):
         run_design([target], ["eta=0.1:0.3"], base="plla", loading__max_strain=0.05, evaluator=_known(response))
+
+
+def test_realizations_per_design_model_the_seed_mean():
+    # 6 % scatter between seeds against a 5 % tolerance: each design on 3 seeds, their mean modelled.
+    def response(values, seed):
+        return {("modulus_MPa", 0.0): 1000.0 * values["rve.volume_fraction"] * _noise(values, seed, 0.06)}
+
+    run = run_design(["E=200"], ["eta=0.1:0.3"], base="plla", budget=45, realizations=3, seed=2,
+                     evaluator=_known(response))
+    searched = [e for e in run.evaluations if e.stage in ("initial", "search")]
+    by_design: dict[float, set[int]] = {}
+    for e in searched:
+        by_design.setdefault(e.values["rve.volume_fraction"], set()).add(e.seed)
+    assert all(seeds == {1, 2, 3} for seeds in by_design.values())  # the same three seeds everywhere
+    replicate_seeds = {e.seed for e in run.evaluations if e.stage == "replicate"}
+    assert replicate_seeds.isdisjoint({1, 2, 3}) and run.realizations == 3
+    assert run.tests <= 45 and (run.tests - 2) % 3 == 0  # 2 replicates, then 3 tests per design
+    # the best design's outputs are its seeds' mean, and the truth (eta 0.2) is near
+    assert run.best.values["rve.volume_fraction"] == pytest.approx(0.2, rel=0.06)
+    with pytest.raises(ConfigError, match="realizations: an integer >= 1"):
+        run_design(["E=200"], ["eta=0.1:0.3"], realizations=0, evaluator=_known(response))

@@ -55,6 +55,9 @@ def design_command(
     replicates: Annotated[int, typer.Option(help="Seeds run at the first and the best design to measure "
                                                  "the realization scatter.")] = 3,
     verify: Annotated[int, typer.Option(help="Fresh seeds the best design is verified on.")] = 5,
+    realizations: Annotated[int, typer.Option(
+        help="Seeds every searched design runs on (their mean is modelled). Raise it to 2-4 when the report says "
+             "the scatter between seeds is comparable to the tolerance.")] = 1,
     seed: Annotated[int, typer.Option(help="Seed of the search (initial sample, candidates).")] = 0,
     workers: Annotated[Optional[int], typer.Option(help="Worker processes (default: all cores; 1 = serial).")] = None,
     scheduler: Annotated[Optional[str], typer.Option(
@@ -104,7 +107,8 @@ def design_command(
                           highlight=False, soft_wrap=True)
 
         result = design(targets, var or [], base=config, constraints=constraint or [], budget=budget, batch=batch,
-                        initial=initial, replicates=replicates, verify=verify, seed=seed, folder=out,
+                        initial=initial, replicates=replicates, verify=verify, seed=seed, realizations=realizations,
+                        folder=out,
                         workers=workers, scheduler=scheduler, overwrite=overwrite, on_batch=on_batch)
     except EspinError as err:
         fail(err)

@@ -38,6 +38,7 @@ def design(
     replicates: int = 3,
     verify: int = 5,
     seed: int = 0,
+    realizations: int = 1,
     folder: str | Path | None = None,
     workers: int | None = 1,
     scheduler: Any = None,
@@ -79,7 +80,12 @@ def design(
         Fresh seeds the best design is verified on (>= 2).
     seed
         Seed of the initial sample, candidates and surrogate restarts (the mats' seeds are
-        the base config's ``rve.seed``, + 1, ... for replicates, + 100000 ... to verify).
+        the base config's ``rve.seed``, + 1, ... for realizations and replicates, + 100000
+        ... to verify).
+    realizations
+        Seeds every searched design runs on (the surrogates model their mean; each costs
+        ``realizations`` tests per direction). 1 (common random numbers on one seed) unless
+        the report says the scatter between seeds is comparable to the tolerance: then 2-4.
     folder
         Results folder: ``design.toml``, ``design.json``, ``evaluations.csv``, figures, and
         ``runs/`` (every tensile test; a rerun with the same inputs repeats none).
@@ -105,7 +111,8 @@ def design(
     from espin.core.parallel import check_pool
 
     check_pool(workers, scheduler, blas_threads, security)
-    counts = dict(budget=budget, batch=batch, initial=initial, replicates=replicates, verify=verify, seed=seed)
+    counts = dict(budget=budget, batch=batch, initial=initial, replicates=replicates, verify=verify, seed=seed,
+                  realizations=realizations)
     # every input is checked before the folder is claimed (a refused input never touches it)
     problem = prepare_design(targets, variables, base=base, constraints=constraints, **counts, **overrides)
     targets, space = problem.targets, problem.space

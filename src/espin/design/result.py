@@ -2,11 +2,11 @@
 
 The 95 % prediction interval of a property is for the **mean of the verification seeds** at
 the best design: the surrogate's latent uncertainty there, plus the realization scatter of the
-search seed's mat about the seed mean (the search sees one realization per design), plus the
+search seeds' mean about the seed mean (the search sees r realizations per design), plus the
 scatter of the mean of the ``n`` verification seeds (both from the replicates' pooled sd, with
 its few degrees of freedom carried by a Student t draw):
 
-    var = s_surrogate^2 + s_realization^2 (1 + 1 / n),
+    var = s_surrogate^2 + s_realization^2 (1 / r + 1 / n),
 
 in the surrogate's scale (log for positive properties), by Monte Carlo through the targets
 (so a ratio's interval comes out right too). The stresses of a curve target share one draw
@@ -174,7 +174,7 @@ def _interval(run: DesignRun) -> dict[str, tuple[float, float, float]]:
         mean, sd = surrogate.predict(best.unit[None, :])
         s_real, dof = run.realization_sd.get(output, (math.nan, 0))
         s_real = 0.0 if not math.isfinite(s_real) else s_real
-        total = math.sqrt(float(sd[0]) ** 2 + s_real**2 * (1.0 + 1.0 / n))
+        total = math.sqrt(float(sd[0]) ** 2 + s_real**2 * (1.0 / run.realizations + 1.0 / n))
         shocks = rng.standard_t(dof, PI_DRAWS) if dof > 0 else rng.standard_normal(PI_DRAWS)
         if output[0].startswith(STRESS_AT):
             shocks = shared.setdefault(output[1], shocks)
@@ -221,10 +221,11 @@ def _table(run: DesignRun) -> pd.DataFrame:
 
 
 def _remedy(run: DesignRun) -> str:
-    """What lowers the scatter between seeds of this run's mats."""
+    """What lowers the scatter between seeds of this run's mats or its effect on the search."""
+    more = f"more realizations per design (--realizations {max(2, 2 * run.realizations)})"
     if run.space.base.rve.sampling == "balanced":
-        return "a larger RVE (rve.size_ratio, rve.layers)"
-    return "a larger RVE or balanced sampling (rve.sampling = 'balanced')"
+        return f"{more}, a larger RVE (rve.size_ratio, rve.layers)"
+    return f"{more}, a larger RVE or balanced sampling (rve.sampling = 'balanced')"
 
 
 def _noisy(run: DesignRun) -> str:

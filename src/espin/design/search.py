@@ -127,6 +127,8 @@ class DesignRun:
     seconds: float
     met: bool
     folder: Path | None
+    realizations: int = 1
+    """Seeds each searched design ran on (the surrogates model their mean)."""
 
 
 def _sobol(d: int, n: int, seed: int) -> np.ndarray:
@@ -193,9 +195,39 @@ def _output(record: Mapping[str, Any], name: str) -> float:
     return math.nan if value is None else float(value)
 
 
+def _designs(targets: DesignTargets, evaluations: Sequence[Evaluation]) -> list[Evaluation]:
+    """The searched designs in id order, each with its outputs averaged over its search seeds
+    (geometric mean of positive values; ``realizations`` seeds per design), as an evaluation
+    carrying the id, stage and seed of its first."""
+    groups: dict[bytes, list[Evaluation]] = {}
+    for e in sorted(evaluations, key=lambda e: e.id):
+        if e.stage in ("initial", "search"):
+            groups.setdefault(np.round(e.unit, 12).tobytes(), []).append(e)
+    out = []
+    for group in groups.values():
+        first = group[0]
+        if len(group) == 1:
+            out.append(first)
+            continue
+        means = {}
+        for output in targets.outputs:
+            values = np.array([e.outputs.get(output, math.nan) for e in group], dtype=float)
+            values = values[np.isfinite(values)]
+            if len(values) == 0:
+                means[output] = math.nan
+            elif np.all(values > 0):
+                means[output] = float(np.exp(np.mean(np.log(values))))
+            else:
+                means[output] = float(np.mean(values))
+        out.append(Evaluation(first.id, first.stage, first.unit, dict(first.values), first.seed, means,
+                              sum(e.seconds for e in group), "; ".join(e.error for e in group if e.error),
+                              dict(first.curves)))
+    return out
+
+
 def _fit(targets: DesignTargets, evaluations: Sequence[Evaluation], seed: int) -> dict[Output, PropertySurrogate]:
-    """Surrogates of every output from the search-seed evaluations, sorted by id."""
-    usable = sorted((e for e in evaluations if e.stage in ("initial", "search")), key=lambda e: e.id)
+    """Surrogates of every output from the searched designs (their seed means), in id order."""
+    usable = _designs(targets, evaluations)
     surrogates = {}
     for output in targets.outputs:
         rows = [(e.unit, e.outputs.get(output, math.nan)) for e in usable]
@@ -253,7 +285,7 @@ def _believed(surrogates: dict[Output, PropertySurrogate], x: np.ndarray) -> dic
 def _propose(space: DesignSpace, targets: DesignTargets, evaluations: Sequence[Evaluation],
              surrogates: dict[tuple[str, float], PropertySurrogate], batch: int, seed: int) -> list[np.ndarray]:
     """``batch`` proposals by expected improvement with the kriging believer."""
-    evaluated = np.array([e.unit for e in evaluations if e.stage in ("initial", "search")])
+    evaluated = np.array([e.unit for e in _designs(targets, evaluations)])
     z = _draws(len(targets.outputs), seed)
     proposals: list[np.ndarray] = []
     current = surrogates
@@ -318,6 +350,7 @@ class DesignProblem:
     targets: DesignTargets
     space: DesignSpace
     first: np.ndarray
+    realizations: int = 1
 
 
 def _count(name: str, value: Any, low: int) -> int:
@@ -338,6 +371,7 @@ def prepare_design(
     replicates: int = 3,
     verify: int = 5,
     seed: int = 0,
+    realizations: int = 1,
     **overrides: Any,
 ) -> DesignProblem:
     """Check every input of a design (the parameters of :func:`espin.design.design`) before
@@ -368,17 +402,18 @@ def prepare_design(
     replicates, verify, seed = _count("replicates", replicates, 2), _count("verify", verify, 2), _count("seed", seed, 0)
     n_initial = max(2 * space.dimension + 2, 6) if initial is None else _count("initial", initial, 3)
     n_dir = len(targets.directions)
-    needed = (n_initial + replicates - 1) * n_dir
-    if budget < needed + n_dir:
-        raise ConfigError(f"budget: {budget} tensile tests cannot hold the initial design ({n_initial} designs + "
-                          f"{replicates - 1} replicates) x {n_dir} direction(s) = {needed} tests and one proposal; "
-                          f"give at least {needed + n_dir}")
+    realizations = _count("realizations", realizations, 1)
+    needed = (n_initial * realizations + replicates - 1) * n_dir
+    if budget < needed + n_dir * realizations:
+        raise ConfigError(f"budget: {budget} tensile tests cannot hold the initial design ({n_initial} designs x "
+                          f"{realizations} realization(s) + {replicates - 1} replicates) x {n_dir} direction(s) = "
+                          f"{needed} tests and one proposal; give at least {needed + n_dir * realizations}")
     first = _initial(space, n_initial, seed)
     if len(first) < 3:
         what = "bounds and constraints leave" if space.constraints else "bounds leave"
         raise ConfigError(f"variables: the {what} only {len(first)} distinct design(s) (integer keys such as layers "
                           "are rounded); widen the bounds" + (" or relax a constraint" if space.constraints else ""))
-    return DesignProblem(targets, space, first)
+    return DesignProblem(targets, space, first, realizations)
 
 
 def run_design(
@@ -393,6 +428,7 @@ def run_design(
     replicates: int = 3,
     verify: int = 5,
     seed: int = 0,
+    realizations: int = 1,
     folder: str | Path | None = None,
     pool: Mapping[str, Any] | None = None,
     on_batch: Callable[[list[Evaluation], Evaluation], None] | None = None,
@@ -408,9 +444,11 @@ def run_design(
     """
     start = time.perf_counter()
     problem = prepare_design(targets, variables, base=base, constraints=constraints, budget=budget, batch=batch,
-                             initial=initial, replicates=replicates, verify=verify, seed=seed, **overrides)
+                             initial=initial, replicates=replicates, verify=verify, seed=seed,
+                             realizations=realizations, **overrides)
     targets, space, base, first = problem.targets, problem.space, problem.space.base, problem.first
     n_dir = len(targets.directions)
+    cost = n_dir * realizations  # tensile tests per proposed design
     pool = dict(pool or {})
     folder = None if folder is None else Path(folder)
     evaluate = evaluator or _evaluate
@@ -422,8 +460,10 @@ def run_design(
         evaluations.append(evaluation)
         return evaluation
 
-    batch_ = [new("initial", u, search_seed) for u in first]
-    batch_ += [new("replicate", first[0], search_seed + k) for k in range(1, replicates)]
+    seeds = [search_seed + k for k in range(realizations)]  # every design on the same seeds
+    spare = search_seed + realizations - 1  # replicate seeds come after the search seeds
+    batch_ = [new("initial", u, s) for u in first for s in seeds]
+    batch_ += [new("replicate", first[0], spare + k) for k in range(1, replicates)]
     evaluate(space, targets, batch_, folder, pool)
     tests = len(batch_) * n_dir
     surrogates = _fit(targets, evaluations, seed)
@@ -432,13 +472,13 @@ def run_design(
         on_batch(batch_, best)
     round_ = 1
     scatter = _realization_sd(targets, evaluations)  # from the first design's replicates
-    while not _confident(targets, best, scatter) and tests + n_dir <= budget:
-        q = min(batch, (budget - tests) // n_dir)
+    while not _confident(targets, best, scatter, realizations) and tests + cost <= budget:
+        q = min(batch, (budget - tests) // cost)
         proposals = _propose(space, targets, evaluations, surrogates, q, seed + round_)
         if not proposals:
             log.info("design: no new candidate left to propose")
             break
-        batch_ = [new("search", u, search_seed) for u in proposals]
+        batch_ = [new("search", u, s) for u in proposals for s in seeds]
         evaluate(space, targets, batch_, folder, pool)
         tests += len(batch_) * n_dir
         surrogates = _fit(targets, evaluations, seed)
@@ -449,7 +489,7 @@ def run_design(
     # Replicates at the best design too: the realization scatter varies over the design space
     # (a sparse mat scatters more), and the prediction interval is for this design.
     # seeds the first design's replicates did not use: the best may be that design
-    again = [new("replicate", best.unit, search_seed + replicates - 1 + k) for k in range(1, replicates)]
+    again = [new("replicate", best.unit, spare + replicates - 1 + k) for k in range(1, replicates)]
     evaluate(space, targets, again, folder, pool)
     sd = _realization_sd(targets, evaluations)
     verification = [Evaluation(len(evaluations) + k, "verify", best.unit, dict(best.values),
@@ -457,14 +497,14 @@ def run_design(
     evaluate(space, targets, verification, folder, pool)
     checks = (len(again) + len(verification)) * n_dir
     return DesignRun(targets, space, evaluations, surrogates, best, sd, verification, tests, budget, checks,
-                     time.perf_counter() - start, _meets(targets, best), folder)
+                     time.perf_counter() - start, _meets(targets, best), folder, realizations)
 
 
 def _best(targets: DesignTargets, evaluations: Sequence[Evaluation],
           surrogates: Mapping[tuple[str, float], PropertySurrogate]) -> Evaluation:
-    """The evaluated search-seed design whose surrogate-predicted objective is least (ties: lowest id)."""
-    usable = [e for e in evaluations if e.stage in ("initial", "search")
-              and np.all(np.isfinite(e.output_array(targets.outputs)))]
+    """The searched design whose surrogate-predicted objective is least (ties: lowest id), with
+    its seed-mean outputs."""
+    usable = [e for e in _designs(targets, evaluations) if np.all(np.isfinite(e.output_array(targets.outputs)))]
     if not usable:
         raise SolverError("design: no evaluated design gave every targeted property; the curves show no yield or "
                           "the tests fail in this design space: narrow the bounds")
@@ -481,15 +521,16 @@ def _target_scatter(target: Any, scatter: Mapping[Output, tuple[float, int]]) ->
     return math.sqrt(sum(s * s for s in sds if math.isfinite(s)))
 
 
-def _confident(targets: DesignTargets, best: Evaluation, scatter: Mapping[Output, tuple[float, int]]) -> bool:
+def _confident(targets: DesignTargets, best: Evaluation, scatter: Mapping[Output, tuple[float, int]],
+               realizations: int = 1) -> bool:
     """Whether the search may stop: the best design's own errors within :data:`STOP_FRACTION`
     of every tolerance and, with one sd of the scatter between seeds added, within the
     tolerance (a target that scatters by more than its tolerance never stops the search early)."""
     props = {o: np.array(best.outputs.get(o, math.nan)) for o in targets.outputs}
     for target in targets.targets:
         error = abs(float(target.error(props)))
-        if not (math.isfinite(error) and error <= STOP_FRACTION
-                and error + _target_scatter(target, scatter) / target.tolerance <= 1.0):
+        spread = _target_scatter(target, scatter) / math.sqrt(realizations)  # of the design's seed mean
+        if not (math.isfinite(error) and error <= STOP_FRACTION and error + spread / target.tolerance <= 1.0):
             return False
     return True
 
