@@ -233,8 +233,11 @@ def _fit(targets: DesignTargets, evaluations: Sequence[Evaluation], seed: int) -
         rows = [(e.unit, e.outputs.get(output, math.nan)) for e in usable]
         rows = [(u, y) for u, y in rows if math.isfinite(y)]
         if len(rows) < 3:
-            raise SolverError(f"design: only {len(rows)} evaluations give {output[0]} at {output[1]:g} deg; the "
-                              "curves show no yield or the tests fail in this design space: narrow the bounds")
+            failed = [e.error for e in evaluations if e.error]
+            why = (f"{len(failed)} tensile tests failed, the first: {failed[0]}" if failed else
+                   "the curves show no such property (no yield?)")
+            raise SolverError(f"design: only {len(rows)} designs give {output[0]} at {output[1]:g} deg: {why}; "
+                              "narrow the bounds, or see the tests' errors in the folder's runs/failed/")
         surrogates[output] = fit_surrogate(np.array([u for u, _ in rows]), np.array([y for _, y in rows]), seed=seed)
     return surrogates
 
