@@ -41,14 +41,15 @@ _EXPORTS = {
     "measure": "espin.imaging.measurement",
     "calibrate_geometry": "espin.imaging.geometry_calibration",
     "design": "espin.design",
+    "specimen": "espin.specimen",
 }
 
 __all__ = ["__version__", *_EXPORTS]
 
 
 def __getattr__(name: str) -> Any:
-    if name == "design":  # the package, callable as its function (espin.design(...))
-        return importlib.import_module("espin.design")
+    if name in ("design", "specimen"):  # the package, callable as its function (espin.design(...))
+        return importlib.import_module(f"espin.{name}")
     if name in _EXPORTS:
         return getattr(importlib.import_module(_EXPORTS[name]), name)
     raise AttributeError(f"module 'espin' has no attribute {name!r}")

@@ -12,11 +12,11 @@ from pathlib import Path
 import meshio
 import numpy as np
 
-from espin.core.atomic import atomic_write
+from espin.core.atomic import atomic_write, atomic_write_bytes
 from espin.geometry.mat import FiberMat
 from espin.geometry.network import Network
 
-__all__ = ["write_mat_vtu", "write_network_vtu"]
+__all__ = ["write_mat_vtu", "write_network_vtu", "write_collection"]
 
 
 def _write(path: Path, points: np.ndarray, lines: np.ndarray, cell_data: dict[str, np.ndarray],
@@ -118,3 +118,21 @@ def write_network_vtu(
     data.update(cell_data or {})
     points = np.c_[network.node_position - network.centre, np.zeros(network.n_nodes)]
     return _write(Path(path), points, network.element_nodes, data, point_data, field_data)
+
+
+def write_collection(path: str | Path, steps: list[tuple[float, str]]) -> Path:
+    """Write a ParaView collection (``.pvd``) indexing ``.vtu`` files by time.
+
+    Parameters
+    ----------
+    path
+        The ``.pvd`` file (written atomically).
+    steps
+        (time [s], file path relative to the ``.pvd``) of every step, in order.
+    """
+    datasets = "".join(f'    <DataSet timestep="{time!r}" group="" part="0" file="{file}"/>\n'
+                       for time, file in steps)
+    text = ('<?xml version="1.0"?>\n'
+            '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
+            f"  <Collection>\n{datasets}  </Collection>\n</VTKFile>\n")
+    return atomic_write_bytes(path, text.encode("utf-8"))

@@ -33,7 +33,7 @@ from espin.mechanics.homogenization import cauchy_stress, nominal_stress, paper_
 from espin.mechanics.loading import LoadProgram, load_program
 from espin.mechanics.time_steps import StepSizeControl, local_error, split
 
-__all__ = ["StepRecord", "SimulationResult", "SimulationFailed", "run_program", "result_from_records",
+__all__ = ["StepRecord", "step_record", "SimulationResult", "SimulationFailed", "run_program", "result_from_records",
            "FREE_LATERAL_NOTE", "curve_columns", "curve_summary"]
 
 log = logging.getLogger(__name__)
@@ -252,7 +252,11 @@ class SimulationResult:
         return html_table("SimulationResult", list(summary.items()))
 
 
-def _record(index, solver: EquilibriumSolver, result: StepResult, strain, counts, threshold) -> StepRecord:
+def step_record(index: int, solver: EquilibriumSolver, result: StepResult, strain: float,
+                counts: tuple[int, int, int] | list[int], threshold: float) -> StepRecord:
+    """The :class:`StepRecord` of a converged step: homogenized stresses and fractions of the
+    ``result`` of ``solver``, with (iterations, factorizations, substeps) ``counts`` and the
+    yield ``threshold`` on lambda_p - 1."""
     network = solver.network
     volume = network.element_area * network.element_contour_length
     law = result.law
@@ -359,7 +363,8 @@ def run_program(
     except StepFailed as failure:
         raise fail(0, 0.0, failure, 0) from None
     state = first.state
-    records.append(_record(0, solver, first, program.strain[0], (first.iterations, first.factorizations, 1), threshold))
+    counts = (first.iterations, first.factorizations, 1)
+    records.append(step_record(0, solver, first, program.strain[0], counts, threshold))
     if on_step is not None:
         on_step(records[0])
     previous: StepState | None = None
@@ -410,7 +415,7 @@ def run_program(
                     continue  # rejected: again from the same state with the smaller step
             counts[2] += 1
             previous, state, start_law = state, result.state, result.law
-        record = _record(k, solver, result, program.strain[k], counts, threshold)
+        record = step_record(k, solver, result, program.strain[k], counts, threshold)
         records.append(record)
         if on_step is not None:
             on_step(record)

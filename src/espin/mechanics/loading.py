@@ -52,7 +52,7 @@ from espin.core.config import (
 from espin.core.errors import ConfigError
 from espin.core.textfiles import TextFormat, read_text, shown_names, text_lines
 
-__all__ = ["LoadProgram", "load_program", "read_table", "MAX_TABLE_BYTES", "MAX_TABLE_ROWS",
+__all__ = ["path_program", "LoadProgram", "load_program", "read_table", "MAX_TABLE_BYTES", "MAX_TABLE_ROWS",
            "MAX_TABLE_LINE_CHARS", "MAX_TABLE_MAGNITUDE"]
 
 MAX_TABLE_BYTES = 16 * 2**20
@@ -332,6 +332,24 @@ def _segment_steps(seg: LoadSegment | HoldSegment, start: float) -> tuple[float,
     return change / seg.rate_per_s, seg.to_strain, steps
 
 
+def path_program(time: np.ndarray, F: np.ndarray) -> LoadProgram:
+    """The program that drives the whole F through a table (test ``"path"``).
+
+    Parameters
+    ----------
+    time : (n,) float64 [s]
+        Increasing times of the recorded steps (the first is the start).
+    F : (n, 2, 2) float64
+        Deformation gradient at each time (linear in between); the first is usually I.
+    """
+    time = np.asarray(time, dtype=float)
+    n = len(time) - 1
+    return LoadProgram(
+        time=time - time[0], strain=time - time[0], segment=np.zeros(n, np.int64), rotation=np.eye(2),
+        free_directions=np.zeros((0, 2, 2)), test="path", _table=np.c_[time - time[0], np.reshape(F, (-1, 4))],
+    )
+
+
 def load_program(loading: LoadingConfig) -> LoadProgram:
     """Cut the configured loading into steps.
 
@@ -352,12 +370,7 @@ def load_program(loading: LoadingConfig) -> LoadProgram:
             fmt = _table_format("loading.path_csv", _PATH_COLUMNS)
             raise fmt.fail(loading.path_csv, "the first F is not the identity: a path starts from the "
                            "undeformed RVE (F11 = F22 = 1, F12 = F21 = 0)", int(lines[0]))
-        n = len(table) - 1
-        return LoadProgram(
-            time=table[:, 0] - table[0, 0], strain=table[:, 0] - table[0, 0],
-            segment=np.zeros(n, np.int64), rotation=np.eye(2), free_directions=np.zeros((0, 2, 2)),
-            test="path", _table=np.c_[table[:, 0] - table[0, 0], table[:, 1:]],
-        )
+        return path_program(table[:, 0], table[:, 1:].reshape(-1, 2, 2))
     times, strains, segments = [0.0], [0.0], []
     for index, seg in enumerate(loading.segments):
         duration, end, steps = _segment_steps(seg, strains[-1])

@@ -42,7 +42,7 @@ from espin.core.errors import RVEFileError
 from espin.core.header import open_checked, read_config, write_header
 from espin.core.html import html_table
 from espin.geometry.network import Network
-from espin.geometry.vtk import write_network_vtu
+from espin.geometry.vtk import write_collection, write_network_vtu
 from espin.mechanics.driver import (
     SimulationResult,
     StepRecord,
@@ -175,16 +175,7 @@ class SimulationWriter:
             field_data={"time_s": float(record.time), "strain": float(record.strain)},
         )
         self._steps.append((float(record.time), name))
-        datasets = "".join(
-            f'    <DataSet timestep="{time!r}" group="" part="0" file="{file}"/>\n'
-            for time, file in self._steps
-        )
-        text = (
-            '<?xml version="1.0"?>\n'
-            '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
-            f"  <Collection>\n{datasets}  </Collection>\n</VTKFile>\n"
-        )
-        atomic_write_bytes(self.pvd_path, text.encode("utf-8"))
+        write_collection(self.pvd_path, self._steps)
 
 
 def _curve_columns(result: SimulationResult, first_step: int = 0) -> tuple[list[str], list[np.ndarray], list[str]]:

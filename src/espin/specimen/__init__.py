@@ -1,0 +1,282 @@
+"""The macro scale: a tensile specimen of the mat, with espin RVEs at its quadrature points (FE^2).
+
+``espin.specimen(source, shape, ...)`` pulls a specimen (strip, ISO 527-2 5A dogbone, strip
+with a central hole or an edge notch, or a user mesh) between its grips: a 2-D membrane
+finite-element model (:mod:`espin.specimen.membrane`, scikit-fem; total Lagrangian, in-plane F,
+thickness an input; mm, N, MPa) under a grip-displacement program
+(:mod:`espin.specimen.solver`), with at every quadrature point
+
+* ``model="fe2"``: an espin RVE (:mod:`espin.specimen.rve_points`), solved for the point's F,
+  its own plastic history, in parallel on the task pool;
+* ``model="surrogate"``: a homogenized law interpolated from RVE runs along stretch paths
+  (:mod:`espin.specimen.surrogate`), seconds instead of minutes;
+* ``model="neo_hookean"``: a closed-form material (validation of the finite elements).
+
+docs/specimen.md.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import types
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+from espin.core.errors import ConfigError
+from espin.specimen.result import SPECIMEN_OUTPUTS, SpecimenResult, reopen_point
+from espin.specimen.shapes import SHAPES, Specimen, read_specimen
+from espin.specimen.solver import GRIPS, LATERAL, GripProgram, SpecimenFailed, SpecimenStep
+
+__all__ = ["specimen", "SpecimenResult", "SpecimenStep", "SpecimenFailed", "Specimen", "SHAPES", "MODELS",
+           "SPECIMEN_OUTPUTS", "reopen_point", "make_specimen"]
+
+MODELS = ("fe2", "surrogate", "neo_hookean")
+"""Materials at the quadrature points (module docstring)."""
+
+_SMALL_RVE = {"rve.size_ratio": 60.0, "rve.layers": 3}
+"""The RVE a generated specimen test uses unless told otherwise (the smallest the FE^2 checks
+allow: L/D 60, 3 layers)."""
+
+
+def make_specimen(shape: str | Path | Specimen, elements_across: int = 4, **options: float) -> Specimen:
+    """The specimen geometry: a :data:`SHAPES` name with its options (mm), a mesh file that
+    meshio reads, or a :class:`Specimen` (returned as it is)."""
+    if isinstance(shape, Specimen):
+        return shape
+    if isinstance(shape, str) and shape in SHAPES:
+        try:
+            return SHAPES[shape](elements_across=elements_across, **options)
+        except TypeError as err:
+            raise ConfigError(f"shape {shape!r}: {err}") from None
+    path = Path(shape)
+    if path.suffix == "" and not path.exists():
+        raise ConfigError(f"shape = {str(shape)!r}: must be one of {', '.join(SHAPES)} or a mesh file")
+    if options:
+        raise ConfigError(f"shape options {', '.join(options)} apply to the built-in shapes only")
+    return read_specimen(path)
+
+
+def _check(model: str, thickness_mm: float, grips: str, lateral: str, rve_seeds: str) -> None:
+    if model not in MODELS:
+        raise ConfigError(f"model = {model!r}: must be one of {', '.join(MODELS)}")
+    if not thickness_mm > 0.0:
+        raise ConfigError(f"thickness_mm = {thickness_mm}: must be > 0 mm")
+    if grips not in GRIPS:
+        raise ConfigError(f"grips = {grips!r}: must be one of {', '.join(GRIPS)}")
+    if lateral not in LATERAL:
+        raise ConfigError(f"lateral = {lateral!r}: must be one of {', '.join(LATERAL)}")
+    if rve_seeds not in ("shared", "per_point"):
+        raise ConfigError(f"rve_seeds = {rve_seeds!r}: must be 'shared' or 'per_point'")
+
+
+def specimen(
+    source: Any = "plla",
+    shape: str | Path | Specimen = "holed_strip",
+    *,
+    model: str = "fe2",
+    thickness_mm: float = 0.1,
+    max_strain: float = 0.2,
+    steps: int = 20,
+    grips: str = "clamped",
+    lateral: str = "fixed",
+    elements_across: int = 4,
+    shape_options: Mapping[str, float] | None = None,
+    rve_seeds: str = "shared",
+    rtol: float = 1e-6,
+    modulus_MPa: float | None = None,
+    poisson_ratio: float | None = None,
+    surrogate_reach: float = 3.0,
+    out: str | Path | None = None,
+    overwrite: bool = False,
+    workers: int | None = 1,
+    scheduler: Any = None,
+    blas_threads: int | None = 1,
+    security: Any = None,
+    figures: bool = True,
+    on_step: Callable[[SpecimenStep], None] | None = None,
+    **overrides: Any,
+) -> SpecimenResult:
+    """Pull a specimen of the mat between its grips (module docstring; docs/specimen.md).
+
+    Parameters
+    ----------
+    source
+        The mat: an :class:`espin.RVE`, a saved RVE (``.h5``), a :class:`espin.Config`, a preset
+        name or a TOML file (fiber law, loading rate, solver). A generated RVE is L/D 60 with 3
+        layers unless ``rve__size_ratio`` / ``rve__layers`` are given. Not used by
+        ``model="neo_hookean"``.
+    shape
+        ``"strip"``, ``"dogbone"`` (ISO 527-2 type 5A), ``"holed_strip"``, ``"notched_strip"``
+        (:mod:`espin.specimen.shapes`; their options in ``shape_options``, mm), a mesh file
+        (meshio: gmsh, VTU, ...; x is the loading axis, the grips the faces at min and max x) or
+        a :class:`Specimen`.
+    model
+        ``"fe2"``, ``"surrogate"`` or ``"neo_hookean"`` (module docstring).
+    thickness_mm
+        Specimen thickness [mm]: force = nominal stress x thickness x width.
+    max_strain, steps
+        Grip strain (grip displacement / grip distance) at the end, in (0, 1], and the
+        recorded steps; the grips move at the config's ``loading.strain_rate_per_s``.
+    grips
+        ``"clamped"`` (u_y = 0 at the grips) or ``"sliding"``.
+    lateral
+        ``"fixed"``: the outer sides keep their width (u_y = 0; holes and notches stay free);
+        ``"free"``: traction-free sides, the real test. In this 2-D fiber model a free edge has
+        almost no lateral stiffness (docs/mechanics.md, "Compression-dominated states"), so
+        ``"free"`` with ``fe2`` is for small strains and small meshes.
+    elements_across
+        Elements across the narrowest width (the mesh refinement).
+    rve_seeds
+        ``"shared"``: one RVE geometry at every point; ``"per_point"``: each point its own
+        realization (seeds ``rve.seed``, + 1, ...).
+    rtol
+        Macro tolerance (max |residual| <= rtol max |nodal force|); the RVEs solve to 1e-3 of
+        it. The time steps follow the config's ``solver.time_rtol`` at every point.
+    modulus_MPa, poisson_ratio
+        ``model="neo_hookean"`` only: small-strain modulus [MPa] and Poisson's ratio.
+    surrogate_reach
+        ``model="surrogate"``: the RVE paths reach this times ``max_strain``.
+    out
+        Results folder (:mod:`espin.specimen.result`); None: nothing written.
+    overwrite
+        Replace another run's results in ``out`` instead of refusing.
+    workers, scheduler, blas_threads, security
+        Where the RVE solves run (:class:`espin.core.parallel.TaskPool`).
+    figures
+        Write the PNG figures.
+    on_step
+        Called with each recorded step.
+    **overrides
+        Config keys as ``section__key=value``.
+
+    Returns
+    -------
+    SpecimenResult
+
+    Raises
+    ------
+    ConfigError
+        For a bad option, before any work; SpecimenFailed when a step does not converge (its
+        ``steps`` hold the converged ones, the folder the CSV and VTK files up to there).
+    """
+    from espin.core.config import config_digest
+    from espin.core.output_folder import OutputFolder, inputs_digest
+    from espin.core.parallel import check_pool
+
+    _check(model, thickness_mm, grips, lateral, rve_seeds)
+    check_pool(workers, scheduler, blas_threads, security)
+    program = GripProgram(max_strain, steps, 1.0)  # the rate is checked with the config below
+    geometry = make_specimen(shape, elements_across, **dict(shape_options or {}))
+    if model == "neo_hookean":
+        if modulus_MPa is None or poisson_ratio is None:
+            raise ConfigError("model = 'neo_hookean' needs modulus_MPa and poisson_ratio")
+        config, rve = None, None
+    else:
+        config, rve = _resolve_rve(source, overrides)
+        program = GripProgram(max_strain, steps, config.loading.strain_rate_per_s)
+    settings = dict(model=model, thickness_mm=thickness_mm, grips=grips, lateral=lateral, rtol=rtol,
+                    rve_seeds=rve_seeds, modulus_MPa=modulus_MPa, poisson_ratio=poisson_ratio,
+                    surrogate_reach=surrogate_reach, workers=workers, scheduler=scheduler,
+                    blas_threads=blas_threads, security=security)
+    if out is None:
+        return _run(geometry, program, config, rve, settings, None, figures, on_step)
+    digest = inputs_digest([], config_digest(config) if config is not None else "",
+                           repr(geometry), program, {k: v for k, v in settings.items() if k != "security"})
+    with OutputFolder.claim(out, "specimen", digest, SPECIMEN_OUTPUTS, overwrite=overwrite):
+        return _run(geometry, program, config, rve, settings, Path(out), figures, on_step)
+
+
+def _resolve_rve(source: Any, overrides: dict[str, Any]):
+    """(config, RVE or None) of the mat; a generated one small unless its size is given."""
+    from espin.mechanics.run import resolve_source
+
+    flat = {key.replace("__", "."): value for key, value in overrides.items()}
+    config, rve = resolve_source(source, flat)
+    if rve is None:
+        small = {k: v for k, v in _SMALL_RVE.items() if k not in flat}
+        if small:
+            config, _ = resolve_source(config, small)
+    return config, rve
+
+
+def _run(geometry: Specimen, program: GripProgram, config, rve, settings: dict[str, Any], folder: Path | None,
+         figures: bool, on_step: Callable[[SpecimenStep], None] | None) -> SpecimenResult:
+    from espin.core.parallel import TaskPool
+    from espin.geometry.rve import generate
+    from espin.geometry.rve_file import save_rve
+    from espin.specimen.materials import NeoHookean
+    from espin.specimen.membrane import Membrane
+    from espin.specimen.result import SpecimenWriter, points_history
+    from espin.specimen.rve_points import RVEPoints, rve_tolerance
+    from espin.specimen.solver import run_specimen
+    from espin.specimen.surrogate import build_surrogate
+
+    start = time.perf_counter()
+    membrane = Membrane(geometry.mesh, settings["thickness_mm"])
+    n = membrane.n_points
+    model = settings["model"]
+    callbacks = [c for c in (on_step,) if c is not None]
+    if folder is not None:
+        callbacks.append(SpecimenWriter(folder, membrane))
+    result = SpecimenResult(geometry, model, settings["thickness_mm"], settings["grips"], settings["lateral"], [],
+                            membrane, config=config)
+    pool = TaskPool(workers=settings["workers"], scheduler=settings["scheduler"],
+                    blas_threads=settings["blas_threads"], security=settings["security"])
+    with pool:
+        time_rtol = None
+        if model == "neo_hookean":
+            material = NeoHookean.from_uniaxial(n, settings["modulus_MPa"], settings["poisson_ratio"])
+        else:
+            if rve is None:
+                rve = generate(config)
+            if folder is not None:
+                save_rve(rve, folder / "rve.h5")
+            if model == "surrogate":
+                result.surrogate = build_surrogate(rve.network, config, program.max_strain,
+                                                   reach=settings["surrogate_reach"], pool=pool)
+                material = result.surrogate.material(n)
+            else:
+                config = rve_tolerance(config, settings["rtol"])
+                result.config = config
+                networks = (rve.network if settings["rve_seeds"] == "shared" else
+                            [generate(config.model_copy(update={"rve": config.rve.model_copy(
+                                update={"seed": config.rve.seed + i})})).network for i in range(n)])
+                material = RVEPoints(networks, config, n, pool=pool)
+                result.networks = material.networks
+                time_rtol = None if config.solver.time_rtol == "off" else config.solver.time_rtol
+
+        def step_done(step: SpecimenStep) -> None:
+            result.steps.append(step)
+            for callback in callbacks:
+                callback(step)
+
+        try:
+            run_specimen(geometry, material, program, thickness_mm=settings["thickness_mm"], grips=settings["grips"],
+                         lateral=settings["lateral"], rtol=settings["rtol"], time_rtol=time_rtol,
+                         on_step=step_done, membrane=membrane)
+        finally:
+            result.counts.update(seconds=time.perf_counter() - start, workers=pool.description,
+                                 macro_iterations=sum(s.iterations for s in result.steps),
+                                 time_steps=sum(s.substeps for s in result.steps))
+            if isinstance(material, RVEPoints):
+                result.point_time, result.point_F = points_history(material)
+                result.counts.update(rve_solves=material.solves, rve_iterations=material.rve_iterations)
+                result.final_state = material.state
+            if result.surrogate is not None:
+                result.counts.update(surrogate_seconds=result.surrogate.seconds,
+                                     surrogate_samples=len(result.surrogate.E))
+            if folder is not None and result.steps:
+                result.write(folder, figures=figures)
+    return result
+
+
+class _SpecimenModule(types.ModuleType):
+    """``espin.specimen`` is both this package and its function (as ``espin.design``)."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> SpecimenResult:
+        return specimen(*args, **kwargs)
+
+
+sys.modules[__name__].__class__ = _SpecimenModule

@@ -1,0 +1,245 @@
+"""FE^2: an espin RVE at every quadrature point of the specimen.
+
+Every point holds its own RVE state (inner node positions and plastic stretches): one shared
+RVE geometry by default, or one network per point. At a trial F the point's RVE is solved with
+the whole F prescribed (its border nodes follow x = F X) over the time step from the committed
+state to the macro time (the fiber law is rate-dependent: the RVE time step is the macro time
+step, one RVE step per macro step); it returns the nominal stress P and the algorithmic
+macroscopic tangent dP/dF (:meth:`espin.mechanics.equilibrium.EquilibriumSolver.macroscopic_tangent`).
+Each solve starts from the point's last solution with the new affine part (warm start). Trials
+become the state only on :meth:`RVEPoints.commit` (the macro step converged) and are dropped on
+:meth:`RVEPoints.rollback` (it was cut).
+
+The RVEs' Newton tolerance is ``solver.rtol`` of their config, at most 1e-3 of the macro
+tolerance (:func:`rve_tolerance`). The solves of a trial run in parallel through the task pool
+(:class:`espin.core.parallel.TaskPool`: local processes or Dask), in chunks; each worker keeps
+its solvers between calls.
+
+Stresses: the RVE's P [MPa] is the mat's homogenized nominal stress over the reference volume
+L^2 N_l D, the specimen's P (the macro thickness is the mat's).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from espin.core.config import Config
+from espin.core.errors import SolverError
+from espin.core.parallel import TaskPool
+from espin.geometry.network import Network
+from espin.mechanics.driver import StepRecord, step_record
+from espin.mechanics.equilibrium import EquilibriumSolver, StepFailed, StepState
+from espin.mechanics.fiber_law import FiberLaw
+from espin.mechanics.linear_solvers import make_linear_solver
+from espin.mechanics.time_steps import local_error
+
+__all__ = ["RVEPoints", "rve_tolerance", "PointStates"]
+
+_NO_FREE = np.zeros((0, 2, 2))
+
+
+def rve_tolerance(config: Config, macro_rtol: float) -> Config:
+    """The RVE config with ``solver.rtol`` and ``solver.atol`` at most 1e-3 of the macro tolerance."""
+    limit = 1e-3 * macro_rtol
+    solver = config.solver.model_copy(update={"rtol": min(config.solver.rtol, limit),
+                                              "atol": min(config.solver.atol, limit)})
+    return config.model_copy(update={"solver": solver})
+
+
+@dataclass(frozen=True, eq=False)
+class PointStates:
+    """RVE states of a set of points (arrays over points first).
+
+    Attributes
+    ----------
+    time : float [s]
+    F : (n, 2, 2) float64
+    inner : (n, n_inner, 2) float64 [um]
+    plastic_stretch : (n, n_elements) float64
+    stress : (n, n_elements) float64 [MPa]
+        Element stresses t (they start the next step's local-error estimate).
+    """
+
+    time: float
+    F: np.ndarray
+    inner: np.ndarray
+    plastic_stretch: np.ndarray
+    stress: np.ndarray
+
+    def take(self, index: np.ndarray) -> PointStates:
+        return PointStates(self.time, self.F[index], self.inner[index], self.plastic_stretch[index],
+                           self.stress[index])
+
+
+@dataclass(frozen=True, eq=False)
+class _Chunk:
+    """One task: some points' RVE solves at one trial."""
+
+    key: str
+    points: np.ndarray  # the points' indices (the solvers' cache keys with per-point networks)
+    networks: Sequence[Network]  # one per point of the chunk (the same object when shared)
+    shared: bool  # one network for every point
+    config: Config
+    start: PointStates
+    guess: np.ndarray  # (n, n_inner, 2) [um]
+    F: np.ndarray  # (n, 2, 2)
+    time: float
+
+
+_SOLVERS: dict[tuple[str, int], EquilibriumSolver] = {}  # per worker process: solvers kept between calls
+
+
+def _solver(key: str, index: int, network: Network, config: Config) -> EquilibriumSolver:
+    cached = _SOLVERS.get((key, index))
+    if cached is None:
+        if len(_SOLVERS) > 256:
+            _SOLVERS.clear()
+        cached = EquilibriumSolver(network, FiberLaw.from_config(config.fiber), config.solver,
+                                   make_linear_solver(config.solver.linear), config.fiber.bending_modulus_MPa)
+        _SOLVERS[(key, index)] = cached
+    return cached
+
+
+def _solve_chunk(chunk: _Chunk) -> dict[str, np.ndarray]:
+    """The RVE solves of one chunk (runs in a worker)."""
+    n = len(chunk.F)
+    out: dict[str, list] = {name: [] for name in ("P", "A", "inner", "plastic_stretch", "stress", "recruited_fraction",
+                                                  "yielded_fraction", "iterations", "local_error")}
+    threshold = chunk.config.output.yield_threshold
+    for i in range(n):
+        network = chunk.networks[i]
+        solver = _solver(chunk.key, 0 if chunk.shared else int(chunk.points[i]), network, chunk.config)
+        start = StepState(chunk.start.time, chunk.start.inner[i], np.zeros(0), chunk.start.F[i],
+                          chunk.start.plastic_stretch[i])
+        try:
+            result = solver.solve(start, chunk.time, chunk.F[i], _NO_FREE, chunk.guess[i], np.zeros(0))
+        except StepFailed as failure:
+            raise SolverError(f"RVE solve failed ({failure.kind}: {failure.reason})") from None
+        record = step_record(0, solver, result, 0.0, (result.iterations, result.factorizations, 1), threshold)
+        out["P"].append(record.P)
+        out["A"].append(solver.macroscopic_tangent(result))
+        out["inner"].append(result.state.inner)
+        out["plastic_stretch"].append(result.state.plastic_stretch)
+        out["stress"].append(result.law.stress)
+        out["local_error"].append(local_error(
+            solver.law, chunk.start.stress[i], chunk.start.plastic_stretch[i], result.law,
+            result.kinematics.length / solver.l0, solver.tortuosity, chunk.time - chunk.start.time,
+            solver.area * solver.l0))
+        out["recruited_fraction"].append(record.recruited_fraction)
+        out["yielded_fraction"].append(record.yielded_fraction)
+        out["iterations"].append(result.iterations)
+    return {name: np.array(values) for name, values in out.items()}
+
+
+def replay_point(network: Network, config: Config, times: np.ndarray, F: np.ndarray) -> list[StepRecord]:
+    """The RVE of one point driven again through its (time, F) history (one RVE step per entry).
+
+    Returns the :class:`StepRecord` of every entry (entry 0 is the start, usually F = I).
+    """
+    solver = EquilibriumSolver(network, FiberLaw.from_config(config.fiber), config.solver,
+                               make_linear_solver(config.solver.linear), config.fiber.bending_modulus_MPa)
+    X = solver.asm.reference[:network.n_inner]
+    state = StepState(float(times[0]), X @ F[0].T, np.zeros(0), F[0], np.ones(network.n_elements))
+    records = []
+    for k, (t, F_k) in enumerate(zip(times, F, strict=True)):
+        guess = X @ F_k.T + (state.inner - X @ state.F.T)
+        result = solver.solve(state, float(t), F_k, _NO_FREE, guess, np.zeros(0))
+        state = result.state
+        records.append(step_record(k, solver, result, float(F_k[0, 0] - 1.0),
+                                   (result.iterations, result.factorizations, 1), config.output.yield_threshold))
+    return records
+
+
+class RVEPoints:
+    """The RVEs at ``n_points`` quadrature points (module docstring); a
+    :class:`espin.specimen.materials.PointMaterial`.
+
+    Parameters
+    ----------
+    networks
+        One network (shared by every point) or one per point.
+    config
+        The RVEs' fiber law, solver and output settings (its tolerance as given: see
+        :func:`rve_tolerance`).
+    n_points
+        Quadrature points.
+    pool
+        Where the solves run (default: in this process).
+    chunks_per_worker
+        Tasks per worker and trial (more balance the load, fewer cost less pickling).
+    """
+
+    def __init__(self, networks: Network | Sequence[Network], config: Config, n_points: int, *,
+                 pool: TaskPool | None = None, chunks_per_worker: int = 2) -> None:
+        self.networks = [networks] * n_points if isinstance(networks, Network) else list(networks)
+        if len(self.networks) != n_points:
+            raise ValueError(f"{len(self.networks)} networks for {n_points} points")
+        self.config = config
+        self.n_points = n_points
+        self.pool = pool or TaskPool(workers=1)
+        self.chunks = max(1, min(n_points, chunks_per_worker * (1 if self.pool.serial else self.pool.workers)))
+        self.key = f"{id(self)}-{np.random.default_rng().integers(1 << 62)}"
+        first = self.networks[0]
+        sizes = {(net.n_inner, net.n_elements) for net in self.networks}
+        if len(sizes) != 1:
+            raise ValueError("per-point networks must have the same numbers of nodes and elements")
+        self.shared = len({id(net) for net in self.networks}) == 1
+        inner = np.stack([net.node_position[:net.n_inner] - net.centre for net in self.networks])
+        self._reference = inner  # (n, n_inner, 2) [um]
+        self.state = PointStates(0.0, np.tile(np.eye(2), (n_points, 1, 1)), inner,
+                                 np.ones((n_points, first.n_elements)), np.zeros((n_points, first.n_elements)))
+        self._error = 0.0
+        self._trial: PointStates | None = None
+        self._trial_fields: dict[str, np.ndarray] = {}
+        self.fields_committed: dict[str, np.ndarray] = {name: np.zeros(n_points)
+                                                        for name in ("yielded_fraction", "recruited_fraction")}
+        self.solves = 0
+        self.rve_iterations = 0
+        self.history_time: list[float] = [0.0]
+        self.history_F: list[np.ndarray] = [self.state.F.copy()]
+
+    def evaluate(self, F: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray]:
+        last = self._trial if self._trial is not None and self._trial.time == time else self.state
+        # Warm start: the last solution's non-affine part with the new affine part.
+        guess = last.inner + np.einsum("pnJ,piJ->pni", self._reference, F - last.F)
+        parts = np.array_split(np.arange(self.n_points), self.chunks)
+        tasks = [_Chunk(self.key, part, [self.networks[i] for i in part], self.shared, self.config,
+                        self.state.take(part), guess[part], F[part], time) for part in parts]
+        results: list[dict[str, np.ndarray] | None] = [None] * len(tasks)
+        for outcome in self.pool.map(_solve_chunk, tasks):
+            if not outcome.ok:
+                raise SolverError(f"RVE points {parts[outcome.index][0]}-{parts[outcome.index][-1]}: "
+                                  f"{outcome.error}")
+            results[outcome.index] = outcome.value
+        merged = {name: np.concatenate([r[name] for r in results]) for name in results[0]}
+        self.solves += self.n_points
+        self.rve_iterations += int(merged["iterations"].sum())
+        self._trial = PointStates(time, F.copy(), merged["inner"], merged["plastic_stretch"], merged["stress"])
+        self._error = float(merged["local_error"].max())
+        self._trial_fields = {name: merged[name] for name in ("yielded_fraction", "recruited_fraction")}
+        self._trial_fields["rve_iterations"] = merged["iterations"].astype(float)
+        return merged["P"], merged["A"]
+
+    def time_error(self) -> float:
+        """Largest relative local error of the plastic update over the points at the last trial
+        (:func:`espin.mechanics.time_steps.local_error`)."""
+        return self._error
+
+    def commit(self) -> None:
+        if self._trial is None:
+            return
+        self.state = self._trial
+        self.fields_committed = dict(self._trial_fields)
+        self.history_time.append(self.state.time)
+        self.history_F.append(self.state.F.copy())
+        self._trial = None
+
+    def rollback(self) -> None:
+        self._trial = None
+
+    def fields(self) -> dict[str, np.ndarray]:
+        return dict(self.fields_committed)
+
