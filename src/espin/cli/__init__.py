@@ -21,6 +21,7 @@ from espin.cli import (
     measure,
     properties,
     simulate,
+    specimen,
     study,
 )
 
@@ -89,7 +90,7 @@ def _configure_logging(verbose: bool, log_file: Path | None) -> None:
         logger.setLevel(logging.DEBUG if log_file is not None else logging.INFO)
 
 
-for _group in (generate, simulate, config, measure, properties, fit, study, design, calibrate_geometry,
+for _group in (generate, simulate, config, measure, properties, fit, study, design, specimen, calibrate_geometry,
                example_data):
     _group.register(app)
 

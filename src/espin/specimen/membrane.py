@@ -24,12 +24,12 @@ __all__ = ["Membrane"]
 
 @LinearForm
 def _internal(v, w):
-    return w.t * np.einsum("ij...,ij...->...", w["P"].value, v.grad)
+    return w.t * np.einsum("ij...,ij...->...", w.P, v.grad)
 
 
 @BilinearForm
 def _tangent(u, v, w):
-    return w.t * np.einsum("ijkl...,kl...,ij...->...", w["A"].value, u.grad, v.grad)
+    return w.t * np.einsum("ijkl...,kl...,ij...->...", w.A, u.grad, v.grad)
 
 
 class Membrane:
