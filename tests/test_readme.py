@@ -136,6 +136,17 @@ RUNS: dict[str, Run | Skip] = {
             folders={"rve_size": "rve-size"}),
     "espin study dof plla -o dof":
         Run(outputs=_in("dof", ("dof.csv", "dof.png", "dof_fit.csv")), folders={"dof": "dof"}),
+    "espin specimen plla --model surrogate --shape holed_strip -o holed":
+        Run(f"espin specimen plla --model surrogate --shape holed_strip -o holed --max-strain 0.02 --steps 2 {TINY}",
+            outputs=_in("holed", ("force_displacement.csv", "force.png", "specimen.png", "fields.pvd",
+                                  "surrogate_samples.csv")),
+            folders={"holed": "specimen"}),
+    "espin specimen plla --shape dogbone --elements-across 2 --workers 2 -o dogbone":
+        Run("espin specimen plla --shape dogbone --elements-across 2 --workers 2 -o dogbone --elements-across 1 "
+            f"--workers 1 --max-strain 0.01 --steps 1 {TINY}",
+            outputs=_in("dogbone", ("force_displacement.csv", "force.png", "specimen.png", "yielded.png",
+                                    "fields.pvd", "rve.h5", "rve_points.h5")),
+            folders={"dogbone": "specimen"}),
     "python examples/reproduce_paper.py --quick":
         Skip("about a minute; tests/cli/test_cli.py::test_example_reproduce_paper_quick runs the same "
              "main(quick=True) and checks its files"),
@@ -155,6 +166,7 @@ PYTHON_RUNS: dict[str, str] = {
         'eta_tolerance=0.05, step_strain=0.01, workers=2, '
         'base=espin.load_config("plla", {"rve.size_ratio": 30, "rve.layers": 2}))',
     'm = espin.measure("mat.tif", um_per_px=0.066)': AS_WRITTEN,
+    'point = espin.specimen.reopen_point("dogbone", 7)': AS_WRITTEN,
 }
 PYTHON_OUTPUTS = ("py_rve/rve.h5", "py_test/curve.csv")
 PYTHON_FOLDERS = {"py_rve": "generate", "py_test": "simulate"}

@@ -1,0 +1,170 @@
+"""The specimen checks of docs/specimen.md: FE^2 and the surrogate on the holed strip and the dogbone.
+
+``python benchmarks/bench_specimen.py PART [--across N] [--workers W]`` with PART one of
+
+* ``fe2``: FE^2 of the holed strip (lateral fixed, clamped grips) to 20 % grip strain in 20
+  steps, ``--across`` elements across the net section, ``--workers`` processes;
+* ``surrogate``: the surrogate route (built once, then the holed strip at 2, 4 and 8 across);
+* ``dogbone``: the ISO 527-2 5A dogbone (2 across) by FE^2 with lateral fixed, and by the
+  surrogate with lateral fixed and free, against the single RVE (lateral fixed / free);
+* ``report``: the comparisons from the archived runs (mesh convergence, surrogate vs FE^2,
+  speed-up from 1 to 2 workers, the dogbone).
+
+Every run prints elements, quadrature points (RVEs), DOF, wall seconds, macro iterations, time
+steps, RVE solves and their rate, and the peak memory, and archives its force-displacement table
+and counts in benchmarks/data/specimen/ (``NAME.csv`` and ``NAME.json``). The RVE: plla, L/D 60,
+3 layers, seed 1 (the default of ``espin.specimen``); thickness 0.1 mm.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import resource
+import time
+from pathlib import Path
+
+import numpy as np
+
+import espin
+from espin.specimen.shapes import dogbone, holed_strip
+
+DATA = Path(__file__).parent / "data" / "specimen"
+STRAIN, STEPS = 0.2, 20
+
+
+def _peak_mb() -> float:
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    return max(own, children) / 1024.0
+
+
+def _archive(name: str, result, extra: dict) -> None:
+    DATA.mkdir(parents=True, exist_ok=True)
+    result.to_dataframe().to_csv(DATA / f"{name}.csv", index=False)
+    counts = {k: v for k, v in result.counts.items()}
+    counts.update(extra, elements=result.specimen.n_elements, points=result.membrane.n_points,
+                  dofs=result.membrane.n_dofs, peak_memory_mb=round(_peak_mb(), 1))
+    (DATA / f"{name}.json").write_text(json.dumps(counts, indent=1, default=str))
+    solves = counts.get("rve_solves", 0)
+    rate = f", {solves / counts['seconds']:.0f} RVE solves/s" if solves else ""
+    print(f"{name}: {counts['elements']} elements, {counts['points']} points, {counts['dofs']} DOF, "
+          f"{counts['seconds']:.1f} s, {counts['macro_iterations']} macro iterations, {counts['time_steps']} time "
+          f"steps, {solves} RVE solves{rate}, peak {counts['peak_memory_mb']:.0f} MB; force at 20 %: "
+          f"{result.force_N[-1]:.5g} N", flush=True)
+
+
+def fe2(across: int, workers: int) -> None:
+    start = time.perf_counter()
+    result = espin.specimen("plla", holed_strip(elements_across=across), max_strain=STRAIN, steps=STEPS,
+                            workers=workers)
+    _archive(f"fe2_holed_{across}_w{workers}", result, {"wall_s": time.perf_counter() - start})
+
+
+def surrogate(workers: int) -> None:
+    from espin.core.parallel import TaskPool
+    from espin.specimen.surrogate import build_surrogate
+
+    rve = espin.generate("plla", rve__size_ratio=60, rve__layers=3)
+    start = time.perf_counter()
+    with TaskPool(workers=workers) as pool:
+        built = build_surrogate(rve.network, rve.config, STRAIN, pool=pool)
+    build = time.perf_counter() - start
+    print(f"surrogate: {len(built.paths)} RVE paths, {len(built.E)} samples, built in {build:.1f} s "
+          f"({workers} workers)", flush=True)
+    for across in (2, 4, 8):
+        from espin.specimen import membrane, solver
+
+        geometry = holed_strip(elements_across=across)
+        mesh = membrane.Membrane(geometry.mesh, 0.1)
+        start = time.perf_counter()
+        steps = solver.run_specimen(geometry, built.material(mesh.n_points),
+                                    solver.GripProgram(STRAIN, STEPS, rve.config.loading.strain_rate_per_s),
+                                    thickness_mm=0.1, lateral="fixed", membrane=mesh)
+        result = espin.specimen.SpecimenResult(geometry, "surrogate", 0.1, "clamped", "fixed", steps, mesh,
+                                               surrogate=built)
+        result.counts.update(seconds=time.perf_counter() - start, macro_iterations=sum(s.iterations for s in steps),
+                             time_steps=sum(s.substeps for s in steps), surrogate_build_s=build)
+        _archive(f"surrogate_holed_{across}", result, {})
+
+
+def dogbone_runs(workers: int) -> None:
+    rve = espin.generate("plla", rve__size_ratio=60, rve__layers=3)
+    for lateral in ("fixed", "free"):
+        single = espin.simulate(rve, loading__max_strain=0.3, loading__steps=30, loading__lateral=lateral)
+        DATA.mkdir(parents=True, exist_ok=True)
+        np.savetxt(DATA / f"single_rve_{lateral}.csv", np.c_[single.strain, single.P[:, 0, 0]], delimiter=",",
+                   header="strain,P11_MPa", comments="", fmt="%.8g")
+        result = espin.specimen(rve, dogbone(elements_across=2), model="surrogate", max_strain=STRAIN, steps=STEPS,
+                                lateral=lateral, workers=workers)
+        _archive(f"surrogate_dogbone_{lateral}", result, {})
+    result = espin.specimen(rve, dogbone(elements_across=2), max_strain=STRAIN, steps=STEPS, lateral="fixed",
+                            workers=workers)
+    _archive("fe2_dogbone_fixed", result, {})
+
+
+def _table(name: str):
+    import pandas as pd
+
+    path = DATA / f"{name}.csv"
+    return pd.read_csv(path) if path.is_file() else None
+
+
+def report() -> None:
+    print("holed strip, force [N] at grip strain 5 / 10 / 20 %:")
+    runs = {}
+    for name in ("fe2_holed_2_w2", "fe2_holed_4_w2", "fe2_holed_8_w2", "surrogate_holed_2", "surrogate_holed_4",
+                 "surrogate_holed_8"):
+        table = _table(name)
+        if table is None:
+            continue
+        runs[name] = table
+        at = [np.interp(e, table["grip_strain"], table["force_N"]) for e in (0.05, 0.1, 0.2)]
+        info = json.loads((DATA / f"{name}.json").read_text())
+        print(f"  {name}: {at[0]:.4f} / {at[1]:.4f} / {at[2]:.4f} ({info['elements']} elements, "
+              f"{info['seconds']:.1f} s)")
+    for across in (2, 4, 8):
+        fe, sur = runs.get(f"fe2_holed_{across}_w2"), runs.get(f"surrogate_holed_{across}")
+        if fe is not None and sur is not None:
+            error = (sur["force_N"][1:] - fe["force_N"][1:]) / fe["force_N"][1:]
+            print(f"  surrogate vs FE^2 at {across} across: largest |error| {100 * np.abs(error).max():.2f} % at grip "
+                  f"strain {fe['grip_strain'][1 + int(np.argmax(np.abs(error)))]:.3g}")
+    one, two = DATA / "fe2_holed_2_w1.json", DATA / "fe2_holed_2_w2.json"
+    if one.is_file() and two.is_file():
+        a, b = json.loads(one.read_text()), json.loads(two.read_text())
+        print(f"  1 -> 2 workers (2 across): {a['seconds']:.0f} s -> {b['seconds']:.0f} s, speed-up "
+              f"{a['seconds'] / b['seconds']:.2f}")
+    for lateral in ("fixed", "free"):
+        single = DATA / f"single_rve_{lateral}.csv"
+        for name in (f"fe2_dogbone_{lateral}", f"surrogate_dogbone_{lateral}"):
+            table = _table(name)
+            if table is None or not single.is_file():
+                continue
+            rve = np.loadtxt(single, delimiter=",", skiprows=1)
+            strain = table["gauge_strain"][1:]
+            expected = np.interp(strain, rve[:, 0], rve[:, 1])
+            error = (table["gauge_stress_MPa"][1:] - expected) / expected
+            print(f"  {name}: gauge stress vs single RVE ({lateral}) at gauge strain "
+                  + ", ".join(f"{100 * s:.3g} %: {100 * e:+.1f} %" for s, e in list(zip(strain, error))[::4]))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("part", choices=("fe2", "surrogate", "dogbone", "report"))
+    parser.add_argument("--across", type=int, default=2)
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args()
+    logging.disable(logging.WARNING)
+    if args.part == "fe2":
+        fe2(args.across, args.workers)
+    elif args.part == "surrogate":
+        surrogate(args.workers)
+    elif args.part == "dogbone":
+        dogbone_runs(args.workers)
+    else:
+        report()
+
+
+if __name__ == "__main__":
+    main()
