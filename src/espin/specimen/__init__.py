@@ -96,6 +96,7 @@ def specimen(
     security: Any = None,
     figures: bool = True,
     on_step: Callable[[SpecimenStep], None] | None = None,
+    progress: bool | None = None,
     **overrides: Any,
 ) -> SpecimenResult:
     """Pull a specimen of the mat between its grips (module docstring; docs/specimen.md).
@@ -148,6 +149,9 @@ def specimen(
         Write the PNG figures.
     on_step
         Called with each recorded step.
+    progress
+        Show the steps done and the force: in a Jupyter notebook as a bar, elsewhere as a line
+        per step on stderr. Default (None): in a notebook only.
     **overrides
         Config keys as ``section__key=value``.
 
@@ -166,6 +170,7 @@ def specimen(
     from espin.core.parallel import check_pool
 
     _check(model, thickness_mm, grips, lateral, rve_seeds)
+    on_step = _with_progress(on_step, steps, progress)
     check_pool(workers, scheduler, blas_threads, security)
     program = GripProgram(max_strain, steps, 1.0)  # the rate is checked with the config below
     geometry = make_specimen(shape, elements_across, **dict(shape_options or {}))
@@ -186,6 +191,28 @@ def specimen(
                            repr(geometry), program, {k: v for k, v in settings.items() if k != "security"})
     with OutputFolder.claim(out, "specimen", digest, SPECIMEN_OUTPUTS, overwrite=overwrite):
         return _run(geometry, program, config, rve, settings, Path(out), figures, on_step)
+
+
+def _with_progress(on_step: Callable[[SpecimenStep], None] | None, total: int,
+                   progress: bool | None) -> Callable[[SpecimenStep], None] | None:
+    """``on_step`` followed by the progress display asked for (see :func:`specimen`)."""
+    from espin.core.progress import NotebookProgress, in_notebook
+
+    notebook = in_notebook()
+    if not (progress or (progress is None and notebook)):
+        return on_step
+    bar = NotebookProgress(total, "step") if notebook else None
+
+    def show(step: SpecimenStep) -> None:
+        if on_step is not None:
+            on_step(step)
+        info = f"grip strain {step.grip_strain:.4g}, force {step.force_N:.4g} N"
+        if bar is not None:
+            bar.update(step.index, info)
+        else:
+            print(f"step {step.index}/{total}: {info}", file=sys.stderr, flush=True)
+
+    return show
 
 
 def _resolve_rve(source: Any, overrides: dict[str, Any]):

@@ -13,8 +13,8 @@ Files of a results folder (units mm, N, MPa, s):
   deformed specimen coloured by P11 at the last step) and ``yielded.png`` for RVE materials;
 - ``specimen.json``: the specimen, its dimensions and the run's settings and counts;
 - FE^2: ``rve.h5`` (the shared RVE) and ``rve_points.h5`` (per point: reference position, the
-  F and time of every time step, the final inner node positions and plastic stretches), so any
-  point can be reopened as an RVE result (:func:`reopen_point`);
+  F and time of every time step, and with the shared RVE the final inner node positions and
+  plastic stretches), so any point can be reopened as an RVE result (:func:`reopen_point`);
 - surrogate: ``surrogate_samples.csv`` (the RVE samples E, S and fractions it interpolates).
 """
 
@@ -256,9 +256,9 @@ def _write_points(result: SpecimenResult, path: Path) -> None:
             h5["time_s"] = result.point_time
             h5.create_dataset("F", data=result.point_F, compression="gzip")
             state = result.final_state
-            if state is not None:
-                h5.create_dataset("final/inner_um", data=state.inner, compression="gzip")
-                h5.create_dataset("final/plastic_stretch", data=state.plastic_stretch, compression="gzip")
+            if state is not None and h5.attrs["shared_network"]:
+                h5.create_dataset("final/inner_um", data=np.stack(state.inner), compression="gzip")
+                h5.create_dataset("final/plastic_stretch", data=np.stack(state.plastic_stretch), compression="gzip")
 
     atomic_write(path, write)
 

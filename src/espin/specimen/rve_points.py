@@ -39,6 +39,7 @@ from espin.mechanics.time_steps import local_error
 __all__ = ["RVEPoints", "rve_tolerance", "PointStates"]
 
 _NO_FREE = np.zeros((0, 2, 2))
+_RAGGED = ("inner", "plastic_stretch", "stress")  # one array per point, sizes may differ
 
 
 def rve_tolerance(config: Config, macro_rtol: float) -> Config:
@@ -57,21 +58,24 @@ class PointStates:
     ----------
     time : float [s]
     F : (n, 2, 2) float64
-    inner : (n, n_inner, 2) float64 [um]
-    plastic_stretch : (n, n_elements) float64
-    stress : (n, n_elements) float64 [MPa]
+    inner : list of (n_inner, 2) float64 [um]
+        Inner node positions of each point's RVE (relative to its centre).
+    plastic_stretch : list of (n_elements,) float64
+    stress : list of (n_elements,) float64 [MPa]
         Element stresses t (they start the next step's local-error estimate).
+
+    The lists have one array per point (per-point realizations differ in size).
     """
 
     time: float
     F: np.ndarray
-    inner: np.ndarray
-    plastic_stretch: np.ndarray
-    stress: np.ndarray
+    inner: list[np.ndarray]
+    plastic_stretch: list[np.ndarray]
+    stress: list[np.ndarray]
 
     def take(self, index: np.ndarray) -> PointStates:
-        return PointStates(self.time, self.F[index], self.inner[index], self.plastic_stretch[index],
-                           self.stress[index])
+        return PointStates(self.time, self.F[index], [self.inner[i] for i in index],
+                           [self.plastic_stretch[i] for i in index], [self.stress[i] for i in index])
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,7 +88,7 @@ class _Chunk:
     shared: bool  # one network for every point
     config: Config
     start: PointStates
-    guess: np.ndarray  # (n, n_inner, 2) [um]
+    guess: list[np.ndarray]  # (n_inner, 2) [um] per point
     F: np.ndarray  # (n, 2, 2)
     time: float
 
@@ -131,7 +135,7 @@ def _solve_chunk(chunk: _Chunk) -> dict[str, np.ndarray]:
         out["recruited_fraction"].append(record.recruited_fraction)
         out["yielded_fraction"].append(record.yielded_fraction)
         out["iterations"].append(result.iterations)
-    return {name: np.array(values) for name, values in out.items()}
+    return {name: values if name in _RAGGED else np.array(values) for name, values in out.items()}
 
 
 def replay_point(network: Network, config: Config, times: np.ndarray, F: np.ndarray) -> list[StepRecord]:
@@ -182,15 +186,12 @@ class RVEPoints:
         self.pool = pool or TaskPool(workers=1)
         self.chunks = max(1, min(n_points, chunks_per_worker * (1 if self.pool.serial else self.pool.workers)))
         self.key = f"{id(self)}-{np.random.default_rng().integers(1 << 62)}"
-        first = self.networks[0]
-        sizes = {(net.n_inner, net.n_elements) for net in self.networks}
-        if len(sizes) != 1:
-            raise ValueError("per-point networks must have the same numbers of nodes and elements")
         self.shared = len({id(net) for net in self.networks}) == 1
-        inner = np.stack([net.node_position[:net.n_inner] - net.centre for net in self.networks])
-        self._reference = inner  # (n, n_inner, 2) [um]
+        inner = [net.node_position[:net.n_inner] - net.centre for net in self.networks]
+        self._reference = inner  # [um]
         self.state = PointStates(0.0, np.tile(np.eye(2), (n_points, 1, 1)), inner,
-                                 np.ones((n_points, first.n_elements)), np.zeros((n_points, first.n_elements)))
+                                 [np.ones(net.n_elements) for net in self.networks],
+                                 [np.zeros(net.n_elements) for net in self.networks])
         self._error = 0.0
         self._trial: PointStates | None = None
         self._trial_fields: dict[str, np.ndarray] = {}
@@ -204,17 +205,18 @@ class RVEPoints:
     def evaluate(self, F: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray]:
         last = self._trial if self._trial is not None and self._trial.time == time else self.state
         # Warm start: the last solution's non-affine part with the new affine part.
-        guess = last.inner + np.einsum("pnJ,piJ->pni", self._reference, F - last.F)
+        guess = [w + X @ (F_p - F_last).T for w, X, F_p, F_last in zip(last.inner, self._reference, F, last.F)]
         parts = np.array_split(np.arange(self.n_points), self.chunks)
         tasks = [_Chunk(self.key, part, [self.networks[i] for i in part], self.shared, self.config,
-                        self.state.take(part), guess[part], F[part], time) for part in parts]
+                        self.state.take(part), [guess[i] for i in part], F[part], time) for part in parts]
         results: list[dict[str, np.ndarray] | None] = [None] * len(tasks)
         for outcome in self.pool.map(_solve_chunk, tasks):
             if not outcome.ok:
                 raise SolverError(f"RVE points {parts[outcome.index][0]}-{parts[outcome.index][-1]}: "
                                   f"{outcome.error}")
             results[outcome.index] = outcome.value
-        merged = {name: np.concatenate([r[name] for r in results]) for name in results[0]}
+        merged = {name: ([a for r in results for a in r[name]] if name in _RAGGED
+                         else np.concatenate([r[name] for r in results])) for name in results[0]}
         self.solves += self.n_points
         self.rve_iterations += int(merged["iterations"].sum())
         self._trial = PointStates(time, F.copy(), merged["inner"], merged["plastic_stretch"], merged["stress"])

@@ -19,6 +19,7 @@ committed only when the macro step has converged.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -32,6 +33,8 @@ from espin.mechanics.time_steps import StepSizeControl, split
 from espin.specimen.materials import PointMaterial
 from espin.specimen.membrane import Membrane
 from espin.specimen.shapes import Specimen
+
+log = logging.getLogger(__name__)
 
 __all__ = ["SpecimenStep", "SpecimenFailed", "GripProgram", "run_specimen", "GRIPS", "LATERAL"]
 
@@ -308,6 +311,7 @@ def run_specimen(
                         f"after {max_cuts} halvings: {failure.reason}. Try more steps, or a smaller "
                         "max_strain", steps) from None
                 increment = 0.5 * h
+                log.info("grip strain %.4g: step cut to %.3g (%s)", next_strain, increment, failure.reason)
                 continue
             iterations += solved[5]
             increment = h
@@ -316,6 +320,8 @@ def run_specimen(
                 increment = wanted * program.strain_rate_per_s
                 if not accepted:
                     material.rollback()
+                    log.debug("grip strain %.4g: time step rejected (local error %.3g), next %.3g", next_strain,
+                              material.time_error(), increment)
                     continue
             material.commit()
             u, F, P, f, K, _, history = solved
