@@ -146,3 +146,62 @@ def test_cli_runs_a_closed_form_dogbone_and_keeps_its_folder(tmp_path):
     assert again.exit_code != 0 and "overwrite" in again.output
     bad = CliRunner().invoke(app, ["specimen", "--shape-option", "hole_diameter_mm", "-o", str(tmp_path / "x")])
     assert bad.exit_code != 0 and "NAME=VALUE" in bad.output and not (tmp_path / "x").exists()
+
+
+class _Fussy(NeoHookean):
+    """A neo-Hookean material that fails on time steps longer than ``longest`` [s] and reports a local
+    error ``error`` (a stand-in for RVEs whose Newton fails or whose plastic flow is too fast)."""
+
+    def __init__(self, n_points: int, longest: float, error: float = 0.0):
+        super().__init__(n_points, 40.0, 20.0)
+        self.longest, self.error, self.committed = longest, error, 0.0
+        self.trial = 0.0
+
+    def evaluate(self, F, time):
+        if time - self.committed > self.longest:
+            raise FloatingPointError("step too long")
+        self.trial = time
+        return super().evaluate(F, time)
+
+    def time_error(self):
+        return self.error
+
+    def commit(self):
+        self.committed = self.trial
+
+
+def test_cut_steps_grow_again_and_the_run_ends():
+    specimen = strip(20.0, 5.0, elements_across=1)
+    membrane = Membrane(specimen.mesh, T)
+    material = _Fussy(membrane.n_points, longest=0.05)
+    steps = run_specimen(specimen, material, GripProgram(0.5, 5, 1.0), thickness_mm=T, membrane=membrane)
+    assert [s.grip_strain for s in steps] == pytest.approx([0.0, 0.1, 0.2, 0.3, 0.4, 0.5])
+    assert steps[1].cuts >= 1
+    assert sum(s.substeps for s in steps) <= 15  # 0.1 steps need 2-3 sub-steps of <= 0.05, not ever more
+
+
+def test_time_steps_that_shrink_forever_stop_the_run():
+    from espin.specimen.solver import SpecimenFailed
+
+    specimen = strip(20.0, 5.0, elements_across=1)
+    membrane = Membrane(specimen.mesh, T)
+    material = _Fussy(membrane.n_points, longest=np.inf, error=np.inf)
+    with pytest.raises(SpecimenFailed, match="time steps"):
+        run_specimen(specimen, material, GripProgram(0.1, 1, 1.0), thickness_mm=T, membrane=membrane,
+                     time_rtol=1e-3)
+
+
+def test_lateral_fixed_holds_the_sides_but_not_the_notch():
+    from espin.specimen.shapes import notched_strip
+
+    specimen = notched_strip(elements_across=2)
+    membrane = Membrane(specimen.mesh, T)
+    material = NeoHookean.from_uniaxial(membrane.n_points, E, NU)
+    last = run_specimen(specimen, material, GripProgram(0.05, 1, 1.0), thickness_mm=T, membrane=membrane,
+                        lateral="fixed")[-1]
+    mesh = specimen.mesh
+    u_y = last.u[membrane.basis.nodal_dofs[1]]
+    notch = np.unique(mesh.facets[:, mesh.boundaries["notch"]])
+    sides = np.flatnonzero(np.isclose(np.abs(mesh.p[1]), 5.0))
+    assert np.abs(u_y[sides]).max() == 0.0
+    assert np.abs(u_y[notch]).max() > 1e-4  # the notch root moves

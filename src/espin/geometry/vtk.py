@@ -130,7 +130,7 @@ def write_collection(path: str | Path, steps: list[tuple[float, str]]) -> Path:
     steps
         (time [s], file path relative to the ``.pvd``) of every step, in order.
     """
-    datasets = "".join(f'    <DataSet timestep="{time!r}" group="" part="0" file="{file}"/>\n'
+    datasets = "".join(f'    <DataSet timestep="{float(time)!r}" group="" part="0" file="{file}"/>\n'
                        for time, file in steps)
     text = ('<?xml version="1.0"?>\n'
             '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'

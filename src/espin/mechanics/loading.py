@@ -332,7 +332,7 @@ def _segment_steps(seg: LoadSegment | HoldSegment, start: float) -> tuple[float,
     return change / seg.rate_per_s, seg.to_strain, steps
 
 
-def path_program(time: np.ndarray, F: np.ndarray) -> LoadProgram:
+def path_program(time: np.ndarray, F: np.ndarray, strain: np.ndarray | None = None) -> LoadProgram:
     """The program that drives the whole F through a table (test ``"path"``).
 
     Parameters
@@ -341,11 +341,14 @@ def path_program(time: np.ndarray, F: np.ndarray) -> LoadProgram:
         Increasing times of the recorded steps (the first is the start).
     F : (n, 2, 2) float64
         Deformation gradient at each time (linear in between); the first is usually I.
+    strain : (n,) float64, optional
+        The load parameter of each step (default: the time from the start, as for a path CSV).
     """
     time = np.asarray(time, dtype=float)
     n = len(time) - 1
+    load = time - time[0] if strain is None else np.asarray(strain, dtype=float)
     return LoadProgram(
-        time=time - time[0], strain=time - time[0], segment=np.zeros(n, np.int64), rotation=np.eye(2),
+        time=time - time[0], strain=load, segment=np.zeros(n, np.int64), rotation=np.eye(2),
         free_directions=np.zeros((0, 2, 2)), test="path", _table=np.c_[time - time[0], np.reshape(F, (-1, 4))],
     )
 

@@ -44,6 +44,9 @@ def make_specimen(shape: str | Path | Specimen, elements_across: int = 4, **opti
     """The specimen geometry: a :data:`SHAPES` name with its options (mm), a mesh file that
     meshio reads, or a :class:`Specimen` (returned as it is)."""
     if isinstance(shape, Specimen):
+        if options:
+            raise ConfigError(f"shape options {', '.join(options)} apply to the built-in shapes, not to a "
+                              "Specimen")
         return shape
     if isinstance(shape, str) and shape in SHAPES:
         try:
@@ -58,7 +61,8 @@ def make_specimen(shape: str | Path | Specimen, elements_across: int = 4, **opti
     return read_specimen(path)
 
 
-def _check(model: str, thickness_mm: float, grips: str, lateral: str, rve_seeds: str) -> None:
+def _check(model: str, thickness_mm: float, grips: str, lateral: str, rve_seeds: str, rtol: float,
+           surrogate_reach: float, modulus_MPa: float | None, poisson_ratio: float | None) -> None:
     if model not in MODELS:
         raise ConfigError(f"model = {model!r}: must be one of {', '.join(MODELS)}")
     if not thickness_mm > 0.0:
@@ -69,6 +73,17 @@ def _check(model: str, thickness_mm: float, grips: str, lateral: str, rve_seeds:
         raise ConfigError(f"lateral = {lateral!r}: must be one of {', '.join(LATERAL)}")
     if rve_seeds not in ("shared", "per_point"):
         raise ConfigError(f"rve_seeds = {rve_seeds!r}: must be 'shared' or 'per_point'")
+    if not 0.0 < rtol < 1.0:
+        raise ConfigError(f"rtol = {rtol}: must be in (0, 1)")
+    if not surrogate_reach >= 1.0:
+        raise ConfigError(f"surrogate_reach = {surrogate_reach}: must be >= 1")
+    if model == "neo_hookean":
+        if modulus_MPa is None or poisson_ratio is None:
+            raise ConfigError("model = 'neo_hookean' needs modulus_MPa and poisson_ratio")
+        if not modulus_MPa > 0.0:
+            raise ConfigError(f"modulus_MPa = {modulus_MPa}: must be > 0 MPa")
+        if not 0.0 <= poisson_ratio < 1.0:
+            raise ConfigError(f"poisson_ratio = {poisson_ratio}: must be in [0, 1)")
 
 
 def specimen(
@@ -119,7 +134,8 @@ def specimen(
         Specimen thickness [mm]: force = nominal stress x thickness x width.
     max_strain, steps
         Grip strain (grip displacement / grip distance) at the end, in (0, 1], and the
-        recorded steps; the grips move at the config's ``loading.strain_rate_per_s``.
+        recorded steps; the grips move at the config's ``loading.strain_rate_per_s`` (the rest of
+        its ``[loading]`` section, a test or program of a single RVE, is not used).
     grips
         ``"clamped"`` (u_y = 0 at the grips) or ``"sliding"``.
     lateral
@@ -128,7 +144,7 @@ def specimen(
         almost no lateral stiffness (docs/mechanics.md, "Compression-dominated states"), so
         ``"free"`` with ``fe2`` is for small strains and small meshes.
     elements_across
-        Elements across the narrowest width (the mesh refinement).
+        Elements across the narrowest width (the mesh refinement of a built-in shape).
     rve_seeds
         ``"shared"``: one RVE geometry at every point; ``"per_point"``: each point its own
         realization (seeds ``rve.seed``, + 1, ...).
@@ -169,17 +185,18 @@ def specimen(
     from espin.core.output_folder import OutputFolder, inputs_digest
     from espin.core.parallel import check_pool
 
-    _check(model, thickness_mm, grips, lateral, rve_seeds)
+    _check(model, thickness_mm, grips, lateral, rve_seeds, rtol, surrogate_reach, modulus_MPa, poisson_ratio)
     on_step = _with_progress(on_step, steps, progress)
     check_pool(workers, scheduler, blas_threads, security)
     program = GripProgram(max_strain, steps, 1.0)  # the rate is checked with the config below
     geometry = make_specimen(shape, elements_across, **dict(shape_options or {}))
     if model == "neo_hookean":
-        if modulus_MPa is None or poisson_ratio is None:
-            raise ConfigError("model = 'neo_hookean' needs modulus_MPa and poisson_ratio")
         config, rve = None, None
     else:
         config, rve = _resolve_rve(source, overrides)
+        if rve is not None and rve_seeds == "per_point":
+            raise ConfigError("rve_seeds = 'per_point' generates a realization per point: give a preset, a "
+                              "TOML file or a Config, not an RVE")
         program = GripProgram(max_strain, steps, config.loading.strain_rate_per_s)
     settings = dict(model=model, thickness_mm=thickness_mm, grips=grips, lateral=lateral, rtol=rtol,
                     rve_seeds=rve_seeds, modulus_MPa=modulus_MPa, poisson_ratio=poisson_ratio,

@@ -69,8 +69,9 @@ def plot_force(steps: Sequence[SpecimenStep], path: str | Path, title: str,
     right.set_title("gauge section", fontsize=10)
     for ax in (left, right):
         ax.grid(alpha=0.3)
+        if min(line.get_ydata().min() for line in ax.get_lines()) >= 0.0:
+            ax.set_ylim(bottom=0.0)  # a tensile test: from the origin (a compressive one keeps its axis)
         ax.set_xlim(left=0.0)
-        ax.set_ylim(bottom=0.0)
         if len(ax.get_legend_handles_labels()[0]) > 1:
             ax.legend(fontsize=8, loc="lower right")
     fig.suptitle(title, fontsize=10)

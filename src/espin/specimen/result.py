@@ -232,7 +232,7 @@ class SpecimenResult:
 
 def _replay(network: Network, config: Config, times: np.ndarray, F: np.ndarray) -> SimulationResult:
     records = replay_point(network, config, times, F)
-    return result_from_records(config, path_program(times, F), records)
+    return result_from_records(config, path_program(times, F, strain=F[:, 0, 0] - 1.0), records)
 
 
 def _write_json(result: SpecimenResult, path: Path) -> None:

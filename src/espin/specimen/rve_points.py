@@ -94,13 +94,14 @@ class _Chunk:
 
 
 _SOLVERS: dict[tuple[str, int], EquilibriumSolver] = {}  # per worker process: solvers kept between calls
+_CACHED_SOLVERS = 4096  # per-point realizations: one solver per point
 
 
 def _solver(key: str, index: int, network: Network, config: Config) -> EquilibriumSolver:
     cached = _SOLVERS.get((key, index))
     if cached is None:
-        if len(_SOLVERS) > 256:
-            _SOLVERS.clear()
+        if len(_SOLVERS) >= _CACHED_SOLVERS:
+            del _SOLVERS[next(iter(_SOLVERS))]  # the oldest
         cached = EquilibriumSolver(network, FiberLaw.from_config(config.fiber), config.solver,
                                    make_linear_solver(config.solver.linear), config.fiber.bending_modulus_MPa)
         _SOLVERS[(key, index)] = cached
@@ -199,8 +200,8 @@ class RVEPoints:
                                                         for name in ("yielded_fraction", "recruited_fraction")}
         self.solves = 0
         self.rve_iterations = 0
-        self.history_time: list[float] = [0.0]
-        self.history_F: list[np.ndarray] = [self.state.F.copy()]
+        self.history_time: list[float] = []  # every committed time step (the replays' program)
+        self.history_F: list[np.ndarray] = []
 
     def evaluate(self, F: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray]:
         last = self._trial if self._trial is not None and self._trial.time == time else self.state

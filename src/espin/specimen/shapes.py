@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -431,7 +431,8 @@ def notched_strip(length_mm: float = 50.0, width_mm: float = 10.0, notch_depth_m
     Specimen
         Gauge length = the whole length, gauge width = the full width (nominal stress on the gross
         section). ``dimensions``: ``length``, ``width``, ``notch_depth``, ``notch_radius``,
-        ``notch_region`` (half-length of the region of fanned columns).
+        ``notch_region`` (half-length of the region of fanned columns). ``mesh.boundaries["notch"]``:
+        the facets of the notch outline (also in ``"edge"``; ``lateral = "fixed"`` leaves them free).
     """
     _positive(length_mm=length_mm, width_mm=width_mm, notch_depth_mm=notch_depth_mm,
               notch_radius_mm=notch_radius_mm)
@@ -453,9 +454,16 @@ def notched_strip(length_mm: float = 50.0, width_mm: float = 10.0, notch_depth_m
         x = _stations(length_mm / 2 - reach, width_mm / n_across) + reach
         side = _columns(np.vstack([x, np.full_like(x, -half)]), np.vstack([x, np.full_like(x, half)]), n_across)
         blocks += [side, side[:, ::-1] * np.array([-1.0, 1.0])[:, None, None]]
-    return _specimen("notched_strip", blocks, length_mm, length_mm, width_mm,
-                     {"length": length_mm, "width": width_mm, "notch_depth": depth, "notch_radius": radius,
-                      "notch_region": reach})
+    specimen = _specimen("notched_strip", blocks, length_mm, length_mm, width_mm,
+                         {"length": length_mm, "width": width_mm, "notch_depth": depth, "notch_radius": radius,
+                          "notch_region": reach})
+    # the notch outline (walls and bottom: below the top edge, above the bottom one), a part of "edge"
+    mesh = specimen.mesh
+    edge = mesh.boundaries["edge"]
+    y = mesh.p[1, mesh.facets[:, edge]]
+    tol = _MERGE_TOL * width_mm
+    notch = edge[np.any(y < half - tol, axis=0) & np.all(y > -half + tol, axis=0)]
+    return replace(specimen, mesh=mesh.with_boundaries({"notch": notch}))
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -5,7 +5,8 @@ the loading's strain rate (the fiber law is rate-dependent: a step of grip strai
 step of the same size for every quadrature point). Grips are ``clamped`` (u_y = 0 on both grip
 faces) or ``sliding`` (u_y free but at one node, so the specimen contracts freely and a
 homogeneous material stretches homogeneously). ``lateral = "fixed"`` holds u_y = 0 on the outer
-sides too (the boundary chains that meet the grips; a hole stays free): the width cannot change.
+sides too (the boundary chains that meet the grips; a hole and a notch stay free): the width
+cannot change.
 
 Each step is solved by Newton's method on the free DOF with the materials' tangent: the first
 iterate comes from the last converged tangent and the grip increment (no material call), then
@@ -13,8 +14,11 @@ K du = -r until max |r| <= rtol max |f| over the DOF (the grip reactions set the
 scale is at least the force of 1e-6 of the strain at the tangent of the step). A step whose
 materials fail, or whose Newton iterations stall or exceed ``max_iterations``, is cut in half
 (time and grip displacement together) and the materials roll back to the last converged state;
-after ``max_cuts`` halvings the run stops with :class:`SpecimenFailed`. A material's state is
-committed only when the macro step has converged.
+after ``max_cuts`` halvings in a row the run stops with :class:`SpecimenFailed`; a step that
+converged easily lets the next one double. With ``time_rtol`` the time steps also follow the
+largest local error of the points' plastic update (rejected steps roll back too), never longer
+right after a cut than the cut step. A material's state is committed only when the macro step
+has converged and been accepted.
 """
 
 from __future__ import annotations
@@ -37,6 +41,10 @@ from espin.specimen.shapes import Specimen
 log = logging.getLogger(__name__)
 
 __all__ = ["SpecimenStep", "SpecimenFailed", "GripProgram", "run_specimen", "GRIPS", "LATERAL"]
+
+MAX_TIME_STEPS_PER_STEP = 10_000
+"""Time steps (accepted, rejected or cut) one recorded step may take before the run fails."""
+_EASY = 0.2  # of the iteration limit: a sub-step that converged in fewer may let the next double
 
 GRIPS = ("clamped", "sliding")
 LATERAL = ("free", "fixed")
@@ -96,7 +104,7 @@ class SpecimenStep:
     iterations, cuts, substeps : int
         Macro Newton iterations of the step (all attempts), its halvings and the time steps it took.
     residual_history : list of float [N]
-        max |r| over the free DOF at each iteration of the last (converged) attempt's sub-steps.
+        max |r| over the free DOF at each Newton iteration of the step's last sub-step.
     u : (n_dofs,) float64 [mm]
         Nodal displacements (scikit-fem's DOF order).
     F, P : (n_points, 2, 2) float64 [-, MPa]
@@ -131,7 +139,8 @@ class SpecimenFailed(SolverError):
 
 
 def _outer_side_nodes(specimen: Specimen) -> np.ndarray:
-    """Nodes of the free-edge chains that meet a grip (the outer sides; holes excluded)."""
+    """Nodes of the free-edge chains that meet a grip (the outer sides; holes and a tagged
+    ``notch`` boundary excluded)."""
     mesh = specimen.mesh
     facets = mesh.facets
     edge = np.asarray(specimen.mesh.boundaries["edge"])
@@ -142,7 +151,11 @@ def _outer_side_nodes(specimen: Specimen) -> np.ndarray:
     _, label = sp.csgraph.connected_components(graph, directed=False)
     edge_nodes = np.unique(facets[:, edge])
     sides = np.unique(label[np.intersect1d(edge_nodes, grip_nodes)])
-    return edge_nodes[np.isin(label[edge_nodes], sides)]
+    held = edge_nodes[np.isin(label[edge_nodes], sides)]
+    if "notch" in mesh.boundaries:  # a notch stays free (the corners of its mouth are on the sides)
+        notch = mesh.boundaries["notch"]
+        held = np.setdiff1d(held, np.setdiff1d(facets[:, notch], facets[:, np.setdiff1d(edge, notch)]))
+    return held
 
 
 class _Constraints:
@@ -242,7 +255,7 @@ def run_specimen(
     max_iterations
         Newton iterations per (sub-)step before it is cut.
     max_cuts
-        Halvings of one recorded step before the run stops.
+        Halvings in a row before the run stops.
     affine_F
         The patch test: every boundary node follows x = F(grip strain) X (grips and lateral
         are then ignored); None: the grips.
@@ -294,8 +307,18 @@ def run_specimen(
     increment: float | None = None  # the sub-step in grip strain, carried between recorded steps
     for index, target in enumerate(program.strain[1:], start=1):
         iterations, cuts, substeps, history = 0, 0, 0, []
+        in_a_row = 0  # halvings since the last converged sub-step
+        smallest = 1e-9 * (target - strain_now)
+        attempts = 0
         while strain_now < target - 1e-12 * target:
+            attempts += 1
             h = split(target - strain_now, increment)
+            if attempts > MAX_TIME_STEPS_PER_STEP or h < smallest:
+                raise SpecimenFailed(
+                    f"step {index} of {program.steps} (grip strain {strain_now:.4g}): the time steps the "
+                    f"points' local error asks for fell below {smallest:.3g} in grip strain (or exceeded "
+                    f"{MAX_TIME_STEPS_PER_STEP:,}); the plastic flow is too fast to follow: check "
+                    "fiber.flow_rate_per_s and fiber.flow_resistance_MPa, or raise solver.time_rtol", steps)
             next_strain = target if h == target - strain_now else strain_now + h
             next_time = time_now + h / program.strain_rate_per_s
             try:
@@ -305,24 +328,29 @@ def run_specimen(
                 iterations += failure.iterations
                 material.rollback()
                 cuts += 1
-                if cuts > max_cuts:
+                in_a_row += 1
+                if in_a_row > max_cuts:
                     raise SpecimenFailed(
                         f"step {index} of {program.steps} (grip strain {next_strain:.4g}) did not converge "
-                        f"after {max_cuts} halvings: {failure.reason}. Try more steps, or a smaller "
+                        f"after {max_cuts} halvings in a row: {failure.reason}. Try more steps, or a smaller "
                         "max_strain", steps) from None
                 increment = 0.5 * h
                 log.info("grip strain %.4g: step cut to %.3g (%s)", next_strain, increment, failure.reason)
                 continue
             iterations += solved[5]
-            increment = h
+            # grow again after an easy step, as a single RVE's driver does; never beyond a halving's size
+            # right after a cut
+            grown = 2.0 * h if solved[5] <= _EASY * max_iterations else h
+            increment = h if in_a_row else grown
             if control is not None:
                 accepted, wanted = control.judge(h / program.strain_rate_per_s, material.time_error())
-                increment = wanted * program.strain_rate_per_s
+                increment = min(wanted * program.strain_rate_per_s, h if in_a_row else np.inf)
                 if not accepted:
                     material.rollback()
                     log.debug("grip strain %.4g: time step rejected (local error %.3g), next %.3g", next_strain,
                               material.time_error(), increment)
                     continue
+            in_a_row = 0
             material.commit()
             u, F, P, f, K, _, history = solved
             strain_now, time_now = next_strain, next_time

@@ -1,13 +1,13 @@
 """A homogenized surrogate of the RVE for monotonic loading, built from RVE runs.
 
 The RVE is pulled along straight paths of the right stretch tensor, U(t) = I + t G (G
-symmetric, no rotation), at the loading's strain rate, to a largest stretch of ``reach`` times
-the specimen's grip strain, with recorded steps growing as the square of their number (dense
-at the yield knee). Along every path each recorded step gives a sample of the second
-Piola-Kirchhoff stress S = F^-1 P against the Green-Lagrange strain E = (U^2 - I) / 2
-(with the yielded and recruited fractions). A thin-plate-spline radial-basis interpolant
-(:class:`scipy.interpolate.RBFInterpolator`) through the samples gives S(E) and the
-fractions anywhere; then
+symmetric, no rotation, its largest component 1), at the loading's strain rate, to t =
+``reach`` times the specimen's grip strain (less where U would lose 90 % of a stretch), with
+recorded steps growing as the square of their number (dense at the yield knee). Along every
+path each recorded step gives a sample of the second Piola-Kirchhoff stress S = F^-1 P against
+the Green-Lagrange strain E = (U^2 - I) / 2 (with the yielded and recruited fractions). A
+thin-plate-spline radial-basis interpolant (:class:`scipy.interpolate.RBFInterpolator`)
+through the samples gives S(E) and the fractions anywhere; then
 
     P = F S(E(F)),   A_iJkL = delta_ik S_LJ + F_iM dS_MJ/dE_LQ F_kQ,
 
@@ -197,10 +197,14 @@ def build_surrogate(network: Network, config: Config, max_strain: float, *, reac
     if G.ndim != 2 or G.shape[1] != 3 or len(G) < 3 or np.any(np.abs(G).max(axis=1) == 0.0):
         raise ConfigError("paths: at least three non-zero directions (G11, G22, G12) are needed")
     G /= np.abs(G).max(axis=1, keepdims=True)
-    largest = min(reach * max_strain, 0.9)  # U stays positive definite along compressive directions
-    t = largest * np.linspace(0.0, 1.0, steps + 1) ** 2  # dense at small strain: the yield knee
-    time = t / config.loading.strain_rate_per_s
-    tasks = [_Path(network, config, time, np.eye(2) + t[:, None, None] * _symmetric(g)[None]) for g in G]
+    shape = np.linspace(0.0, 1.0, steps + 1) ** 2  # dense at small strain: the yield knee
+    tasks = []
+    for g in G:
+        # to reach x the grip strain, but U stays positive definite: its smallest eigenvalue >= 0.1
+        smallest = np.linalg.eigvalsh(_symmetric(g)).min()
+        t = min(reach * max_strain, 0.9 / -smallest if smallest < 0.0 else np.inf) * shape
+        tasks.append(_Path(network, config, t / config.loading.strain_rate_per_s,
+                           np.eye(2) + t[:, None, None] * _symmetric(g)[None]))
     pool = pool or TaskPool(workers=1)
     start = time_module.perf_counter()
     runs: list[dict[str, np.ndarray] | None] = [None] * len(tasks)
