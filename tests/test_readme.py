@@ -136,11 +136,17 @@ RUNS: dict[str, Run | Skip] = {
             folders={"rve_size": "rve-size"}),
     "espin study dof plla -o dof":
         Run(outputs=_in("dof", ("dof.csv", "dof.png", "dof_fit.csv")), folders={"dof": "dof"}),
-    "espin specimen plla --model surrogate --shape holed_strip -o holed":
-        Run(f"espin specimen plla --model surrogate --shape holed_strip -o holed --max-strain 0.02 --steps 2 {TINY}",
+    "espin specimen plla --model surrogate --shape holed_strip --workers 2 -o holed":
+        Run("espin specimen plla --model surrogate --shape holed_strip --workers 2 -o holed --max-strain 0.02 "
+            f"--steps 2 {TINY}",
             outputs=_in("holed", ("force_displacement.csv", "force.png", "specimen.png", "fields.pvd",
                                   "surrogate_samples.csv")),
             folders={"holed": "specimen"}),
+    "espin specimen plla --model surrogate --shape dogbone --surrogate-from holed/surrogate_samples.csv -o dog_sur":
+        Run("espin specimen plla --model surrogate --shape dogbone --surrogate-from holed/surrogate_samples.csv "
+            f"-o dog_sur --max-strain 0.02 --steps 2 {TINY}",
+            outputs=_in("dog_sur", ("force_displacement.csv", "force.png", "specimen.png", "surrogate_samples.csv")),
+            folders={"dog_sur": "specimen"}),
     "espin specimen plla --shape dogbone --elements-across 2 --workers 2 -o dogbone":
         Run("espin specimen plla --shape dogbone --elements-across 2 --workers 2 -o dogbone --elements-across 1 "
             f"--workers 1 --max-strain 0.01 --steps 1 {TINY}",

@@ -156,25 +156,31 @@ def test_bad_options_are_refused_before_any_work(options, match, tmp_path):
     assert not out.exists()
 
 
-def test_surrogate_is_frame_indifferent_and_its_tangent_is_consistent(rve):
-    surrogate = build_surrogate(rve.network, rve.config, 0.05, reach=1.0, steps=4,
+def test_surrogate_is_frame_indifferent_rate_dependent_and_its_tangent_is_consistent(rve):
+    surrogate = build_surrogate(rve.network, rve.config, 0.05, reach=1.0, steps=4, speeds=(1.0, 4.0),
                                 paths=[(1.0, 0.0, 0.0), (1.0, -0.5, 0.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.5)])
     F = np.array([[[1.03, 0.01], [0.0, 0.99]], [[1.02, 0.0], [0.005, 1.0]]])
-    P, A, fields = surrogate.stress(F)
+    start = np.array([[[1.02, 0.004], [0.004, 0.995]], [[1.015, 0.001], [0.001, 1.0]]])  # U a step before
+    rate = rve.config.loading.strain_rate_per_s
+    dt = 0.01 / (2.0 * rate)  # about speed 2 for point 0
+    P, A, fields = surrogate.stress(F, start, dt)
     theta = 0.7
     R = np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
-    P_rotated, _, _ = surrogate.stress(R @ F)
+    P_rotated, _, _ = surrogate.stress(R @ F, start, dt)
     assert np.allclose(P_rotated, R @ P, atol=1e-10)
     h = 1e-6
     for k in range(2):
         for L in range(2):
             dF = np.zeros((2, 2))
             dF[k, L] = h
-            fd = (surrogate.stress(F + dF)[0] - surrogate.stress(F - dF)[0]) / (2 * h)
+            fd = (surrogate.stress(F + dF, start, dt)[0] - surrogate.stress(F - dF, start, dt)[0]) / (2 * h)
             assert np.allclose(fd, A[:, :, :, k, L], rtol=1e-4, atol=1e-4 * np.abs(A).max())
-    # at its samples the interpolant is the RVE: S = F^-1 P of the sampled states
-    sample = 3
-    U = np.eye(2) + np.diag([0.0, 0.0])
+    # faster is stiffer past yield (the fiber law's rate), and between the speeds run
+    slow = surrogate.stress(F, start, 100.0 * dt)[0][0, 0, 0]
+    fast = surrogate.stress(F, start, 0.01 * dt)[0][0, 0, 0]
+    assert slow < P[0, 0, 0] < fast
+    # at its samples the interpolant is the RVE: S = F^-1 P of the sampled states (speed 1: no step)
+    sample = int(np.flatnonzero(surrogate.speed == 1.0)[3])
     E = surrogate.E[sample]
     C = np.eye(2) + 2 * np.array([[E[0], E[2]], [E[2], E[1]]])
     w, V = np.linalg.eigh(C)
@@ -194,3 +200,25 @@ def test_per_point_realizations_differ_and_the_shared_rve_is_one():
     # point 0 of the per-point run is the shared RVE's seed: the same mat
     assert own.networks[0].n_elements == shared.networks[0].n_elements
     assert own.force_N[-1] != pytest.approx(shared.force_N[-1], rel=1e-6)
+
+
+def test_a_surrogate_runs_again_from_its_samples(rve, tmp_path):
+    from espin.specimen.surrogate import SAMPLE_COLUMNS
+
+    built = build_surrogate(rve.network, rve.config, 0.02, reach=1.0, steps=3, speeds=(1.0, 4.0),
+                            paths=[(1.0, 0.0, 0.0), (1.0, -0.5, 0.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.5)])
+    samples = tmp_path / "surrogate_samples.csv"
+    np.savetxt(samples, built.table(), delimiter=",", header=",".join(SAMPLE_COLUMNS), comments="", fmt="%.17g")
+    specimen = strip(20.0, 5.0, elements_across=1)
+    membrane = Membrane(specimen.mesh, T)
+    direct = run_specimen(specimen, built.material(membrane.n_points),
+                          GripProgram(0.02, 2, rve.config.loading.strain_rate_per_s), thickness_mm=T,
+                          membrane=membrane, lateral="fixed")
+    again = espin.specimen(rve, specimen, model="surrogate", max_strain=0.02, steps=2, out=tmp_path / "b",
+                           surrogate_from=samples)
+    assert np.allclose(again.force_N, [s.force_N for s in direct], rtol=1e-9)
+    assert not (tmp_path / "b" / "rve.h5").exists()
+    assert np.allclose(np.loadtxt(tmp_path / "b" / "surrogate_samples.csv", delimiter=",", skiprows=1),
+                       built.table(), rtol=1e-10, atol=1e-14)
+    with pytest.raises(ConfigError, match="surrogate samples"):
+        espin.specimen(rve, "strip", model="surrogate", surrogate_from=tmp_path / "b" / "specimen.json")

@@ -51,6 +51,9 @@ def specimen_command(
     elements_across: Annotated[int, typer.Option(help="Elements across the narrowest width.")] = 4,
     rve_seeds: Annotated[str, typer.Option(help="shared (one RVE geometry) or per_point.")] = "shared",
     rtol: Annotated[float, typer.Option(help="Macro tolerance (the RVEs solve to 1e-3 of it).")] = 1e-6,
+    surrogate_from: Annotated[Optional[Path], typer.Option(
+        help="surrogate: the surrogate_samples.csv of an earlier surrogate run of the same mat (no RVE runs: "
+             "seconds).")] = None,
     modulus: Annotated[Optional[float], typer.Option(help="neo_hookean: modulus [MPa].")] = None,
     poisson: Annotated[Optional[float], typer.Option(help="neo_hookean: Poisson's ratio.")] = None,
     workers: Annotated[int, typer.Option(help="Worker processes for the RVE solves (1 = serial).")] = 1,
@@ -83,7 +86,8 @@ def specimen_command(
         result = specimen(source or "plla", shape, model=model, thickness_mm=thickness, max_strain=max_strain,
                           steps=steps, grips=grips, lateral=lateral, elements_across=elements_across,
                           shape_options=_shape_options(shape_option), rve_seeds=rve_seeds, rtol=rtol,
-                          modulus_MPa=modulus, poisson_ratio=poisson, out=out, overwrite=overwrite,
+                          modulus_MPa=modulus, poisson_ratio=poisson, surrogate_from=surrogate_from, out=out,
+                          overwrite=overwrite,
                           workers=workers, scheduler=scheduler, on_step=on_step,
                           **{k.replace(".", "__"): v for k, v in parse_set(set_).items()})
     except EspinError as err:

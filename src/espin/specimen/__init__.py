@@ -103,6 +103,7 @@ def specimen(
     modulus_MPa: float | None = None,
     poisson_ratio: float | None = None,
     surrogate_reach: float = 3.0,
+    surrogate_from: str | Path | None = None,
     out: str | Path | None = None,
     overwrite: bool = False,
     workers: int | None = 1,
@@ -155,6 +156,9 @@ def specimen(
         ``model="neo_hookean"`` only: small-strain modulus [MPa] and Poisson's ratio.
     surrogate_reach
         ``model="surrogate"``: the RVE paths reach this times ``max_strain``.
+    surrogate_from
+        ``model="surrogate"``: the ``surrogate_samples.csv`` of an earlier surrogate run of the
+        same mat, used instead of running the RVE paths again (seconds instead of minutes).
     out
         Results folder (:mod:`espin.specimen.result`); None: nothing written.
     overwrite
@@ -198,14 +202,22 @@ def specimen(
             raise ConfigError("rve_seeds = 'per_point' generates a realization per point: give a preset, a "
                               "TOML file or a Config, not an RVE")
         program = GripProgram(max_strain, steps, config.loading.strain_rate_per_s)
+    samples = None
+    if surrogate_from is not None:
+        if model != "surrogate":
+            raise ConfigError("surrogate_from applies to model = 'surrogate'")
+        from espin.specimen.surrogate import read_surrogate
+
+        samples = read_surrogate(surrogate_from, config.loading.strain_rate_per_s)
     settings = dict(model=model, thickness_mm=thickness_mm, grips=grips, lateral=lateral, rtol=rtol,
                     rve_seeds=rve_seeds, modulus_MPa=modulus_MPa, poisson_ratio=poisson_ratio,
-                    surrogate_reach=surrogate_reach, workers=workers, scheduler=scheduler,
+                    surrogate_reach=surrogate_reach, samples=samples, workers=workers, scheduler=scheduler,
                     blas_threads=blas_threads, security=security)
     if out is None:
         return _run(geometry, program, config, rve, settings, None, figures, on_step)
-    digest = inputs_digest([], config_digest(config) if config is not None else "",
-                           repr(geometry), program, {k: v for k, v in settings.items() if k != "security"})
+    digest = inputs_digest([surrogate_from] if surrogate_from is not None else [],
+                           config_digest(config) if config is not None else "", repr(geometry), program,
+                           {k: v for k, v in settings.items() if k not in ("security", "samples")})
     with OutputFolder.claim(out, "specimen", digest, SPECIMEN_OUTPUTS, overwrite=overwrite):
         return _run(geometry, program, config, rve, settings, Path(out), figures, on_step)
 
@@ -272,6 +284,9 @@ def _run(geometry: Specimen, program: GripProgram, config, rve, settings: dict[s
         time_rtol = None
         if model == "neo_hookean":
             material = NeoHookean.from_uniaxial(n, settings["modulus_MPa"], settings["poisson_ratio"])
+        elif settings["samples"] is not None:  # an earlier run's surrogate: no RVE needed
+            result.surrogate = settings["samples"]
+            material = result.surrogate.material(n)
         else:
             if rve is None:
                 rve = generate(config)

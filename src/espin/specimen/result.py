@@ -15,7 +15,8 @@ Files of a results folder (units mm, N, MPa, s):
 - FE^2: ``rve.h5`` (the shared RVE) and ``rve_points.h5`` (per point: reference position, the
   F and time of every time step, and with the shared RVE the final inner node positions and
   plastic stretches), so any point can be reopened as an RVE result (:func:`reopen_point`);
-- surrogate: ``surrogate_samples.csv`` (the RVE samples E, S and fractions it interpolates).
+- surrogate: ``surrogate_samples.csv`` (the RVE samples it interpolates: E, the path's strain rate,
+  S and the fractions; ``surrogate_from=`` reuses them in another run).
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ from espin.specimen.membrane import Membrane
 from espin.specimen.rve_points import PointStates, RVEPoints, replay_point
 from espin.specimen.shapes import Specimen
 from espin.specimen.solver import SpecimenStep
-from espin.specimen.surrogate import Surrogate
+from espin.specimen.surrogate import SAMPLE_COLUMNS, Surrogate
 
 __all__ = ["SpecimenResult", "SpecimenWriter", "SPECIMEN_OUTPUTS", "reopen_point", "CURVE_COLUMNS"]
 
@@ -264,9 +265,8 @@ def _write_points(result: SpecimenResult, path: Path) -> None:
 
 
 def _write_samples(surrogate: Surrogate, path: Path) -> None:
-    names = ["E11", "E22", "E12", "S11_MPa", "S22_MPa", "S12_MPa", *surrogate.fields]
-    table = np.column_stack([surrogate.E, surrogate.S, *surrogate.fields.values()])
-    text = ",".join(names) + "\n" + "".join(",".join(f"{v:.10g}" for v in row) + "\n" for row in table)
+    text = ",".join(SAMPLE_COLUMNS) + "\n" + "".join(",".join(f"{v:.12g}" for v in row) + "\n"
+                                                      for row in surrogate.table())
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
