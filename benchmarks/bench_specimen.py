@@ -63,25 +63,39 @@ def fe2(across: int, workers: int) -> None:
     _archive(f"fe2_holed_{across}_w{workers}", result, {"wall_s": time.perf_counter() - start})
 
 
-def surrogate(workers: int) -> None:
+def surrogate(workers: int, reuse: bool) -> None:
     from espin.core.parallel import TaskPool
+    from espin.specimen.solver import SpecimenFailed
     from espin.specimen.surrogate import SAMPLE_COLUMNS, build_surrogate
 
     rve = espin.generate("plla", rve__size_ratio=60, rve__layers=3)
-    start = time.perf_counter()
-    with TaskPool(workers=workers) as pool:
-        built = build_surrogate(rve.network, rve.config, STRAIN, pool=pool)
-    build = time.perf_counter() - start
-    print(f"surrogate: {len(built.paths)} RVE paths x {len(built.speeds)} speeds, {len(built.E)} samples, built in "
-          f"{build:.1f} s ({workers} workers)", flush=True)
-    DATA.mkdir(parents=True, exist_ok=True)
     samples = DATA / "surrogate_samples.csv"
-    np.savetxt(samples, built.table(), delimiter=",", header=",".join(SAMPLE_COLUMNS), comments="", fmt="%.12g")
+    timing = DATA / "surrogate_build.json"
+    if reuse and samples.is_file() and timing.is_file():
+        build = json.loads(timing.read_text())["seconds"]
+    else:
+        start = time.perf_counter()
+        with TaskPool(workers=workers) as pool:
+            built = build_surrogate(rve.network, rve.config, STRAIN, pool=pool)
+        build = time.perf_counter() - start
+        print(f"surrogate: {len(built.paths)} RVE paths x {len(built.speeds)} speeds, {len(built.E)} samples, built "
+              f"in {build:.1f} s ({workers} workers)", flush=True)
+        DATA.mkdir(parents=True, exist_ok=True)
+        np.savetxt(samples, built.table(), delimiter=",", header=",".join(SAMPLE_COLUMNS), comments="",
+                   fmt="%.12g")
+        timing.write_text(json.dumps({"seconds": build, "workers": workers, "paths": len(built.paths),
+                                      "speeds": list(built.speeds), "samples": len(built.E)}, indent=1))
     runs = [(f"surrogate_holed_{across}", holed_strip(elements_across=across), "fixed") for across in (2, 4, 6, 8)]
     runs += [(f"surrogate_dogbone_{lateral}", dogbone(elements_across=2), lateral) for lateral in ("fixed", "free")]
     for name, geometry, lateral in runs:
-        result = espin.specimen(rve, geometry, model="surrogate", max_strain=STRAIN, steps=STEPS, lateral=lateral,
-                                surrogate_from=samples)
+        try:
+            result = espin.specimen(rve, geometry, model="surrogate", max_strain=STRAIN, steps=STEPS,
+                                    lateral=lateral, surrogate_from=samples)
+        except SpecimenFailed as failure:
+            print(f"{name}: failed after {len(failure.steps) - 1} steps: {failure}", flush=True)
+            for stale in (DATA / f"{name}.csv", DATA / f"{name}.json"):
+                stale.unlink(missing_ok=True)
+            continue
         _archive(name, result, {"surrogate_build_s": build})
 
 
@@ -152,12 +166,13 @@ def main() -> None:
     parser.add_argument("part", choices=("fe2", "surrogate", "dogbone", "report"))
     parser.add_argument("--across", type=int, default=2)
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--reuse", action="store_true", help="surrogate: the archived samples, not built again")
     args = parser.parse_args()
     logging.disable(logging.WARNING)
     if args.part == "fe2":
         fe2(args.across, args.workers)
     elif args.part == "surrogate":
-        surrogate(args.workers)
+        surrogate(args.workers, args.reuse)
     elif args.part == "dogbone":
         dogbone_runs(args.workers)
     else:

@@ -9,9 +9,13 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from html import escape
+from typing import Any, TypeVar
 
-__all__ = ["in_notebook", "NotebookProgress"]
+Step = TypeVar("Step")
+
+__all__ = ["in_notebook", "NotebookProgress", "with_progress"]
 
 
 def in_notebook() -> bool:
@@ -63,3 +67,25 @@ class NotebookProgress:
         """Show ``done`` units finished, with a short text (e.g. the strain reached)."""
         done = int(done) if self.total is None else min(int(done), self.total)
         self._handle.update(self._html(self._render(done, info)))
+
+
+def with_progress(on_step: Callable[[Step], None] | None, total: int, progress: bool | None,
+                  describe: Callable[[Step], tuple[int, str]]) -> Callable[[Step], None] | None:
+    """``on_step`` followed by a display of the steps done: in a notebook a bar updated in place,
+    elsewhere a line per step on stderr; by default (``progress`` None) in a notebook only.
+    ``describe(step)`` gives the step's number and a short text (the strain reached ...)."""
+    notebook = in_notebook()
+    if not (progress or (progress is None and notebook)):
+        return on_step
+    bar = NotebookProgress(total, "step") if notebook else None
+
+    def show(step: Any) -> None:
+        if on_step is not None:
+            on_step(step)
+        index, info = describe(step)
+        if bar is not None:
+            bar.update(index, info)
+        else:
+            print(f"step {index}/{total}: {info}", file=sys.stderr, flush=True)
+
+    return show

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -13,6 +12,7 @@ from threadpoolctl import threadpool_limits
 from espin.core.config import Config, apply_overrides, config_digest, write_config
 from espin.core.errors import ConfigError
 from espin.core.output_folder import OutputFolder
+from espin.core.progress import with_progress
 from espin.geometry.rve import RVE, generate, resolve_config
 from espin.geometry.rve_file import load_rve
 from espin.geometry.rve_folder import RVE_OUTPUTS, write_rve_files
@@ -120,36 +120,14 @@ def simulate(
     program = load_program(config.loading)  # its tables are read and checked before any work
     if rve is None:
         check_size(config, allow_large=allow_large)  # before the folder is claimed
-    on_step = _with_progress(on_step, program, progress)
+    on_step = with_progress(on_step, program.n_steps, progress,
+                            lambda record: (record.index, f"strain {record.strain:.4f}"))
     if out is None:
         return _run(config, rve, program, None, on_step, threads, allow_large, curve_marks)
     outputs = SIMULATION_OUTPUTS + (RVE_OUTPUTS if rve is None else ())
     with OutputFolder.claim(out, "simulate", config_digest(config), outputs, overwrite=overwrite,
                             inputs=[rve.path] if rve is not None and rve.path is not None else []) as claimed:
         return _run(config, rve, program, claimed, on_step, threads, allow_large, curve_marks)
-
-
-def _with_progress(on_step: Callable[[StepRecord], None] | None, program: LoadProgram,
-                   progress: bool | None) -> Callable[[StepRecord], None] | None:
-    """``on_step`` followed by the progress display asked for (see :func:`simulate`)."""
-    from espin.core.progress import NotebookProgress, in_notebook
-
-    notebook = in_notebook()
-    if not (progress or (progress is None and notebook)):
-        return on_step
-    total = program.n_steps
-    bar = NotebookProgress(total, "step") if notebook else None
-
-    def show(record: StepRecord) -> None:
-        if on_step is not None:
-            on_step(record)
-        info = f"strain {record.strain:.4f}"
-        if bar is not None:
-            bar.update(record.index, info)
-        else:
-            print(f"step {record.index}/{total}: {info}", file=sys.stderr, flush=True)
-
-    return show
 
 
 def _run(config: Config, rve: RVE | None, program: LoadProgram, claimed: OutputFolder | None,

@@ -190,7 +190,10 @@ def specimen(
     from espin.core.parallel import check_pool
 
     _check(model, thickness_mm, grips, lateral, rve_seeds, rtol, surrogate_reach, modulus_MPa, poisson_ratio)
-    on_step = _with_progress(on_step, steps, progress)
+    from espin.core.progress import with_progress
+
+    on_step = with_progress(on_step, steps, progress, lambda step: (
+        step.index, f"grip strain {step.grip_strain:.4g}, force {step.force_N:.4g} N"))
     check_pool(workers, scheduler, blas_threads, security)
     program = GripProgram(max_strain, steps, 1.0)  # the rate is checked with the config below
     geometry = make_specimen(shape, elements_across, **dict(shape_options or {}))
@@ -220,28 +223,6 @@ def specimen(
                            {k: v for k, v in settings.items() if k not in ("security", "samples")})
     with OutputFolder.claim(out, "specimen", digest, SPECIMEN_OUTPUTS, overwrite=overwrite):
         return _run(geometry, program, config, rve, settings, Path(out), figures, on_step)
-
-
-def _with_progress(on_step: Callable[[SpecimenStep], None] | None, total: int,
-                   progress: bool | None) -> Callable[[SpecimenStep], None] | None:
-    """``on_step`` followed by the progress display asked for (see :func:`specimen`)."""
-    from espin.core.progress import NotebookProgress, in_notebook
-
-    notebook = in_notebook()
-    if not (progress or (progress is None and notebook)):
-        return on_step
-    bar = NotebookProgress(total, "step") if notebook else None
-
-    def show(step: SpecimenStep) -> None:
-        if on_step is not None:
-            on_step(step)
-        info = f"grip strain {step.grip_strain:.4g}, force {step.force_N:.4g} N"
-        if bar is not None:
-            bar.update(step.index, info)
-        else:
-            print(f"step {step.index}/{total}: {info}", file=sys.stderr, flush=True)
-
-    return show
 
 
 def _resolve_rve(source: Any, overrides: dict[str, Any]):

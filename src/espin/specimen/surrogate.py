@@ -158,6 +158,9 @@ class Surrogate:
         step ``dt`` [s] from stretch tensors ``U_start`` (n, 2, 2) (None or dt = 0: at speed 1).
 
         The tangent includes the change of the speed with F."""
+        J = np.linalg.det(F)
+        if np.any(J <= 0.0):
+            raise FloatingPointError(f"det F <= 0 at {int(np.sum(J <= 0.0))} point(s)")
         E = _green(F)
         n = len(E)
         probes = [E]
