@@ -8,6 +8,7 @@
   the holed strip at 2, 4, 6 and 8 across, and the dogbone (2 across) with fixed and free sides);
 * ``dogbone``: the ISO 527-2 5A dogbone (2 across) by FE^2 with lateral fixed, and the single RVE
   (lateral fixed / free) to compare its gauge section with;
+* ``dask``: a tiny FE^2 run in this process and on a Dask LocalCluster (the same forces);
 * ``report``: the comparisons from the archived runs (mesh convergence, surrogate vs FE^2,
   speed-up from 1 to 2 workers, the dogbone).
 
@@ -111,6 +112,19 @@ def dogbone_runs(workers: int) -> None:
     _archive("fe2_dogbone_fixed", result, {})
 
 
+def dask_check() -> None:
+    """The same tiny FE^2 run in this process and on a Dask LocalCluster of 2 workers."""
+    from espin.specimen.shapes import strip
+
+    options = dict(max_strain=0.02, steps=2, rve__size_ratio=30, rve__layers=2)
+    runs = {}
+    for label, pool in (("serial", {"workers": 1}), ("dask", {"scheduler": "local", "workers": 2})):
+        start = time.perf_counter()
+        runs[label] = espin.specimen("plla", strip(20.0, 5.0, elements_across=1), **pool, **options).force_N
+        print(f"{label}: forces {runs[label]} N in {time.perf_counter() - start:.1f} s", flush=True)
+    print("identical:", bool(np.array_equal(runs["serial"], runs["dask"])))
+
+
 def _table(name: str):
     import pandas as pd
 
@@ -163,7 +177,7 @@ def report() -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("part", choices=("fe2", "surrogate", "dogbone", "report"))
+    parser.add_argument("part", choices=("fe2", "surrogate", "dogbone", "dask", "report"))
     parser.add_argument("--across", type=int, default=2)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--reuse", action="store_true", help="surrogate: the archived samples, not built again")
@@ -175,6 +189,8 @@ def main() -> None:
         surrogate(args.workers, args.reuse)
     elif args.part == "dogbone":
         dogbone_runs(args.workers)
+    elif args.part == "dask":
+        dask_check()
     else:
         report()
 

@@ -27,6 +27,7 @@ def caught(monkeypatch) -> list[Figure]:
     import espin.geometry.figures
     import espin.imaging.figures
     import espin.mechanics.figures
+    import espin.specimen.figures
     import espin.studies.figures
 
     figures: list[Figure] = []
@@ -36,7 +37,8 @@ def caught(monkeypatch) -> list[Figure]:
         return Path(path)
 
     for module in (espin.core.figures, espin.analysis.calibration.figures, espin.geometry.figures,
-                   espin.imaging.figures, espin.mechanics.figures, espin.studies.figures, espin.design.figures):
+                   espin.imaging.figures, espin.mechanics.figures, espin.studies.figures, espin.design.figures,
+                   espin.specimen.figures):
         monkeypatch.setattr(module, "save_figure", catch)
     return figures
 
@@ -257,10 +259,16 @@ def _figures_of_every_stage(pulled, tmp_path) -> None:
     plot_verification(designed.run, tmp_path / "verification.png")
     plot_pareto(designed.run, designed.evaluations, tmp_path / "pareto.png")
 
+    import espin.specimen
+
+    pulled_specimen = espin.specimen(shape="holed_strip", model="neo_hookean", modulus_MPa=100.0, poisson_ratio=0.3,
+                                     max_strain=0.05, steps=2, elements_across=2)
+    pulled_specimen.plot(tmp_path)  # force.png, specimen.png
+
 
 def test_every_figure_types_units_and_symbols(pulled, caught, tmp_path):
     _figures_of_every_stage(pulled, tmp_path)
-    assert len(caught) == 23
+    assert len(caught) == 25
     problems = [f"{text!r}: {why}" for fig in caught for text in texts(fig) for why in untypeset(text)]
     assert not problems, "\n".join(problems)
     # Every error bar says what it is: mean ± sd and n, in the figure's titles or legends.
