@@ -8,6 +8,8 @@
   the holed strip at 2, 4, 6 and 8 across, and the dogbone (2 across) with fixed and free sides);
 * ``dogbone``: the ISO 527-2 5A dogbone (2 across) by FE^2 with lateral fixed, and the single RVE
   (lateral fixed / free) to compare its gauge section with;
+* ``free``: FE^2 with free sides, a small strip to 5 % and the holed strip (run it under
+  ``timeout``: the holed strip does not get far; free_edge_*.log in the archive);
 * ``dask``: a tiny FE^2 run in this process and on a Dask LocalCluster (the same forces);
 * ``report``: the comparisons from the archived runs (mesh convergence, surrogate vs FE^2,
   speed-up from 1 to 2 workers, the dogbone).
@@ -112,6 +114,32 @@ def dogbone_runs(workers: int) -> None:
     _archive("fe2_dogbone_fixed", result, {})
 
 
+def free_sides() -> None:
+    """FE^2 with free sides (clamped grips): a 20 x 5 mm strip (4 elements, 16 RVEs) to 5 % in 5
+    steps, then the holed strip (2 across) to 20 %, one worker, with the solver's log (cuts)."""
+    from espin.specimen.shapes import strip
+
+    logging.disable(logging.NOTSET)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    for name in ("skfem", "espin.mechanics", "espin.geometry"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+    start = time.perf_counter()
+
+    def show(step) -> None:
+        print(f"step {step.index}: grip strain {step.grip_strain:.3g}, force {step.force_N:.4g} N, {step.iterations} "
+              f"iterations, {step.cuts} cuts, {step.substeps} time steps, {time.perf_counter() - start:.0f} s",
+              flush=True)
+
+    result = espin.specimen("plla", strip(20.0, 5.0, elements_across=1), max_strain=0.05, steps=5, lateral="free",
+                            on_step=show)
+    F22 = result.steps[-1].F[:, 1, 1]
+    print(f"strip: {result.counts['rve_solves']} RVE solves, {result.counts['rve_iterations']} RVE iterations, "
+          f"F22 {F22.min():.3f} to {F22.max():.3f} at 5 %", flush=True)
+    start = time.perf_counter()
+    espin.specimen("plla", holed_strip(elements_across=2), max_strain=STRAIN, steps=STEPS, lateral="free",
+                   on_step=show)
+
+
 def dask_check() -> None:
     """The same tiny FE^2 run in this process and on a Dask LocalCluster of 2 workers."""
     from espin.specimen.shapes import strip
@@ -177,7 +205,7 @@ def report() -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("part", choices=("fe2", "surrogate", "dogbone", "dask", "report"))
+    parser.add_argument("part", choices=("fe2", "surrogate", "dogbone", "dask", "free", "report"))
     parser.add_argument("--across", type=int, default=2)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--reuse", action="store_true", help="surrogate: the archived samples, not built again")
@@ -191,6 +219,8 @@ def main() -> None:
         dogbone_runs(args.workers)
     elif args.part == "dask":
         dask_check()
+    elif args.part == "free":
+        free_sides()
     else:
         report()
 
