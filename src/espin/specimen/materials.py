@@ -34,7 +34,11 @@ class PointMaterial(Protocol):
     n_points: int
 
     def evaluate(self, F: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray]:
-        """Trial P (n, 2, 2) [MPa] and A (n, 2, 2, 2, 2) [MPa] at F (n, 2, 2) and ``time`` [s]."""
+        """Trial P (n, 2, 2) [MPa] and A (n, 2, 2, 2, 2) [MPa] at F (n, 2, 2) and ``time`` [s].
+
+        A state the material cannot follow (det F <= 0, a point's solve failing) raises an
+        ``ArithmeticError`` or a :class:`~espin.core.errors.SolverError`: the macro step is cut.
+        Any other exception is a bug and stops the run."""
 
     def time_error(self) -> float:
         """Relative local time-integration error of the last trial (0 for a rate-independent material)."""

@@ -384,7 +384,7 @@ def _newton(membrane: Membrane, material: PointMaterial, constraints: _Constrain
         try:
             F = membrane.deformation_gradient(u)
             P, A = material.evaluate(F, time)
-        except (ArithmeticError, ValueError, SolverError) as err:
+        except (ArithmeticError, SolverError) as err:
             raise _NotConverged(f"the material failed ({type(err).__name__}: {err})", iteration) from None
         f = membrane.internal_force(P)
         norm = float(np.max(np.abs(f[free]), initial=0.0))
