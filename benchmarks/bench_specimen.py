@@ -174,7 +174,9 @@ def report() -> None:
         rate = ""
         if info.get("rve_solves"):
             evaluations = info["rve_solves"] / info["points"]
-            rate = (f", {evaluations:.0f} evaluations of all points, {info['seconds'] / evaluations:.2f} s each, "
+            iterations = info["macro_iterations"]
+            rate = (f", {iterations} macro iterations, {info['seconds'] / iterations:.2f} s each, "
+                    f"{evaluations:.0f} evaluations of all points, {info['seconds'] / evaluations:.2f} s each, "
                     f"{info['rve_solves'] / info['seconds']:.0f} RVE solves/s")
         print(f"  {name}: {at[0]:.4f} / {at[1]:.4f} / {at[2]:.4f} ({info['elements']} elements, "
               f"{info['seconds']:.1f} s{rate})")
