@@ -191,6 +191,29 @@ def test_time_steps_that_shrink_forever_stop_the_run():
                      time_rtol=1e-3)
 
 
+class _Buggy(NeoHookean):
+    """A neo-Hookean material with a bug: it raises ValueError on its second evaluation."""
+
+    def __init__(self, n_points: int):
+        super().__init__(n_points, 40.0, 20.0)
+        self.calls = 0
+
+    def evaluate(self, F, time):
+        self.calls += 1
+        if self.calls > 1:
+            raise ValueError("operands could not be broadcast together")
+        return super().evaluate(F, time)
+
+
+def test_a_bug_in_the_material_stops_the_run_instead_of_cutting_steps():
+    specimen = strip(20.0, 5.0, elements_across=1)
+    membrane = Membrane(specimen.mesh, T)
+    material = _Buggy(membrane.n_points)
+    with pytest.raises(ValueError, match="broadcast"):
+        run_specimen(specimen, material, GripProgram(0.1, 1, 1.0), thickness_mm=T, membrane=membrane)
+    assert material.calls == 2  # no cut, no retry
+
+
 def test_lateral_fixed_holds_the_sides_but_not_the_notch():
     from espin.specimen.shapes import notched_strip
 
