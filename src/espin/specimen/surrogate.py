@@ -3,25 +3,18 @@
 The RVE is pulled along straight paths of the right stretch tensor, U(t) = I + t G (G
 symmetric, no rotation, its largest component 1), to t = ``reach`` times the specimen's grip
 strain (less where U would lose 90 % of a stretch), with recorded steps growing as the square of
-their number (dense at the yield knee) and four more below the first, at 1/16 to 1/2 of it (a
-wavy mat's toe: without them the interpolant dips below zero stress there), each path at
-several speeds dt/dtime (0.25 to 16 times the loading's strain rate: the law is rate-dependent
-and the points of a specimen strain at different rates). Every recorded step is a sample of
-the second Piola-Kirchhoff stress S = F^-1 P at the Green-Lagrange strain E = (U^2 - I) / 2
-(with the yielded and recruited fractions). At each speed a thin-plate-spline radial-basis
-interpolant
+their number (dense at the yield knee), each path at several speeds dt/dtime (0.25 to 16 times
+the loading's strain rate: the law is rate-dependent and the points of a specimen strain at
+different rates). Every recorded step is a sample of the second Piola-Kirchhoff stress
+S = F^-1 P at the Green-Lagrange strain E = (U^2 - I) / 2 (with the yielded and recruited
+fractions). At each speed a thin-plate-spline radial-basis interpolant
 (:class:`scipy.interpolate.RBFInterpolator`) through its samples gives S(E); between speeds S is
 linear in log(speed), a point's speed being how fast its U changes over the time step. Then
 
     P = F S(E(F)),   A_iJkL = delta_ik S_LJ + F_iM dS_MJ/dE_LQ F_kQ,
 
-with dS/dE by central differences of the interpolant at the points' speeds. A point's speed in a
-time step is taken at the first trial of that step (the macro solver's tangent predictor) and
-held through its Newton iterations: S(E) at a fixed speed is smooth, while the speed has kinks
-(a max, the clamp to the speeds run, the piecewise-linear log interpolation) that halving the
-step does not remove and on which the macro Newton stalled (a wavy mat's dogbone, 4 elements
-across, at 15 % grip strain). E and the speed depend on F through C = F^T F = U^2 only, so the
-surrogate is frame-indifferent
+with dS/dE by central differences of the interpolant (the speed's change with E included). E
+and the speed depend on F through C = F^T F = U^2 only, so the surrogate is frame-indifferent
 (P(R F) = R P(F) for any rotation R) and, as the RVE, anisotropic. It is a deformation-theory
 law with a rate: exact on the sampled monotonic paths at the sampled speeds and an interpolation
 between them, blind to unloading and to a path's history (checked against FE^2 in
@@ -65,7 +58,6 @@ SAMPLE_COLUMNS = ("E11", "E22", "E12", "strain_rate_per_s", "S11_MPa", "S22_MPa"
 """Columns of a surrogate's samples file (``surrogate_samples.csv``): the Green-Lagrange strain,
 the path's speed as a strain rate [1/s], the second Piola-Kirchhoff stress and the fractions."""
 _DIFFERENCE = 1e-6  # step of the central differences of S(E)
-_TOE_SAMPLES = 4  # samples of each path below its first recorded step
 
 
 def _green(F: np.ndarray) -> np.ndarray:
@@ -160,16 +152,12 @@ class Surrogate:
         rows = np.arange(len(E))
         return (1.0 - weight) * at[upper - 1, rows] + weight * at[upper, rows]
 
-    def point_speed(self, F: np.ndarray, U_start: np.ndarray, dt: float) -> np.ndarray:
-        """Each point's speed (n,), over ``strain_rate_per_s``: the largest component of its
-        stretch tensor's change from ``U_start`` (n, 2, 2) to F (n, 2, 2) over ``dt`` [s] (> 0)."""
-        change = _stretch(_green(F)) - U_start
-        return np.abs(change).max(axis=(1, 2)) / (dt * self.strain_rate_per_s)
-
-    def stress(self, F: np.ndarray, speed: np.ndarray | None = None
+    def stress(self, F: np.ndarray, U_start: np.ndarray | None = None, dt: float = 0.0
                ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
-        """P (n, 2, 2) [MPa], A (n, 2, 2, 2, 2) [MPa] and the fractions at F (n, 2, 2) and the
-        points' speeds (n,) (:meth:`point_speed`; None: 1). A is dP/dF at those speeds."""
+        """P (n, 2, 2) [MPa], A (n, 2, 2, 2, 2) [MPa] and the fractions at F (n, 2, 2), over a time
+        step ``dt`` [s] from stretch tensors ``U_start`` (n, 2, 2) (None or dt = 0: at speed 1).
+
+        The tangent includes the change of the speed with F."""
         J = np.linalg.det(F)
         if np.any(J <= 0.0):
             raise FloatingPointError(f"det F <= 0 at {int(np.sum(J <= 0.0))} point(s)")
@@ -181,8 +169,13 @@ class Surrogate:
                 shifted = E.copy()
                 shifted[:, c] += sign * _DIFFERENCE
                 probes.append(shifted)
-        speed = np.ones(n) if speed is None else np.maximum(np.asarray(speed, dtype=float), 1e-12)
-        values = self._values(np.concatenate(probes), np.tile(speed, 7)).reshape(7, n, -1)
+        E_all = np.concatenate(probes)
+        if U_start is None or dt <= 0.0:
+            speed = np.ones(len(E_all))
+        else:
+            change = _stretch(E_all) - np.concatenate([U_start] * 7)
+            speed = np.abs(change).max(axis=(1, 2)) / (dt * self.strain_rate_per_s)
+        values = self._values(E_all, np.maximum(speed, 1e-12)).reshape(7, n, -1)
         S = _symmetric(values[0, :, :3])
         # dS/dE_c for c = (11, 22, 12); E12 is one value standing for E12 and E21.
         dS = [_symmetric((values[1 + 2 * c, :, :3] - values[2 + 2 * c, :, :3]) / (2.0 * _DIFFERENCE))
@@ -210,8 +203,7 @@ class Surrogate:
 class SurrogateMaterial:
     """A :class:`Surrogate` at quadrature points (a :class:`espin.specimen.materials.PointMaterial`):
     each point keeps its stretch tensor U and time at the last converged step, from which the
-    speed of the next step follows (taken at the step's first trial and held through its Newton
-    iterations: module docstring)."""
+    speed of the next step follows."""
 
     def __init__(self, surrogate: Surrogate, n_points: int) -> None:
         self.surrogate = surrogate
@@ -219,15 +211,10 @@ class SurrogateMaterial:
         self._U = np.tile(np.eye(2), (n_points, 1, 1))
         self._time = 0.0
         self._trial: tuple[np.ndarray, float, dict[str, np.ndarray]] | None = None
-        self._speed: tuple[float, np.ndarray] | None = None  # the step's target time and the points' speeds
         self._fields = {name: np.zeros(n_points) for name in _FIELDS}
 
     def evaluate(self, F: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray]:
-        if self._speed is None or self._speed[0] != time:
-            dt = time - self._time
-            speed = self.surrogate.point_speed(F, self._U, dt) if dt > 0.0 else np.ones(self.n_points)
-            self._speed = (time, speed)
-        P, A, fields = self.surrogate.stress(F, self._speed[1])
+        P, A, fields = self.surrogate.stress(F, self._U, time - self._time)
         self._trial = (_stretch(_green(F)), time, fields)
         return P, A
 
@@ -237,10 +224,10 @@ class SurrogateMaterial:
     def commit(self) -> None:
         if self._trial is not None:
             self._U, self._time, self._fields = self._trial
-            self._trial = self._speed = None
+            self._trial = None
 
     def rollback(self) -> None:
-        self._trial = self._speed = None
+        self._trial = None
 
     def fields(self) -> dict[str, np.ndarray]:
         return dict(self._fields)
@@ -286,9 +273,7 @@ def build_surrogate(network: Network, config: Config, max_strain: float, *, reac
     if not rates or rates[0] <= 0.0 or len(set(rates)) != len(rates):
         raise ConfigError(f"speeds = {tuple(speeds)}: distinct positive factors of the strain rate are needed")
     G /= np.abs(G).max(axis=1, keepdims=True)
-    # dense at small strain: the yield knee, and a wavy mat's toe (halvings below the first step)
-    shape = np.linspace(0.0, 1.0, steps + 1) ** 2
-    shape = np.r_[0.0, shape[1] * 0.5 ** np.arange(_TOE_SAMPLES, 0, -1), shape[1:]]
+    shape = np.linspace(0.0, 1.0, steps + 1) ** 2  # dense at small strain: the yield knee
     tasks, task_speed = [], []
     rate = config.loading.strain_rate_per_s
     for speed in rates:
