@@ -296,6 +296,12 @@ def _run(geometry: Specimen, program: GripProgram, config, rve, settings: dict[s
             run_specimen(geometry, material, program, thickness_mm=settings["thickness_mm"], grips=settings["grips"],
                          lateral=settings["lateral"], rtol=settings["rtol"], time_rtol=time_rtol,
                          on_step=step_done, membrane=membrane)
+        except SpecimenFailed as failure:
+            if result.surrogate is None:
+                raise
+            raise SpecimenFailed(f"{failure} (surrogate: its interpolated tangent can be indefinite near zero "
+                                 "strain, on wavy mats most; fewer elements across or the fe2 model may get "
+                                 "through: docs/specimen.md, 'The surrogate's limits')", failure.steps) from None
         finally:
             result.counts.update(seconds=time.perf_counter() - start, workers=pool.description,
                                  macro_iterations=sum(s.iterations for s in result.steps),
