@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import espin
-from espin.core.errors import ConfigError
+from espin.core.errors import ConfigError, InputError
 from espin.specimen.membrane import Membrane
 from espin.specimen.rve_points import RVEPoints, rve_tolerance
 from espin.specimen.shapes import strip
@@ -209,12 +209,11 @@ def test_per_point_realizations_differ_and_the_shared_rve_is_one():
 
 
 def test_a_surrogate_runs_again_from_its_samples(rve, tmp_path):
-    from espin.specimen.surrogate import SAMPLE_COLUMNS
+    from espin.specimen.surrogate_file import write_samples
 
     built = build_surrogate(rve.network, rve.config, 0.02, reach=1.0, steps=3, speeds=(1.0, 4.0),
                             paths=[(1.0, 0.0, 0.0), (1.0, -0.5, 0.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.5)])
-    samples = tmp_path / "surrogate_samples.csv"
-    np.savetxt(samples, built.table(), delimiter=",", header=",".join(SAMPLE_COLUMNS), comments="", fmt="%.17g")
+    samples = write_samples(tmp_path / "surrogate_samples.csv", built.identity, built.runs)
     specimen = strip(20.0, 5.0, elements_across=1)
     membrane = Membrane(specimen.mesh, T)
     direct = run_specimen(specimen, built.material(membrane.n_points),
@@ -224,7 +223,6 @@ def test_a_surrogate_runs_again_from_its_samples(rve, tmp_path):
                            surrogate_from=samples)
     assert np.allclose(again.force_N, [s.force_N for s in direct], rtol=1e-9)
     assert not (tmp_path / "b" / "rve.h5").exists()
-    assert np.allclose(np.loadtxt(tmp_path / "b" / "surrogate_samples.csv", delimiter=",", skiprows=1),
-                       built.table(), rtol=1e-10, atol=1e-14)
-    with pytest.raises(ConfigError, match="surrogate samples"):
+    assert (tmp_path / "b" / "surrogate_samples.csv").read_bytes() == samples.read_bytes()
+    with pytest.raises(InputError, match="surrogate_from.*specimen.json"):
         espin.specimen(rve, "strip", model="surrogate", surrogate_from=tmp_path / "b" / "specimen.json")

@@ -53,7 +53,13 @@ def specimen_command(
     rtol: Annotated[float, typer.Option(help="Macro tolerance (the RVEs solve to 1e-3 of it).")] = 1e-6,
     surrogate_from: Annotated[Optional[Path], typer.Option(
         help="surrogate: the surrogate_samples.csv of an earlier surrogate run of the same mat (no RVE runs: "
-             "seconds).")] = None,
+             "seconds). Samples of another mat, law or strain rate, or built for a smaller --max-strain, are "
+             "refused.")] = None,
+    allow_surrogate_mismatch: Annotated[bool, typer.Option(
+        "--allow-surrogate-mismatch",
+        help="Use --surrogate-from samples of another mat or reach anyway (recorded in specimen.json).")] = False,
+    surrogate_reach: Annotated[float, typer.Option(
+        help="surrogate: the RVE paths reach this times --max-strain (stress concentrations strain more).")] = 3.0,
     modulus: Annotated[Optional[float], typer.Option(help="neo_hookean: modulus [MPa].")] = None,
     poisson: Annotated[Optional[float], typer.Option(help="neo_hookean: Poisson's ratio.")] = None,
     workers: Annotated[int, typer.Option(help="Worker processes for the RVE solves (1 = serial).")] = 1,
@@ -86,9 +92,10 @@ def specimen_command(
         result = specimen(source or "plla", shape, model=model, thickness_mm=thickness, max_strain=max_strain,
                           steps=steps, grips=grips, lateral=lateral, elements_across=elements_across,
                           shape_options=_shape_options(shape_option), rve_seeds=rve_seeds, rtol=rtol,
-                          modulus_MPa=modulus, poisson_ratio=poisson, surrogate_from=surrogate_from, out=out,
-                          overwrite=overwrite,
-                          workers=workers, scheduler=scheduler, on_step=on_step,
+                          modulus_MPa=modulus, poisson_ratio=poisson, surrogate_from=surrogate_from,
+                          allow_surrogate_mismatch=allow_surrogate_mismatch, surrogate_reach=surrogate_reach,
+                          out=out, overwrite=overwrite, workers=workers, scheduler=scheduler, on_step=on_step,
+                          report=lambda line: console.print(line, highlight=False, soft_wrap=True),
                           **{k.replace(".", "__"): v for k, v in parse_set(set_).items()})
     except EspinError as err:
         fail(err)

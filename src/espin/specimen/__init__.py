@@ -104,6 +104,7 @@ def specimen(
     poisson_ratio: float | None = None,
     surrogate_reach: float = 3.0,
     surrogate_from: str | Path | None = None,
+    allow_surrogate_mismatch: bool = False,
     out: str | Path | None = None,
     overwrite: bool = False,
     workers: int | None = 1,
@@ -113,6 +114,7 @@ def specimen(
     figures: bool = True,
     on_step: Callable[[SpecimenStep], None] | None = None,
     progress: bool | None = None,
+    report: Callable[[str], None] | None = None,
     **overrides: Any,
 ) -> SpecimenResult:
     """Pull a specimen of the mat between its grips (module docstring; docs/specimen.md).
@@ -158,9 +160,16 @@ def specimen(
         ``model="surrogate"``: the RVE paths reach this times ``max_strain``.
     surrogate_from
         ``model="surrogate"``: the ``surrogate_samples.csv`` of an earlier surrogate run of the
-        same mat, used instead of running the RVE paths again (seconds instead of minutes).
+        same mat, used instead of running the RVE paths again (seconds instead of minutes). The
+        file names its mat: samples of another mat, law or strain rate, or built for a smaller
+        grip strain, are refused (:mod:`espin.specimen.surrogate_file`).
+    allow_surrogate_mismatch
+        Use ``surrogate_from`` samples of another mat or reach anyway (recorded in
+        ``specimen.json``).
     out
-        Results folder (:mod:`espin.specimen.result`); None: nothing written.
+        Results folder (:mod:`espin.specimen.result`); None: nothing written. A surrogate build
+        keeps its finished RVE paths there as it goes: the same call into the same folder after a
+        failure or an interruption resumes from them.
     overwrite
         Replace another run's results in ``out`` instead of refusing.
     workers, scheduler, blas_threads, security
@@ -172,6 +181,9 @@ def specimen(
     progress
         Show the steps done and the force: in a Jupyter notebook as a bar, elsewhere as a line
         per step on stderr. Default (None): in a notebook only.
+    report
+        Called with a line of progress of the surrogate's build (its plan, each finished RVE
+        path, and at least every 25 s); None: silent.
     **overrides
         Config keys as ``section__key=value``.
 
@@ -211,17 +223,19 @@ def specimen(
             raise ConfigError("surrogate_from applies to model = 'surrogate'")
         from espin.specimen.surrogate import read_surrogate
 
-        samples = read_surrogate(surrogate_from, config.loading.strain_rate_per_s)
+        samples = read_surrogate(surrogate_from, config, max_strain, allow_mismatch=allow_surrogate_mismatch)
     settings = dict(model=model, thickness_mm=thickness_mm, grips=grips, lateral=lateral, rtol=rtol,
                     rve_seeds=rve_seeds, modulus_MPa=modulus_MPa, poisson_ratio=poisson_ratio,
                     surrogate_reach=surrogate_reach, samples=samples, workers=workers, scheduler=scheduler,
-                    blas_threads=blas_threads, security=security)
+                    blas_threads=blas_threads, security=security, surrogate_from=surrogate_from, report=report)
     if out is None:
         return _run(geometry, program, config, rve, settings, None, figures, on_step)
     digest = inputs_digest([surrogate_from] if surrogate_from is not None else [],
                            config_digest(config) if config is not None else "", repr(geometry), program,
-                           {k: v for k, v in settings.items() if k not in ("security", "samples")})
-    with OutputFolder.claim(out, "specimen", digest, SPECIMEN_OUTPUTS, overwrite=overwrite):
+                           {k: v for k, v in settings.items() if k not in ("security", "samples", "report")})
+    resumable = model == "surrogate" and surrogate_from is None  # a build keeps its finished paths
+    with OutputFolder.claim(out, "specimen", digest, SPECIMEN_OUTPUTS, overwrite=overwrite,
+                            resume="same-inputs" if resumable else None):
         return _run(geometry, program, config, rve, settings, Path(out), figures, on_step)
 
 
@@ -248,7 +262,7 @@ def _run(geometry: Specimen, program: GripProgram, config, rve, settings: dict[s
     from espin.specimen.result import SpecimenWriter, points_history
     from espin.specimen.rve_points import RVEPoints, rve_tolerance
     from espin.specimen.solver import run_specimen
-    from espin.specimen.surrogate import build_surrogate
+    from espin.specimen.surrogate import build_surrogate, surrogate_identity
 
     start = time.perf_counter()
     membrane = Membrane(geometry.mesh, settings["thickness_mm"])
@@ -267,6 +281,9 @@ def _run(geometry: Specimen, program: GripProgram, config, rve, settings: dict[s
             material = NeoHookean.from_uniaxial(n, settings["modulus_MPa"], settings["poisson_ratio"])
         elif settings["samples"] is not None:  # an earlier run's surrogate: no RVE needed
             result.surrogate = settings["samples"]
+            result.surrogate_source = str(settings["surrogate_from"])
+            result.surrogate_mismatches = result.surrogate.identity.mismatches(
+                surrogate_identity(config, program.max_strain))
             material = result.surrogate.material(n)
         else:
             if rve is None:
@@ -274,8 +291,10 @@ def _run(geometry: Specimen, program: GripProgram, config, rve, settings: dict[s
             if folder is not None:
                 save_rve(rve, folder / "rve.h5")
             if model == "surrogate":
-                result.surrogate = build_surrogate(rve.network, config, program.max_strain,
-                                                   reach=settings["surrogate_reach"], pool=pool)
+                result.surrogate = build_surrogate(
+                    rve.network, config, program.max_strain, reach=settings["surrogate_reach"], pool=pool,
+                    samples_path=None if folder is None else folder / "surrogate_samples.csv",
+                    report=settings["report"])
                 material = result.surrogate.material(n)
             else:
                 config = rve_tolerance(config, settings["rtol"])

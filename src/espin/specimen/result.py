@@ -15,8 +15,10 @@ Files of a results folder (units mm, N, MPa, s):
 - FE^2: ``rve.h5`` (the shared RVE) and ``rve_points.h5`` (per point: reference position, the
   F and time of every time step, and with the shared RVE the final inner node positions and
   plastic stretches), so any point can be reopened as an RVE result (:func:`reopen_point`);
-- surrogate: ``surrogate_samples.csv`` (the RVE samples it interpolates: E, the path's strain rate,
-  S and the fractions; ``surrogate_from=`` reuses them in another run).
+- surrogate: ``surrogate_samples.csv`` (the RVE samples it interpolates, with the identity of
+  their mat: :mod:`espin.specimen.surrogate_file`; written as each RVE path finishes;
+  ``surrogate_from=`` reuses them in another run of the same mat), and in ``specimen.json`` where
+  they came from (``built`` or the file) and any mismatch the run was told to accept.
 """
 
 from __future__ import annotations
@@ -48,7 +50,8 @@ from espin.specimen.membrane import Membrane
 from espin.specimen.rve_points import PointStates, RVEPoints, replay_point
 from espin.specimen.shapes import Specimen
 from espin.specimen.solver import SpecimenStep
-from espin.specimen.surrogate import SAMPLE_COLUMNS, Surrogate
+from espin.specimen.surrogate import Surrogate
+from espin.specimen.surrogate_file import write_samples
 
 __all__ = ["SpecimenResult", "SpecimenWriter", "SPECIMEN_OUTPUTS", "reopen_point", "CURVE_COLUMNS"]
 
@@ -141,6 +144,10 @@ class SpecimenResult:
     point_time, point_F : ndarray
         FE^2: time [s] (k,) and F (k, n_points, 2, 2) of every time step (for replays).
     surrogate : Surrogate or None
+    surrogate_source : str
+        ``"built"`` (this run ran the RVE paths) or the samples file it read.
+    surrogate_mismatches : list of str
+        How the samples read differ from this run's mat, when the run was told to accept it.
     final_state : PointStates or None
         FE^2: the points' RVE states at the last converged step.
     counts : dict
@@ -160,6 +167,8 @@ class SpecimenResult:
     point_time: np.ndarray | None = None
     point_F: np.ndarray | None = None
     surrogate: Surrogate | None = None
+    surrogate_source: str = "built"
+    surrogate_mismatches: list[str] = field(default_factory=list)
     counts: dict[str, Any] = field(default_factory=dict)
     folder: Path | None = None
     final_state: PointStates | None = None
@@ -213,7 +222,7 @@ class SpecimenResult:
         if self.point_F is not None:
             _write_points(self, self.folder / "rve_points.h5")
         if self.surrogate is not None:
-            _write_samples(self.surrogate, self.folder / "surrogate_samples.csv")
+            write_samples(self.folder / "surrogate_samples.csv", self.surrogate.identity, self.surrogate.runs)
         if figures:
             self.plot(self.folder)
 
@@ -243,6 +252,12 @@ def _write_json(result: SpecimenResult, path: Path) -> None:
             "elements": spec.n_elements, "quadrature_points": result.membrane.n_points,
             "thickness_mm": result.thickness_mm, "model": result.model, "grips": result.grips,
             "lateral": result.lateral, "counts": result.counts}
+    if result.surrogate is not None:
+        identity = result.surrogate.identity
+        data["surrogate_samples"] = {"config_digest": identity.config_digest, "law": identity.law,
+                                     "strain_rate_per_s": identity.strain_rate_per_s,
+                                     "max_strain": identity.max_strain, "source": result.surrogate_source,
+                                     "mismatches": result.surrogate_mismatches}
     atomic_write_bytes(path, json.dumps(data, indent=1, default=float).encode("utf-8"))
 
 
@@ -262,12 +277,6 @@ def _write_points(result: SpecimenResult, path: Path) -> None:
                 h5.create_dataset("final/plastic_stretch", data=np.stack(state.plastic_stretch), compression="gzip")
 
     atomic_write(path, write)
-
-
-def _write_samples(surrogate: Surrogate, path: Path) -> None:
-    text = ",".join(SAMPLE_COLUMNS) + "\n" + "".join(",".join(f"{v:.12g}" for v in row) + "\n"
-                                                      for row in surrogate.table())
-    atomic_write_bytes(path, text.encode("utf-8"))
 
 
 def reopen_point(folder: str | Path, point: int) -> SimulationResult:

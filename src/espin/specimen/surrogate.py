@@ -24,7 +24,7 @@ docs/specimen.md).
 from __future__ import annotations
 
 import time as time_module
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,15 +32,18 @@ import numpy as np
 from scipy.interpolate import RBFInterpolator
 
 from espin.core.config import Config
-from espin.core.errors import ConfigError, SolverError
+from espin.core.errors import ConfigError, InputError, SolverError
+from espin.core.heartbeat import Heartbeat
 from espin.core.parallel import TaskPool
+from espin.core.progress import _duration
 from espin.geometry.network import Network
-from espin.mechanics.driver import run_program
+from espin.mechanics.driver import SimulationFailed, run_program
 from espin.mechanics.linear_solvers import make_linear_solver
 from espin.mechanics.loading import path_program
+from espin.specimen.surrogate_file import SampleIdentity, mat_identity, read_samples, write_samples
 
 __all__ = ["Surrogate", "SurrogateMaterial", "build_surrogate", "read_surrogate", "DEFAULT_PATHS", "DEFAULT_SPEEDS",
-           "SAMPLE_COLUMNS"]
+           "sample_rows"]
 
 DEFAULT_PATHS = tuple((1.0, lateral, shear) for lateral in (-0.6, -0.3, 0.0, 0.35, 0.7)
                       for shear in (-0.5, 0.0, 0.5)) + (
@@ -54,9 +57,6 @@ DEFAULT_SPEEDS = (0.25, 1.0, 4.0, 16.0)
 rate-dependent; in a specimen the points near a hole strain several times faster than the grips)."""
 
 _FIELDS = ("yielded_fraction", "recruited_fraction")
-SAMPLE_COLUMNS = ("E11", "E22", "E12", "strain_rate_per_s", "S11_MPa", "S22_MPa", "S12_MPa", *_FIELDS)
-"""Columns of a surrogate's samples file (``surrogate_samples.csv``): the Green-Lagrange strain,
-the path's speed as a strain rate [1/s], the second Piola-Kirchhoff stress and the fractions."""
 _DIFFERENCE = 1e-6  # step of the central differences of S(E)
 
 
@@ -83,15 +83,36 @@ class _Path:
     network: Network
     config: Config
     time: np.ndarray
-    F: np.ndarray
+    stretch: np.ndarray
+    U: np.ndarray
+    strain_rate_per_s: float
 
 
-def _run_path(path: _Path) -> dict[str, np.ndarray]:
-    """One RVE run along a stretch path (runs in a worker)."""
-    result = run_program(path.network, path.config, make_linear_solver(path.config.solver.linear),
-                         program=path_program(path.time, path.F))
-    return {"F": result.F, "P": result.P, "yielded_fraction": result.yielded_fraction,
-            "recruited_fraction": result.recruited_fraction}
+def _run_path(path: _Path) -> np.ndarray | _PathFailure:
+    """One RVE run along a stretch path (runs in a worker): its rows of the samples file (without
+    the path column), one per recorded step.
+
+    A step that does not converge gives a :class:`_PathFailure`: which step, at which stretch
+    of the path (the stretch parameter t of U = I + t G) and why.
+    """
+    try:
+        result = run_program(path.network, path.config, make_linear_solver(path.config.solver.linear),
+                             program=path_program(path.time, path.U, strain=path.stretch))
+    except SimulationFailed as failure:
+        return _PathFailure(f"step {failure.step} of {failure.n_steps} (path strain {failure.strain:.4g}, time "
+                            f"{failure.time:.4g} s) did not converge: {failure.reason}", float(failure.strain))
+    return sample_rows(result.F[1:], result.P[1:], path.strain_rate_per_s,
+                       result.yielded_fraction[1:], result.recruited_fraction[1:])
+
+
+def sample_rows(F: np.ndarray, P: np.ndarray, strain_rate_per_s: float, yielded: np.ndarray,
+                recruited: np.ndarray) -> np.ndarray:
+    """Rows (E11, E22, E12, strain rate [1/s], S11, S22, S12 [MPa], yielded and recruited
+    fractions) of recorded steps with deformation gradients F (n, 2, 2) and nominal stresses P
+    (n, 2, 2) [MPa]."""
+    S_full = np.linalg.solve(F, P)
+    S = np.column_stack([S_full[:, 0, 0], S_full[:, 1, 1], 0.5 * (S_full[:, 0, 1] + S_full[:, 1, 0])])
+    return np.column_stack([_green(F), np.full(len(F), strain_rate_per_s), S, yielded, recruited])
 
 
 @dataclass(frozen=True, eq=False)
@@ -115,7 +136,12 @@ class Surrogate:
     strain_rate_per_s : float [1/s]
         The loading's strain rate (speed 1).
     seconds : float [s]
-        Wall time of the RVE runs.
+        Wall time of the RVE runs (0 for samples read from a file).
+    identity : SampleIdentity
+        Whose samples these are and how they were built (the samples file's header).
+    runs : dict of int to (steps, 9) float64
+        The samples path by path, as the samples file holds them
+        (:mod:`espin.specimen.surrogate_file`).
 
     At a point, S is interpolated in E at each speed (thin-plate splines through that speed's
     samples) and linearly in log(speed) between the two speeds around the point's own, clamped to
@@ -132,6 +158,8 @@ class Surrogate:
     speeds: tuple[float, ...]
     strain_rate_per_s: float
     seconds: float
+    identity: SampleIdentity
+    runs: dict[int, np.ndarray]
 
     def __post_init__(self) -> None:
         values = np.column_stack([self.S] + [self.fields[name] for name in _FIELDS])
@@ -194,10 +222,16 @@ class Surrogate:
         """The surrogate as the material of ``n_points`` quadrature points."""
         return SurrogateMaterial(self, n_points)
 
-    def table(self) -> np.ndarray:
-        """The samples as rows of :data:`SAMPLE_COLUMNS`."""
-        return np.column_stack([self.E, self.speed * self.strain_rate_per_s, self.S,
-                                *(self.fields[name] for name in _FIELDS)])
+    @classmethod
+    def from_runs(cls, identity: SampleIdentity, runs: dict[int, np.ndarray], paths: np.ndarray,
+                  seconds: float = 0.0) -> Surrogate:
+        """The surrogate of the finished paths ``runs`` of a build (rows as in the samples file)
+        and the unstrained origin."""
+        table = np.concatenate([runs[k] for k in sorted(runs)])
+        speed = np.concatenate([np.full(len(runs[k]), identity.speeds[k // identity.directions]) for k in sorted(runs)])
+        fields = {name: np.r_[0.0, table[:, 7 + i]] for i, name in enumerate(_FIELDS)}
+        return cls(np.vstack([np.zeros(3), table[:, :3]]), np.vstack([np.zeros(3), table[:, 4:7]]), np.r_[1.0, speed],
+                   fields, paths, identity.speeds, identity.strain_rate_per_s, seconds, identity, dict(runs))
 
 
 class SurrogateMaterial:
@@ -233,9 +267,19 @@ class SurrogateMaterial:
         return dict(self._fields)
 
 
+@dataclass(frozen=True)
+class _PathFailure:
+    """A path whose RVE run did not converge: the message and the path strain it reached."""
+
+    message: str
+    strain: float
+
+
 def build_surrogate(network: Network, config: Config, max_strain: float, *, reach: float = 3.0, steps: int = 24,
                     paths: Sequence[tuple[float, float, float]] = DEFAULT_PATHS,
-                    speeds: Sequence[float] = DEFAULT_SPEEDS, pool: TaskPool | None = None) -> Surrogate:
+                    speeds: Sequence[float] = DEFAULT_SPEEDS, pool: TaskPool | None = None,
+                    samples_path: str | Path | None = None, report: Callable[[str], None] | None = None
+                    ) -> Surrogate:
     """Run the RVE along stretch paths and build the surrogate (module docstring).
 
     Parameters
@@ -254,16 +298,24 @@ def build_surrogate(network: Network, config: Config, max_strain: float, *, reac
         Path speeds dt/dtime over the loading's strain rate; every path runs at each.
     pool
         Where the RVE runs go (default: this process).
+    samples_path
+        The samples file (:mod:`espin.specimen.surrogate_file`), written again as each path
+        finishes; the finished paths it already holds for this very build (an interrupted or failed
+        earlier run) are used instead of run again. None: nothing written or reused.
+    report
+        Called with a line when the build starts, when each path finishes and at least every
+        :data:`espin.core.heartbeat.HEARTBEAT_S` seconds in between; None: silent.
 
     Raises
     ------
     ConfigError
-        For a bad option; SolverError when an RVE run fails.
+        For a bad option; SolverError when an RVE run fails (the path, the strain it reached, why,
+        what to try, and where the finished paths are kept).
     """
     if not 0.0 < max_strain <= 1.0:
-        raise ConfigError(f"max_strain = {max_strain}: must be in (0, 1]")
+        raise ConfigError(f"max_strain = {max_strain:g}: must be in (0, 1]")
     if not reach >= 1.0:
-        raise ConfigError(f"reach = {reach}: must be >= 1")
+        raise ConfigError(f"reach = {reach:g}: must be >= 1")
     if int(steps) != steps or steps < 2:
         raise ConfigError(f"steps = {steps}: must be an integer >= 2")
     G = np.array(paths, dtype=float)
@@ -271,64 +323,130 @@ def build_surrogate(network: Network, config: Config, max_strain: float, *, reac
         raise ConfigError("paths: at least three non-zero directions (G11, G22, G12) are needed")
     rates = sorted(float(v) for v in speeds)
     if not rates or rates[0] <= 0.0 or len(set(rates)) != len(rates):
-        raise ConfigError(f"speeds = {tuple(speeds)}: distinct positive factors of the strain rate are needed")
+        raise ConfigError(f"speeds = {', '.join(f'{v:g}' for v in speeds)}: distinct positive factors of the "
+                          "strain rate are needed")
     G /= np.abs(G).max(axis=1, keepdims=True)
-    shape = np.linspace(0.0, 1.0, steps + 1) ** 2  # dense at small strain: the yield knee
-    tasks, task_speed = [], []
     rate = config.loading.strain_rate_per_s
+    identity = SampleIdentity(*mat_identity(config), rate, float(max_strain), float(reach), int(steps), len(G),
+                              tuple(rates))
+    shape = np.linspace(0.0, 1.0, steps + 1) ** 2  # dense at small strain: the yield knee
+    tasks, ends = [], []
     for speed in rates:
         for g in G:
             # to reach x the grip strain, but U stays positive definite: its smallest eigenvalue >= 0.1
             smallest = np.linalg.eigvalsh(_symmetric(g)).min()
             t = min(reach * max_strain, 0.9 / -smallest if smallest < 0.0 else np.inf) * shape
-            tasks.append(_Path(network, config, t / (speed * rate), np.eye(2) + t[:, None, None] * _symmetric(g)[None]))
-            task_speed.append(speed)
+            tasks.append(_Path(network, config, t / (speed * rate), t, np.eye(2) + t[:, None, None] * _symmetric(g)[None],
+                               speed * rate))
+            ends.append(t[-1])
+    runs = _kept_runs(samples_path, identity, report)
+    todo = [k for k in range(len(tasks)) if k not in runs]
     pool = pool or TaskPool(workers=1)
     start = time_module.perf_counter()
-    runs: list[dict[str, np.ndarray] | None] = [None] * len(tasks)
-    for outcome in pool.map(_run_path, tasks):
-        if not outcome.ok:
-            raise SolverError(f"surrogate path {tuple(G[outcome.index % len(G)])} at speed "
-                              f"{task_speed[outcome.index]:g}: {outcome.error}")
-        runs[outcome.index] = outcome.value
-    seconds = time_module.perf_counter() - start
-    F = np.concatenate([r["F"][1:] for r in runs])
-    P = np.concatenate([r["P"][1:] for r in runs])
-    S_full = np.linalg.solve(F, P)
-    S = np.column_stack([S_full[:, 0, 0], S_full[:, 1, 1], 0.5 * (S_full[:, 0, 1] + S_full[:, 1, 0])])
-    E = np.vstack([np.zeros(3), _green(F)])
-    S = np.vstack([np.zeros(3), S])
-    speed = np.r_[1.0, np.repeat(task_speed, [len(r["F"]) - 1 for r in runs])]
-    fields = {name: np.r_[0.0, np.concatenate([r[name][1:] for r in runs])] for name in _FIELDS}
-    return Surrogate(E, S, speed, fields, G, tuple(rates), rate, seconds)
+
+    def name(k: int) -> str:
+        g = G[k % len(G)]
+        return (f"path {k + 1} of {len(tasks)} (U = I + t G, G = ({g[0]:g}, {g[1]:g}, {g[2]:g}), to t = "
+                f"{ends[k]:.3g}, at {rates[k // len(G)]:g} x the strain rate)")
+
+    def status() -> str:
+        elapsed = time_module.perf_counter() - start
+        finished = len(runs) - (len(tasks) - len(todo))
+        left = (f", about {_duration(elapsed / finished * (len(todo) - finished))} left" if finished else "")
+        return (f"surrogate: {len(runs)} of {len(tasks)} RVE paths done, {_duration(elapsed)} elapsed{left}")
+
+    with Heartbeat(report, status) as heartbeat:
+        heartbeat.say(f"surrogate: {len(tasks)} RVE paths ({len(G)} directions x {len(rates)} speeds, {steps} "
+                      f"steps each, to {reach:g} x the grip strain {max_strain:g}) on {pool.description}"
+                      + (f"; {len(runs)} finished paths reused from {samples_path}" if runs else ""))
+        for outcome in pool.map(_run_path, [tasks[k] for k in todo]):
+            k = todo[outcome.index]
+            if not outcome.ok or isinstance(outcome.value, _PathFailure):
+                raise SolverError(_failure(name(k), outcome, ends[k], identity, len(runs), samples_path)) from None
+            runs[k] = outcome.value
+            if samples_path is not None:
+                write_samples(Path(samples_path), identity, runs)
+            heartbeat.say(f"{status()}: {name(k)} in {outcome.seconds:.0f} s")
+    return Surrogate.from_runs(identity, runs, G, time_module.perf_counter() - start)
 
 
-def read_surrogate(path: str | Path, strain_rate_per_s: float) -> Surrogate:
+def _kept_runs(samples_path: str | Path | None, identity: SampleIdentity,
+               report: Callable[[str], None] | None) -> dict[int, np.ndarray]:
+    """The finished paths of this build already in ``samples_path`` (none when there is no file or
+    it is of another build, which the build then replaces, saying so)."""
+    if samples_path is None or not Path(samples_path).is_file():
+        return {}
+    kept = read_samples(samples_path)
+    if kept.identity != identity:
+        if report is not None:
+            report(f"surrogate: {samples_path} holds the paths of another build (another mat or settings); "
+                   "starting again")
+        return {}
+    return dict(kept.runs)
+
+
+def _failure(name: str, outcome, end: float, identity: SampleIdentity, finished: int,
+             samples_path: str | Path | None) -> str:
+    """The message of a failed path: which, where, why, what to try and what is kept."""
+    failure = outcome.value if isinstance(outcome.value, _PathFailure) else None
+    why = failure.message if failure is not None else str(outcome.error).removeprefix("SolverError: ")
+    grip = identity.max_strain
+    if failure is not None and failure.strain > grip:
+        reach = np.floor(9.0 * failure.strain / grip) / 10.0
+        advice = (f"a smaller reach (--surrogate-reach {reach:g}: the paths go to {identity.reach:g} x the grip "
+                  f"strain, this one failed at {failure.strain / grip:.2g} x)" if reach >= 1.0 else
+                  f"a smaller --max-strain (below {failure.strain:.3g})")
+    elif failure is not None:
+        advice = f"a smaller --max-strain (this path failed at strain {failure.strain:.3g}, below the grip strain)"
+    else:
+        advice = "a smaller --max-strain or --surrogate-reach"
+    kept = (f"; the {finished} finished paths are kept in {samples_path} (the same command into the same folder "
+            "resumes from them)" if samples_path is not None and finished else "")
+    return (f"surrogate: the RVE run along {name} failed: {why}. Try {advice}, or --model fe2 (each point's RVE "
+            f"follows its own path){kept}")
+
+
+def read_surrogate(path: str | Path, config: Config, max_strain: float, allow_mismatch: bool = False
+                   ) -> Surrogate:
     """A surrogate from the samples file of an earlier run (``surrogate_samples.csv``), for a
-    loading at ``strain_rate_per_s`` [1/s] (the samples' speeds are relative to it).
+    specimen of the mat ``config`` pulled to the grip strain ``max_strain``.
+
+    Parameters
+    ----------
+    path
+        The samples file (:mod:`espin.specimen.surrogate_file`).
+    config
+        The run's mat: the samples must be of it (config digest, law and strain rate).
+    max_strain
+        The run's grip strain: at most the one the samples were built for.
+    allow_mismatch
+        Use samples of another mat or build anyway (the user knows why); the mismatch is still
+        recorded (:attr:`Surrogate.identity` against the run's).
 
     Raises
     ------
     ConfigError
-        When the file is missing or is not a samples file.
+        When the file is missing, or its samples are not of this mat or reach (unless
+        ``allow_mismatch``).
+    InputError
+        When the file is not a whole samples file (:func:`espin.specimen.surrogate_file.read_samples`).
     """
-    import pandas as pd
+    samples = read_samples(path)
+    if not samples.complete:
+        raise InputError(f"surrogate_from: {path}: holds {len(samples.runs)} of the build's "
+                         f"{samples.identity.n_paths} paths (an interrupted build); rerun that build (the same "
+                         "command into the same folder) to finish it")
+    mismatches = samples.identity.mismatches(surrogate_identity(config, max_strain))
+    if mismatches and not allow_mismatch:
+        raise ConfigError(f"surrogate_from: {path}: " + "; ".join(mismatches) + ". Build the surrogate for this "
+                          "mat (without --surrogate-from), or pass --allow-surrogate-mismatch to use these samples "
+                          "anyway")
+    return Surrogate.from_runs(samples.identity, samples.runs, np.zeros((0, 3)))
 
-    path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"surrogate samples {path}: no such file (a surrogate run's surrogate_samples.csv)")
-    try:
-        table = pd.read_csv(path)
-    except (ValueError, OSError, UnicodeDecodeError) as err:
-        raise ConfigError(f"surrogate samples {path}: cannot read it as CSV ({err})") from None
-    missing = [c for c in SAMPLE_COLUMNS if c not in table.columns]
-    values = table.reindex(columns=SAMPLE_COLUMNS).to_numpy(dtype=float, na_value=np.nan)
-    if missing or len(table) < 10 or not np.all(np.isfinite(values)):
-        raise ConfigError(f"surrogate samples {path}: expected the columns {', '.join(SAMPLE_COLUMNS)} with "
-                          f"finite numbers{' (missing: ' + ', '.join(missing) + ')' if missing else ''}")
-    speed = values[:, 3] / strain_rate_per_s
-    origin = np.all(values[:, :3] == 0.0, axis=1)
-    speeds = tuple(sorted(set(np.round(speed[~origin], 12))))
-    speed = np.where(origin, 1.0, np.round(speed, 12))
-    return Surrogate(values[:, :3], values[:, 4:7], speed, {name: values[:, 7 + i] for i, name in enumerate(_FIELDS)},
-                     np.zeros((0, 3)), speeds, strain_rate_per_s, 0.0)
+
+def surrogate_identity(config: Config, max_strain: float) -> SampleIdentity:
+    """The identity a build of the mat ``config`` for the grip strain ``max_strain`` would have
+    (default paths, speeds, reach and steps; only the mat, the strain rate and the strain are
+    compared with a file's)."""
+    return SampleIdentity(*mat_identity(config), config.loading.strain_rate_per_s, float(max_strain), 3.0, 24,
+                          len(DEFAULT_PATHS), DEFAULT_SPEEDS)
