@@ -19,10 +19,21 @@ killed or is still going). The policy, the same for every command:
   manifest has the same inputs (config, curves, options: the same fit, written again); a
   study (``sweep``, ``rve-size``) one of the same kind of study, or one without a manifest
   (written before manifests existed), since each of its task files is keyed by the task's
-  whole config and files: a grown grid reuses the finished tasks, other settings' tasks are
-  kept but not used.
+  whole config and files: a grown grid reuses the finished tasks (a study whose plan drops
+  tasks of the folder's plan is another study, refused by :mod:`espin.studies.sweeps` like
+  another command's results); a surrogate ``specimen`` run one with the same inputs (a failed
+  or interrupted build resumes from its finished paths).
 
 A run that fails before writing anything but the manifest leaves no folder behind.
+
+A claim is exclusive: the claiming process holds a lock on the folder (``flock`` on the
+folder itself, released when the run finishes or its process ends, even when killed) from
+before it reads the folder until the run finishes. Another process claiming the folder
+meanwhile, a second ``espin`` started on the same new folder at the same instant included, is
+refused (:class:`~espin.core.errors.ConfigError`, exit 2) whatever ``overwrite`` or ``resume``
+say; so the temporaries of interrupted writes a claim removes are never those of a live run.
+Within one process a folder may be claimed again while claimed (a command that writes through
+a function that claims it too).
 """
 
 from __future__ import annotations
@@ -30,6 +41,7 @@ from __future__ import annotations
 import datetime as _dt
 import hashlib
 import json
+import os
 import uuid
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -45,6 +57,8 @@ __all__ = ["MANIFEST", "RunManifest", "OutputFolder", "read_manifest", "inputs_d
 MANIFEST = "run.json"
 """Name of the manifest file in every output folder."""
 _TEMPORARY = ".*.tmp"  # what an interrupted atomic write leaves (espin.core.atomic)
+_HELD: dict[tuple[int, int], tuple[int, int]] = {}
+"""Folders this process holds a claim on: (device, inode) -> (lock file descriptor, claims)."""
 
 
 @dataclass(frozen=True)
@@ -132,10 +146,12 @@ class OutputFolder:
     context manager, which finishes it ``complete``, or ``failed`` on an exception.
     """
 
-    def __init__(self, path: Path, manifest: RunManifest, created: bool = False) -> None:
+    def __init__(self, path: Path, manifest: RunManifest, created: bool = False,
+                 lock: tuple[int, int] | None = None) -> None:
         self.path = path
         self.manifest = manifest
         self._created = created
+        self._lock = lock
 
     @property
     def run_id(self) -> str:
@@ -174,7 +190,7 @@ class OutputFolder:
         ------
         ConfigError
             If the folder belongs to another run and ``overwrite`` is False, is not a folder,
-            or holds one of ``inputs``.
+            holds one of ``inputs``, or another process is writing it now.
         RVEFileError
             If the folder or its manifest cannot be written.
         """
@@ -185,8 +201,27 @@ class OutputFolder:
             if Path(name).resolve().parent == path.resolve():
                 raise ConfigError(f"output folder {path} holds the input {Path(name).name} of this run: "
                                   "choose another folder (--out)")
+        created = not path.exists()
         try:
-            previous = read_manifest(path) if path.is_dir() else None
+            path.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise RVEFileError(f"cannot create the output folder {path}: {err.strerror or err}") from None
+        lock = _lock(path)
+        try:
+            folder = cls._claim_locked(path, command, digest, outputs, overwrite, resume, created, lock)
+        except BaseException:
+            if created and path.is_dir() and not any(path.iterdir()):
+                path.rmdir()
+            _unlock(lock)
+            raise
+        return folder
+
+    @classmethod
+    def _claim_locked(cls, path: Path, command: str, digest: str, outputs: Sequence[str], overwrite: bool,
+                      resume: str | None, created: bool, lock: tuple[int, int]) -> OutputFolder:
+        """:meth:`claim` once the folder exists and this process holds its lock."""
+        try:
+            previous = read_manifest(path)
         except ConfigError:
             if not overwrite:
                 raise
@@ -201,7 +236,7 @@ class OutputFolder:
         if reuse and not overwrite:
             manifest = previous or RunManifest(uuid.uuid4().hex, command, digest, __version__, "running", _utc_now())
             folder = cls(path, replace(manifest, config_hash=digest, status="running", finished_utc=None,
-                                       outputs=list(outputs)))
+                                       outputs=list(outputs)), lock=lock)
             folder._write()
             return folder
         if (found or previous is not None) and not overwrite:
@@ -214,11 +249,7 @@ class OutputFolder:
                 "pass --overwrite (overwrite=True in Python) to replace them, or choose another folder"
             )
         folder = cls(path, RunManifest(uuid.uuid4().hex, command, digest, __version__, "running", _utc_now(),
-                                       outputs=list(outputs)), created=not path.exists())
-        try:
-            path.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise RVEFileError(f"cannot create the output folder {path}: {err.strerror or err}") from None
+                                       outputs=list(outputs)), created=created, lock=lock)
         folder._write()  # first, so that a kill while clearing leaves a folder marked partial
         for name in [*found, *(p.relative_to(path).as_posix() for p in path.rglob(_TEMPORARY))]:
             (path / name).unlink(missing_ok=True)
@@ -238,15 +269,65 @@ class OutputFolder:
         A failed run that wrote nothing but the manifest into a folder it created removes
         both.
         """
-        if status == "failed" and self._created and [p.name for p in self.path.iterdir()] == [MANIFEST]:
-            (self.path / MANIFEST).unlink()
-            self.path.rmdir()
-            return
-        self.manifest = replace(self.manifest, status=status, finished_utc=_utc_now())
-        self._write()
+        try:
+            if status == "failed" and self._created and [p.name for p in self.path.iterdir()] == [MANIFEST]:
+                (self.path / MANIFEST).unlink()
+                self.path.rmdir()
+                return
+            self.manifest = replace(self.manifest, status=status, finished_utc=_utc_now())
+            self._write()
+        finally:
+            if self._lock is not None:
+                _unlock(self._lock)
+                self._lock = None
 
     def _write(self) -> None:
         atomic_write_bytes(self.path / MANIFEST, json.dumps(asdict(self.manifest), indent=1).encode("utf-8"))
+
+
+def _lock(path: Path) -> tuple[int, int]:
+    """Take this process's exclusive lock on the folder ``path``: its (device, inode) key.
+
+    Raises
+    ------
+    ConfigError
+        When another process holds it (a run writing the folder now).
+    """
+    info = path.stat()
+    key = (info.st_dev, info.st_ino)
+    if key in _HELD:
+        fd, claims = _HELD[key]
+        _HELD[key] = (fd, claims + 1)
+        return key
+    try:
+        import fcntl
+    except ImportError:  # no flock (Windows): claims are not exclusive there
+        _HELD[key] = (-1, 1)
+        return key
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        try:
+            other = read_manifest(path)
+        except ConfigError:
+            other = None
+        who = (f"another {other.command} run (started {other.started_utc})" if other is not None
+               else "another espin run, starting at the same moment")
+        raise ConfigError(f"output folder {path} is being written by {who}: wait for it to finish, or choose "
+                          "another folder") from None
+    _HELD[key] = (fd, 1)
+    return key
+
+
+def _unlock(key: tuple[int, int]) -> None:
+    """Release one claim of :func:`_lock` (the lock itself with the last one)."""
+    fd, claims = _HELD.pop(key)
+    if claims > 1:
+        _HELD[key] = (fd, claims - 1)
+    elif fd >= 0:
+        os.close(fd)  # releases the flock
 
 
 def _inside(pattern: object) -> bool:

@@ -128,7 +128,7 @@ def rve_size_study(
     plan = {"study": "rve-size", "size_ratios": list(size_ratios), "layer_counts": list(layer_counts),
             "layers_for_sizes": layers_for_sizes, "size_for_layers": size_for_layers, "seeds": seeds}
     pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
-    with _claimed(folder, "rve-size", base, overwrite):
+    with _claimed(folder, "rve-size", base, overwrite, tasks):
         result = _run(tasks, base, plan, folder, pool, on_outcome)
         ensemble = result.ensemble
         if folder is not None and ensemble.records:
@@ -209,7 +209,7 @@ def sweep(
     seeds = realization_seeds(base, realizations, seed_start)
     tasks = plan_tasks(base, points, seeds, allow_large=allow_large)
     pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
-    with _claimed(folder, "sweep", base, overwrite):
+    with _claimed(folder, "sweep", base, overwrite, tasks):
         result = _run(tasks, base, {"study": "sweep", "grid": grid, "seeds": seeds}, folder, pool, on_outcome)
         if folder is not None and result.ensemble.records:
             from espin.studies.figures import plot_sweep
@@ -228,11 +228,30 @@ STUDY_OUTPUTS = ("study.toml", "plan.json", "results.csv", "summary.csv", "sweep
 """The files a study writes (glob patterns relative to its folder)."""
 
 
-def _claimed(folder: str | Path | None, command: str, base: Config,
-             overwrite: bool) -> contextlib.AbstractContextManager[OutputFolder | None]:
-    """The study's claim on ``folder`` (resumed when it holds the same study), or nothing."""
+def _claimed(folder: str | Path | None, command: str, base: Config, overwrite: bool,
+             tasks: list[TensileTask]) -> contextlib.AbstractContextManager[OutputFolder | None]:
+    """The study's claim on ``folder`` (resumed when it holds the same study, grown or not), or
+    nothing.
+
+    Raises
+    ------
+    ConfigError
+        When the folder holds another study: its plan has tasks this one does not (without
+        ``overwrite``).
+    """
     if folder is None:
         return contextlib.nullcontext()
+    plan = Path(folder) / "plan.json"
+    if not overwrite and plan.is_file():
+        try:
+            earlier = set(json.loads(plan.read_text("utf-8")).get("tasks", []))
+        except (OSError, UnicodeDecodeError, ValueError, AttributeError):
+            earlier = set()  # an unreadable plan is the claim's to judge (the manifest's command)
+        dropped = earlier - {task.key for task in tasks}
+        if dropped:
+            raise ConfigError(f"output folder {folder} holds another study: {len(dropped)} of its {len(earlier)} "
+                              "tasks are not in this one (a study may only grow in a folder of its own); pass "
+                              "--overwrite (overwrite=True in Python) to replace it, or choose another folder")
     return OutputFolder.claim(folder, command, config_digest(base), STUDY_OUTPUTS, overwrite=overwrite,
                               resume="same-command")
 
@@ -257,6 +276,7 @@ def _run(tasks: list[TensileTask], base: Config, plan: dict[str, Any], folder: s
     if folder is not None:
         folder = Path(folder)
         files["config"] = write_config(base, folder / "study.toml")
+        plan = {**plan, "tasks": [task.key for task in tasks]}
         files["plan"] = atomic_write_bytes(folder / "plan.json", json.dumps(plan, indent=1).encode())
     ensemble = run_ensemble(tasks, folder, **pool, on_outcome=on_outcome)
     summary = ensemble.summary()
