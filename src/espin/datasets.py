@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from espin.core.atomic import atomic_write, atomic_write_bytes
+
 __all__ = ["SEM_UM_PER_PX", "sem_image", "specimen_curves", "calibrated_config"]
 
 SEM_UM_PER_PX = 0.05
@@ -56,8 +58,8 @@ def sem_image(path: str | Path, *, seed: int = 7) -> Path:
     pixels = np.round(255.0 * np.clip(sem.image, 0.0, 1.0)).astype(np.uint8)
     path = Path(path)
     per_um = 1.0 / sem.um_per_px
-    tifffile.imwrite(path, pixels, imagej=True, resolution=(per_um, per_um), metadata={"unit": "um"})
-    return path
+    return atomic_write(path, lambda tmp: tifffile.imwrite(tmp, pixels, imagej=True, resolution=(per_um, per_um),
+                                                            metadata={"unit": "um"}))
 
 
 def specimen_curves(folder: str | Path, *, seed: int = 0) -> list[Path]:
@@ -85,9 +87,8 @@ def specimen_curves(folder: str | Path, *, seed: int = 0) -> list[Path]:
     for k, factor in enumerate((0.95, 1.0, 1.06), start=1):
         stress = factor * shape + rng.normal(0.0, 0.02, strain.size)
         stress[0] = 0.0
-        paths.append(folder / f"spec{k}.csv")
-        np.savetxt(paths[-1], np.c_[strain, stress], delimiter=",", header="strain,stress_MPa", comments="",
-                   fmt="%.6g")
+        paths.append(atomic_write(folder / f"spec{k}.csv", lambda tmp, stress=stress: np.savetxt(
+            tmp, np.c_[strain, stress], delimiter=",", header="strain,stress_MPa", comments="", fmt="%.6g")))
     return paths
 
 
@@ -111,6 +112,4 @@ def calibrated_config(path: str | Path) -> Path:
     """
     from importlib.resources import files
 
-    path = Path(path)
-    path.write_bytes(files("espin").joinpath("sample_data", "calibrated_mat.toml").read_bytes())
-    return path
+    return atomic_write_bytes(path, files("espin").joinpath("sample_data", "calibrated_mat.toml").read_bytes())

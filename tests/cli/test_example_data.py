@@ -32,3 +32,27 @@ def test_example_data_is_ready_to_use_and_not_overwritten(tmp_path):
     again = CliRunner().invoke(app, ["example-data", "-o", str(tmp_path)])
     assert again.exit_code == 2 and "--overwrite" in again.output
     assert CliRunner().invoke(app, ["example-data", "-o", str(tmp_path), "--overwrite"]).exit_code == 0
+
+
+def test_example_data_follows_the_output_folder_policy(tmp_path):
+    """A run.json; another run's folder refused (exit 2, nothing changed); a file where the folder
+    should be refused without a traceback; --overwrite replaces only its own files."""
+    from espin.core.output_folder import read_manifest
+
+    assert CliRunner().invoke(app, ["example-data", "-o", str(tmp_path / "a")]).exit_code == 0
+    assert (read_manifest(tmp_path / "a").command, read_manifest(tmp_path / "a").status) == ("example-data",
+                                                                                              "complete")
+    simulated = tmp_path / "sim"
+    simulated.mkdir()
+    (simulated / "run.json").write_text('{"run_id": "x", "command": "simulate", "config_hash": "", '
+                                        '"espin_version": "0", "status": "complete", "started_utc": "t"}')
+    refused = CliRunner().invoke(app, ["example-data", "-o", str(simulated)])
+    assert refused.exit_code == 2 and "another simulate run" in refused.output
+    assert sorted(p.name for p in simulated.iterdir()) == ["run.json"]
+    (tmp_path / "file").write_text("mine")
+    refused = CliRunner().invoke(app, ["example-data", "-o", str(tmp_path / "file")])
+    assert refused.exit_code == 2 and "not a folder" in refused.output and "Traceback" not in refused.output
+    assert (tmp_path / "file").read_text() == "mine"
+    (tmp_path / "a" / "notes.txt").write_text("mine")
+    assert CliRunner().invoke(app, ["example-data", "-o", str(tmp_path / "a"), "--overwrite"]).exit_code == 0
+    assert (tmp_path / "a" / "notes.txt").read_text() == "mine"

@@ -25,17 +25,22 @@ def example_data(
 
     Try: espin measure mat.tif -o measured; espin properties spec1.csv spec2.csv spec3.csv;
     espin simulate calibrated_mat.toml. All are made by espin (espin.datasets), not measured.
+    The folder follows the output policy of every command (a run.json; another run's folder or
+    these files refused without --overwrite).
     """
-    from espin.core.errors import ConfigError
+    from espin.core.errors import EspinError
+    from espin.core.output_folder import OutputFolder, inputs_digest
+    from espin.core.version import __version__
     from espin.datasets import calibrated_config, sem_image, specimen_curves
 
-    existing = [name for name in FILES if (out / name).exists()]
-    if existing and not overwrite:
-        fail(ConfigError(f"{out}: {', '.join(existing)} already there; give --overwrite to replace "
-                         "them, or --out another folder"))
-    out.mkdir(parents=True, exist_ok=True)
-    written = [sem_image(out / "mat.tif"), *specimen_curves(out), calibrated_config(out / "calibrated_mat.toml")]
-    typer.echo(f"wrote {', '.join(str(p) for p in written)}")
+    try:
+        with OutputFolder.claim(out, "example-data", inputs_digest([], FILES, __version__), FILES,
+                                overwrite=overwrite):
+            written = [sem_image(out / "mat.tif"), *specimen_curves(out),
+                       calibrated_config(out / "calibrated_mat.toml")]
+    except EspinError as err:
+        fail(err)
+    typer.echo(f"wrote {', '.join(str(p) for p in written)} (and {out / 'run.json'})")
 
 
 def register(app: typer.Typer) -> None:
