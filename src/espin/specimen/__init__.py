@@ -17,6 +17,7 @@ docs/specimen.md.
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 import types
@@ -26,7 +27,7 @@ from typing import Any
 
 from espin.core.errors import ConfigError
 from espin.specimen.result import SPECIMEN_OUTPUTS, SpecimenResult, reopen_point
-from espin.specimen.shapes import SHAPES, Specimen, read_specimen
+from espin.specimen.shapes import SHAPES, Specimen, check_size, points_per_element, read_specimen
 from espin.specimen.solver import GRIPS, LATERAL, GripProgram, SpecimenFailed, SpecimenStep
 
 __all__ = ["specimen", "SpecimenResult", "SpecimenStep", "SpecimenFailed", "Specimen", "SHAPES", "MODELS",
@@ -50,6 +51,7 @@ def make_specimen(shape: str | Path | Specimen, elements_across: int = 4, **opti
         return shape
     if isinstance(shape, str) and shape in SHAPES:
         try:
+            check_size(shape, elements_across, options)
             return SHAPES[shape](elements_across=elements_across, **options)
         except TypeError as err:
             raise ConfigError(f"shape {shape!r}: {err}") from None
@@ -65,8 +67,8 @@ def _check(model: str, thickness_mm: float, grips: str, lateral: str, rve_seeds:
            surrogate_reach: float, modulus_MPa: float | None, poisson_ratio: float | None) -> None:
     if model not in MODELS:
         raise ConfigError(f"model = {model!r}: must be one of {', '.join(MODELS)}")
-    if not thickness_mm > 0.0:
-        raise ConfigError(f"thickness_mm = {thickness_mm}: must be > 0 mm")
+    if not 0.0 < thickness_mm < math.inf:
+        raise ConfigError(f"thickness_mm = {thickness_mm:g}: must be a finite number > 0 mm")
     if grips not in GRIPS:
         raise ConfigError(f"grips = {grips!r}: must be one of {', '.join(GRIPS)}")
     if lateral not in LATERAL:
@@ -75,13 +77,13 @@ def _check(model: str, thickness_mm: float, grips: str, lateral: str, rve_seeds:
         raise ConfigError(f"rve_seeds = {rve_seeds!r}: must be 'shared' or 'per_point'")
     if not 0.0 < rtol < 1.0:
         raise ConfigError(f"rtol = {rtol}: must be in (0, 1)")
-    if not surrogate_reach >= 1.0:
-        raise ConfigError(f"surrogate_reach = {surrogate_reach}: must be >= 1")
+    if not 1.0 <= surrogate_reach < math.inf:
+        raise ConfigError(f"surrogate_reach = {surrogate_reach:g}: must be a finite number >= 1")
     if model == "neo_hookean":
         if modulus_MPa is None or poisson_ratio is None:
             raise ConfigError("model = 'neo_hookean' needs modulus_MPa and poisson_ratio")
-        if not modulus_MPa > 0.0:
-            raise ConfigError(f"modulus_MPa = {modulus_MPa}: must be > 0 MPa")
+        if not 0.0 < modulus_MPa < math.inf:
+            raise ConfigError(f"modulus_MPa = {modulus_MPa:g}: must be a finite number > 0 MPa")
         if not 0.0 <= poisson_ratio < 1.0:
             raise ConfigError(f"poisson_ratio = {poisson_ratio}: must be in [0, 1)")
 
@@ -217,6 +219,7 @@ def specimen(
             raise ConfigError("rve_seeds = 'per_point' generates a realization per point: give a preset, a "
                               "TOML file or a Config, not an RVE")
         program = GripProgram(max_strain, steps, config.loading.strain_rate_per_s)
+    _check_memory(geometry, model, config, rve)
     samples = None
     if surrogate_from is not None:
         if model != "surrogate":
@@ -237,6 +240,18 @@ def specimen(
     with OutputFolder.claim(out, "specimen", digest, SPECIMEN_OUTPUTS, overwrite=overwrite,
                             resume="same-inputs" if resumable else None):
         return _run(geometry, program, config, rve, settings, Path(out), figures, on_step)
+
+
+def _check_memory(geometry: Specimen, model: str, config, rve) -> None:
+    """Refuse, before any work, a specimen whose mesh and (FE^2) RVEs at its points would not fit
+    in memory (:func:`espin.specimen.mesh_checks.check_memory`)."""
+    from espin.geometry.size_estimate import estimate_size
+    from espin.specimen.mesh_checks import check_memory
+
+    dof = 0.0
+    if model == "fe2":
+        dof = float(rve.network.n_dof) if rve is not None else estimate_size(config).dof
+    check_memory(repr(geometry), geometry.n_elements, points_per_element(geometry), dof)
 
 
 def _resolve_rve(source: Any, overrides: dict[str, Any]):

@@ -251,7 +251,7 @@ def _write_json(result: SpecimenResult, path: Path) -> None:
             "gauge_length_mm": spec.gauge_length_mm, "gauge_width_mm": spec.gauge_width_mm,
             "elements": spec.n_elements, "quadrature_points": result.membrane.n_points,
             "thickness_mm": result.thickness_mm, "model": result.model, "grips": result.grips,
-            "lateral": result.lateral, "counts": result.counts}
+            "lateral": result.lateral, "counts": result.counts, "mesh_notes": list(spec.notes)}
     if result.surrogate is not None:
         identity = result.surrogate.identity
         data["surrogate_samples"] = {"config_digest": identity.config_digest, "law": identity.law,

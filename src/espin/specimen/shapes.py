@@ -28,6 +28,15 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from espin.core.errors import ConfigError
+from espin.specimen.mesh_checks import (
+    MERGE_FRACTION,
+    check_cells,
+    check_coordinates,
+    check_memory,
+    check_pieces,
+    inside_cells,
+    merge_nodes,
+)
 
 __all__ = ["Specimen", "strip", "dogbone", "dogbone_half_width", "holed_strip", "notched_strip",
            "read_specimen", "SHAPES"]
@@ -56,6 +65,8 @@ class Specimen:
         Reference width of the gauge section, mm (engineering stress = force / (width * thickness)).
     dimensions : dict[str, float]
         Every dimension used, named, mm (documented per shape).
+    notes : tuple of str
+        What reading a user mesh changed (nodes merged).
     """
 
     name: str
@@ -64,6 +75,7 @@ class Specimen:
     gauge_length_mm: float
     gauge_width_mm: float
     dimensions: dict[str, float]
+    notes: tuple[str, ...] = ()
 
     @property
     def n_elements(self) -> int:
@@ -533,7 +545,10 @@ def read_specimen(path: str | Path, *, gauge_length_mm: float | None = None,
     ------
     ConfigError
         The file is missing or unreadable, has no triangle or quad cells, mixes them, is not planar,
-        or has no boundary facet at the smallest or largest x.
+        has coordinates that are not finite or not a specimen's, repeated or overlapping cells, is
+        in several pieces (:mod:`espin.specimen.mesh_checks`; nodes that coincide are merged
+        first), has no boundary facet at the smallest or largest x, or gauge marks off the
+        specimen.
     """
     path = Path(path)
     if not path.is_file():
@@ -541,39 +556,83 @@ def read_specimen(path: str | Path, *, gauge_length_mm: float | None = None,
     for name, value in {"gauge_length_mm": gauge_length_mm, "gauge_width_mm": gauge_width_mm}.items():
         if value is not None:
             _positive(**{name: value})
+    if path.stat().st_size == 0:
+        raise ConfigError(f"specimen mesh {path} is empty; expected a mesh file meshio reads (.msh, .vtu, ...)")
     try:
         m = meshio.read(path)
-    except Exception as err:  # meshio raises many types for files it cannot read
-        raise ConfigError(f"specimen mesh {path} cannot be read by meshio ({err}); expected a mesh file") from err
+    except (Exception, SystemExit) as err:  # meshio raises many types, and exits on some files it cannot read
+        raise ConfigError(f"specimen mesh {path} cannot be read by meshio ({err}); expected a mesh file") from None
     kinds = {block.type for block in m.cells} & {"triangle", "quad"}
     if len(kinds) != 1:
         found = sorted({block.type for block in m.cells})
         raise ConfigError(f"specimen mesh {path} has cells {found}; expected 2-D cells of one kind, "
                           "'triangle' or 'quad' (linear)")
     kind = kinds.pop()
+    where = f"specimen mesh {path}"
     points = np.asarray(m.points, dtype=float)
-    if points.shape[1] > 2 and np.any(np.abs(points[:, 2:]) > _MERGE_TOL * np.ptp(points[:, :2], axis=0).max()):
-        raise ConfigError(f"specimen mesh {path} is not planar (z != 0); expected a 2-D mesh in the x-y plane")
     cells = np.vstack([block.data for block in m.cells if block.type == kind]).T
     used = np.unique(cells)
-    p, t = points[used, :2].T, np.searchsorted(used, cells)
+    check_coordinates(points[used, :2], where)
+    if points.shape[1] > 2 and np.any(np.abs(points[used, 2:]) > _MERGE_TOL * np.ptp(points[used, :2], axis=0).max()):
+        raise ConfigError(f"{where} is not planar (z != 0); expected a 2-D mesh in the x-y plane")
+    p, label = merge_nodes(points[used, :2].T, np.searchsorted(used, cells))
+    t = _orient(p, label[np.searchsorted(used, cells)])
+    check_cells(p, t, where)
+    check_pieces(p, t, where)
     mesh_type = skfem.MeshTri if kind == "triangle" else skfem.MeshQuad
-    mesh = mesh_type(p, _orient(p, t))
+    mesh = mesh_type(p, t)
     lines = {name: _named_lines(m, name) for name in ("grip_left", "grip_right")}
     named = None
     if all(v is not None for v in lines.values()):
         remap = np.full(points.shape[0], -1)
-        remap[used] = np.arange(used.size)
+        remap[used] = label
         named = {name: _facet_index(mesh, remap[v], name, path) for name, v in lines.items()}
     mesh = _tag_boundaries(mesh, named)
     for name in ("grip_left", "grip_right"):
         if mesh.boundaries[name].size == 0:
             side = "smallest" if name == "grip_left" else "largest"
-            raise ConfigError(f"specimen mesh {path} has no boundary facet at the {side} x ({name}); expected "
+            raise ConfigError(f"{where} has no boundary facet at the {side} x ({name}); expected "
                               "straight grip faces normal to x at both ends, or line sets grip_left/grip_right")
     length, width = float(np.ptp(mesh.p[0])), float(np.ptp(mesh.p[1]))
-    return Specimen(path.name, mesh, length, gauge_length_mm or length, gauge_width_mm or width,
-                    {"length": length, "width": width})
+    merged = used.size - p.shape[1]
+    notes = (f"{merged} node(s) closer than {MERGE_FRACTION:g} of the shortest edge merged",) if merged else ()
+    specimen = Specimen(path.name, mesh, length, gauge_length_mm or length, gauge_width_mm or width,
+                        {"length": length, "width": width}, notes)
+    _check_extensometer(specimen, where)
+    return specimen
+
+
+def _check_extensometer(specimen: Specimen, where: str) -> None:
+    """Refuse a mesh whose gauge marks (on the centre line, the gauge length apart around the
+    middle between the grips) are not on the specimen."""
+    p = specimen.mesh.p
+    half = 0.5 * specimen.gauge_length_mm
+    y = 0.5 * (p[1].min() + p[1].max())
+    marks = np.array([[specimen.x_centre - half, y], [specimen.x_centre + half, y]])
+    missed = marks[~inside_cells(p, specimen.mesh.t, marks)]
+    if len(missed):
+        shown = " and ".join(f"({x:.4g}, {y:.4g})" for x, y in missed)
+        raise ConfigError(f"{where}: the extensometer's gauge mark(s) at {shown} mm (the centre line, "
+                          f"{specimen.gauge_length_mm:g} mm apart around the middle) are not on the specimen; "
+                          "expected a specimen whose centre line is material there (give a shorter gauge_length_mm, "
+                          "or centre the mesh's gauge section)")
+
+
+def check_size(shape: str, elements_across: int, options: dict[str, float]) -> None:
+    """Refuse a built-in ``shape`` whose mesh at ``elements_across`` would not fit in memory,
+    before it is built: its elements estimated from the shape at 4 across (they grow as the
+    square of the count; :func:`espin.specimen.mesh_checks.check_memory`)."""
+    n = _count(elements_across)
+    if n <= 16:
+        return
+    probe = SHAPES[shape](elements_across=4, **options)
+    check_memory(f"elements_across = {n}", round(probe.n_elements * (n / 4.0) ** 2), points_per_element(probe))
+
+
+def points_per_element(specimen: Specimen) -> int:
+    """Quadrature points per element of the specimen's membrane model (4 in a quad, 3 in a
+    triangle: the second-order rules of :mod:`espin.specimen.membrane`)."""
+    return 3 if isinstance(specimen.mesh, skfem.MeshTri) else 4
 
 
 SHAPES: dict[str, Callable[..., Specimen]] = {
