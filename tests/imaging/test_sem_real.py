@@ -96,3 +96,24 @@ def test_data_bar_found_without_crop_options(plga, nano):
                                                                plga.coherency)
     assert (found.n_crossing, found.straightness) == (plga.n_crossing, plga.straightness)
     assert nano.data_bar is None and nano.rows == (0, 512)  # no data bar: nothing cropped
+
+
+@pytest.mark.parametrize("path", [PLGA, NANO], ids=["plga", "nano"])
+def test_real_images_are_bright_fibers_and_their_inversions_are_not(path):
+    from espin.imaging.polarity import DARK_FIBERS_BELOW, line_ratio
+
+    grey = read_image(path)[:-80]
+    assert line_ratio(grey) > 1.0 / DARK_FIBERS_BELOW
+    assert line_ratio(grey.max() - grey) < DARK_FIBERS_BELOW
+
+
+def test_inverted_real_image_is_refused_then_measured_as_before_with_invert(nano):
+    from espin.core.errors import SEMError
+
+    grey = read_image(NANO)
+    with pytest.raises(SEMError, match="dark on a bright background.*--invert"):
+        measure(grey.max() - grey, um_per_px=0.05)
+    again = measure(grey.max() + grey.min() - grey, um_per_px=0.05, invert=True)
+    assert again.fits.diameter.mean_um == pytest.approx(nano.fits.diameter.mean_um, rel=1e-9)
+    assert "inverted as asked" in again.summary()["image"]["polarity"]
+    assert "checked" in nano.summary()["image"]["polarity"]

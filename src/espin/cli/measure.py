@@ -53,6 +53,11 @@ def measure(
                                 "the microscope's data bar (a separate band, or text overlaid "
                                 "on the image, at the bottom or top) and leave it out.")
     ] = True,
+    invert: Annotated[
+        Optional[bool], typer.Option("--invert/--no-invert", help="--invert: the fibers are dark on a bright "
+                                     "background, invert the image first; --no-invert: measure it as it is, "
+                                     "unchecked. Default: check that the fibers are bright and refuse dark ones.")
+    ] = None,
     width_px: Annotated[
         Optional[float], typer.Option(help="Typical fiber width in pixels (>= 3); default: "
                                            "estimated.")
@@ -100,7 +105,7 @@ def measure(
         "um_per_px": um_per_px, "scale_bar_um": scale_bar_um, "scale_bar_rows": scale_bar_rows,
         "crop_rows": crop_rows, "crop_bottom_px": crop_bottom_px, "width_px": width_px,
         "max_bend_deg": max_bend_deg, "min_length_diameters": min_length_diameters,
-        "detect_data_bar": detect_data_bar,
+        "detect_data_bar": detect_data_bar, "invert": invert,
     }
     try:
         files = image_files(images)

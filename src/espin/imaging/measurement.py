@@ -47,6 +47,7 @@ from espin.imaging.distributions import (
 from espin.imaging.image import as_grey, parse_rows, read_image, row_slice
 from espin.imaging.metadata import MetadataScale, read_pixel_size
 from espin.imaging.orientation import image_angle_deg, structure_tensor_orientation
+from espin.imaging.polarity import oriented
 from espin.imaging.pores import PoreStructure, mat_structure
 from espin.imaging.scale import ScaleBar, detect_scale_bar
 from espin.imaging.segment import MIN_WIDTH_PX, segment_fibers
@@ -172,6 +173,8 @@ class SEMMeasurement:
         The data bar found and left out (:func:`espin.imaging.databar.detect_data_bar`), None
         when none was found or the rows were given (``crop_rows``, ``crop_bottom_px``,
         ``scale_bar_rows``) or detection was off.
+    polarity : str
+        Which way round the image was and what was done (:func:`espin.imaging.polarity.oriented`).
     source : str
         The image file (or ``"array"``).
     inputs_digest : str
@@ -208,6 +211,7 @@ class SEMMeasurement:
     metadata: MetadataScale | None
     scale_note: str
     data_bar: DataBar | None = None
+    polarity: str = ""
 
     def __repr__(self) -> str:
         """One line: image name, scale [um/px], fibers traced (visible), diameter of the visible
@@ -252,7 +256,8 @@ class SEMMeasurement:
             "image": {"rows_analysed": list(self.rows),
                       "size_px": [int(self.image.shape[1]), int(self.image.shape[0])],
                       "typical_width_px": self.typical_width_px,
-                      "data_bar": None if self.data_bar is None else self.data_bar.describe()},
+                      "data_bar": None if self.data_bar is None else self.data_bar.describe(),
+                      "polarity": self.polarity},
             "scale": scale,
             "counts": {"fibers": len(f), "width_samples": len(self.widths_um),
                        "junctions": len(self.junctions_px),
@@ -406,6 +411,7 @@ def measure(
     max_bend_deg: float = 35.0,
     min_length_diameters: float = 3.0,
     detect_data_bar: bool = True,
+    invert: bool | None = None,
 ) -> SEMMeasurement:
     """Measure fiber diameters, orientations and tortuosities on an SEM image.
 
@@ -440,6 +446,11 @@ def measure(
         With none of ``crop_rows``, ``crop_bottom_px`` and ``scale_bar_rows``, find the
         microscope's data bar (a separate band or text overlaid on the image, at the bottom or
         the top: :func:`espin.imaging.databar.detect_data_bar`) and leave it out.
+    invert : bool or None
+        None: check that the fibers are bright on a dark background and refuse dark ones
+        (:mod:`espin.imaging.polarity`); True: invert the image first (dark fibers on a bright
+        background); False: measure it as it is, unchecked. Recorded in ``measurement.toml``
+        (``image.polarity``).
 
     Returns
     -------
@@ -452,13 +463,14 @@ def measure(
         and no metadata); checked before any work.
     SEMError
         The image is unreadable, the scale bar is not in the given rows, the metadata records
-        non-square pixels (without a given scale), or there are no fibers.
+        non-square pixels (without a given scale), there are no fibers, or the fibers look dark
+        on a bright background (without ``invert``).
     """
     digest, metadata, note = _checked_inputs(image, dict(
         um_per_px=um_per_px, scale_bar_um=scale_bar_um, scale_bar_rows=scale_bar_rows,
         crop_rows=crop_rows, crop_bottom_px=crop_bottom_px, width_px=width_px,
         max_bend_deg=max_bend_deg, min_length_diameters=min_length_diameters,
-        detect_data_bar=detect_data_bar,
+        detect_data_bar=detect_data_bar, invert=invert,
     ))
     bar_rows = parse_rows(scale_bar_rows, "scale_bar_rows") if scale_bar_rows is not None else None
     keep_rows = parse_rows(crop_rows, "crop_rows") if crop_rows is not None else None
@@ -501,10 +513,11 @@ def measure(
         raise ConfigError(f"width_px = {width_px:g} is more than a quarter of the analysed image "
                           f"({analysed.shape[1]} x {analysed.shape[0]} px): fibers that wide cannot be "
                           "traced; give the typical fiber width in pixels, or leave it out to estimate it")
+    analysed, polarity = oriented(analysed, invert, source)
     scale_fields = {"scale_bar": bar, "scale_bar_um": None if bar is None else float(scale_bar_um),
                     "scale_source": scale_source, "metadata": metadata,
                     "scale_note": note or _scale_note(scale, scale_source, metadata),
-                    "data_bar": data_bar}
+                    "data_bar": data_bar, "polarity": polarity}
     return _measure_grey(analysed, scale, width_px, max_bend_deg, min_length_diameters, source,
                          (crop_rows_slice.start, crop_rows_slice.stop), digest, scale_fields)
 
@@ -546,8 +559,13 @@ def _checked_inputs(image: str | Path | np.ndarray,
                     options: dict[str, Any]) -> tuple[str, MetadataScale | None, str]:
     """:func:`measurement_digest`, with the image's metadata pixel size and a note on why the
     metadata was not read (see :func:`_image_metadata`)."""
-    options = {"detect_data_bar": True, **options}
+    options = {"detect_data_bar": True, "invert": None, **options}
+    invert = options.pop("invert")
+    if invert not in (None, True, False):
+        raise ConfigError(f"invert = {invert!r}: must be True, False or None (check)")
     _check_options(**options)
+    if invert is not None:
+        options["invert"] = invert
     given = options["um_per_px"] is not None or options["scale_bar_um"] is not None
     metadata, note = _image_metadata(image, given)
     if isinstance(image, (str, Path)):
@@ -556,7 +574,7 @@ def _checked_inputs(image: str | Path | np.ndarray,
         array = np.asarray(image)
         digest = hashlib.sha256(f"{array.shape} {array.dtype}".encode())
         digest.update(array.tobytes())
-    # detect_data_bar is recorded only when off: the digests of earlier runs stay valid
+    # detect_data_bar is recorded only when off, invert only when given: the digests of earlier runs stay valid
     recorded = {k: v for k, v in options.items() if k != "detect_data_bar" or not v}
     digest.update(repr(sorted(recorded.items())).encode())
     return digest.hexdigest(), metadata, note
