@@ -194,11 +194,14 @@ def _report(result, folder: Path, columns: list[str], quiet: bool) -> None:
     else:
         console.print("no task finished", highlight=False)
     if ensemble.failures:
+        failures = Console(stderr=True)  # printed under --quiet too: the exit code alone says too little
         for failure in ensemble.failures:
             first_line = (failure["error"] or "").splitlines()[0][:200]
-            console.print(f"[red]failed[/red] {failure['parameters']} seed {failure['seed']}: {first_line}")
-        console.print(f"{len(ensemble.failures)} task(s) failed (tracebacks in {folder}/failed/); rerun the "
-                      "same command to retry them: finished tasks are skipped")
+            failures.print(f"[red]failed[/red] {failure['parameters']} seed {failure['seed']}: {first_line}",
+                           highlight=False)
+        failures.print(f"{len(ensemble.failures)} task(s) failed (tracebacks in {folder}/failed/; run.json says "
+                       "partial or failed); rerun the same command to retry them: finished tasks are skipped",
+                       highlight=False)
         raise typer.Exit(code=EXIT_SOLVER)
 
 

@@ -5,9 +5,10 @@ Every command that writes a folder first writes ``run.json``::
     {"run_id": "...", "command": "simulate", "config_hash": "...", "espin_version": "...",
      "status": "running", "started_utc": "...", "finished_utc": null}
 
-with status ``running`` before its first result, and ``complete`` (or ``failed``) when it
-ends; a folder whose manifest still says ``running`` holds a partial result (the run was
-killed or is still going). The policy, the same for every command:
+with status ``running`` before its first result, and ``complete``, ``partial`` (it ended but
+some of its parts failed: images of a batch, tasks of a study) or ``failed`` when it ends; a
+folder whose manifest still says ``running`` holds a partial result (the run was killed or is
+still going). The policy, the same for every command:
 
 - a missing or empty folder, or one holding none of the command's outputs and no manifest,
   is used as it is;
@@ -76,7 +77,7 @@ class RunManifest:
         :func:`espin.core.config.config_digest` (the config and every file it references).
     espin_version : str
     status : str
-        ``running``, ``complete`` or ``failed``.
+        ``running``, ``complete``, ``partial`` (some parts failed) or ``failed``.
     started_utc, finished_utc : str
         ISO 8601 times; ``finished_utc`` is None while running.
     outputs : list of str
@@ -152,6 +153,7 @@ class OutputFolder:
         self.manifest = manifest
         self._created = created
         self._lock = lock
+        self._outcome = "complete"
 
     @property
     def run_id(self) -> str:
@@ -261,10 +263,15 @@ class OutputFolder:
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, *_: object) -> None:
-        self.finish("complete" if exc_type is None else "failed")
+        self.finish(self._outcome if exc_type is None else "failed")
+
+    def mark(self, failed_parts: int, parts: int) -> None:
+        """Record that ``failed_parts`` of the run's ``parts`` (images, tasks) failed: the status
+        the context manager finishes with is then ``partial``, or ``failed`` when all did."""
+        self._outcome = "complete" if failed_parts == 0 else "failed" if failed_parts >= parts else "partial"
 
     def finish(self, status: str = "complete") -> None:
-        """Record the end of the run: ``complete`` or ``failed``.
+        """Record the end of the run: ``complete``, ``partial`` or ``failed``.
 
         A failed run that wrote nothing but the manifest into a folder it created removes
         both.

@@ -17,7 +17,7 @@ mat (they share its spot, its focus, its threshold), so the confidence intervals
 the pooled statistic recomputed on each, the 2.5 and 97.5 percentiles (fixed seed
 :data:`BOOTSTRAP_SEED`: a rerun writes the same numbers). The per-image spread is the standard
 deviation (ddof 1) across images of each image's own value. With one image the intervals
-collapse onto the estimate and the spread is NaN.
+collapse onto the estimate and the spread is NaN (left out of ``pooled.toml``).
 
 **Diameter population.** The pooled diameters are ``diameter_um`` of the fibers table, of the
 rows whose ``visible`` column is True (the fully visible fibers, :mod:`espin.imaging.visibility`).
@@ -182,7 +182,7 @@ def measure_batch(images: Sequence[str | Path], out: str | Path, *, overwrite: b
     digest = inputs_digest(files, sorted(options.items()), figures)
     rows, samples = [], []
     with OutputFolder.claim(out, "measure-batch", digest, BATCH_OUTPUTS, overwrite=overwrite,
-                            inputs=files):
+                            inputs=files) as claimed:
         for i, (path, name) in enumerate(zip(files, names)):
             row, sample = _measure_one(path, out / name, digests[i], errors.get(i), figures, options)
             rows.append(row)
@@ -195,6 +195,7 @@ def measure_batch(images: Sequence[str | Path], out: str | Path, *, overwrite: b
         pooled = pooled_statistics(samples) | {"n_images": len(files), "n_failed": len(files) - len(samples)}
         _write_table(table, out / "images.csv")
         _write_toml(pooled, out / "pooled.toml")
+        claimed.mark(len(files) - len(samples), len(files))
     return BatchMeasurement(images=table, pooled=pooled, folder=out)
 
 
@@ -287,7 +288,8 @@ def pooled_statistics(samples: Sequence[_Sample], resamples: int = BOOTSTRAP_RES
     Returns
     -------
     dict
-        TOML-ready sections (units in the key names); NaN where there is nothing to pool.
+        TOML-ready sections (units in the key names); NaN where there is nothing to pool (left
+        out of ``pooled.toml``).
     """
     from espin.core.version import __version__
 
@@ -435,6 +437,13 @@ def _write_table(table: pd.DataFrame, path: Path) -> Path:
     return atomic_write_bytes(path, table.to_csv(index=False, lineterminator="\n").encode("utf-8"))
 
 
+def _not_finite(value: Any) -> bool:
+    """Whether a value is a number that is not finite, or a list holding one."""
+    if isinstance(value, (list, tuple)):
+        return any(map(_not_finite, value))
+    return isinstance(value, (float, np.floating)) and not np.isfinite(value)
+
+
 def _write_toml(data: dict[str, Any], path: Path) -> Path:
     import tomli_w
 
@@ -444,9 +453,10 @@ def _write_toml(data: dict[str, Any], path: Path) -> Path:
 
 
 def _plain(value: Any) -> Any:
-    """Plain Python values for tomli_w (NaN kept: TOML has nan)."""
+    """Plain Python values for tomli_w; a value that is None or not a finite number (nothing to
+    pool, e.g. the spread of one image) is left out."""
     if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items() if v is not None}
+        return {k: _plain(v) for k, v in value.items() if v is not None and not _not_finite(v)}
     if isinstance(value, (list, tuple)):
         return [_plain(v) for v in value]
     if isinstance(value, np.integer):

@@ -284,8 +284,9 @@ def _run(geometry: Specimen, program: GripProgram, config, rve, settings: dict[s
     n = membrane.n_points
     model = settings["model"]
     callbacks = [c for c in (on_step,) if c is not None]
-    if folder is not None:
-        callbacks.append(SpecimenWriter(folder, membrane))
+    writer = None if folder is None else SpecimenWriter(folder, membrane)
+    if writer is not None:
+        callbacks.insert(0, writer)
     result = SpecimenResult(geometry, model, settings["thickness_mm"], settings["grips"], settings["lateral"], [],
                             membrane, config=config)
     pool = TaskPool(workers=settings["workers"], scheduler=settings["scheduler"],
@@ -347,6 +348,9 @@ def _run(geometry: Specimen, program: GripProgram, config, rve, settings: dict[s
             if result.surrogate is not None:
                 result.counts.update(surrogate_seconds=result.surrogate.seconds,
                                      surrogate_samples=len(result.surrogate.E))
+            if writer is not None:
+                writer.trim()
+                del result.steps[writer.rows:]  # a step whose row was not written is not kept
             if folder is not None and result.steps:
                 result.write(folder, figures=figures)
     return result

@@ -78,16 +78,22 @@ def _row(step: SpecimenStep) -> str:
 
 class SpecimenWriter:
     """Write a specimen test as it goes (``on_step`` of :func:`espin.specimen.solver.run_specimen`):
-    the CSV row (flushed and synced), the step's ``.vtu`` and the updated ``fields.pvd``."""
+    the step's ``.vtu``, then the CSV row (flushed and synced), then the updated ``fields.pvd``;
+    :meth:`trim` after an interruption removes a ``.vtu`` whose row was not written, so the CSV
+    and the VTK series always hold the same steps."""
 
     def __init__(self, folder: Path, membrane: Membrane, vtk: bool = True) -> None:
         self.folder = Path(folder)
         self.membrane = membrane
         self.vtk = vtk
         self._vtk_steps: list[tuple[float, str]] = []
+        self.rows = 0
 
     def __call__(self, step: SpecimenStep) -> None:
         path = self.folder / "force_displacement.csv"
+        name = f"vtk/step_{step.index:04d}.vtu"
+        if self.vtk:
+            write_step_vtu(self.membrane, step, self.folder / name)
         try:
             with open(path, "w" if step.index == 0 else "a", encoding="utf-8") as fh:
                 fh.write((",".join(CURVE_COLUMNS) + "\n" if step.index == 0 else "") + _row(step))
@@ -95,10 +101,21 @@ class SpecimenWriter:
                 os.fsync(fh.fileno())
         except OSError as err:
             raise RVEFileError(f"cannot write {path}: {err.strerror or err} (a full disk?)") from None
+        self.rows = step.index + 1
         if self.vtk:
-            name = f"vtk/step_{step.index:04d}.vtu"
-            write_step_vtu(self.membrane, step, self.folder / name)
             self._vtk_steps.append((step.time, name))
+            write_collection(self.folder / "fields.pvd", self._vtk_steps)
+
+    def trim(self) -> None:
+        """Remove the ``.vtu`` files of steps without a CSV row (a run interrupted between the two)
+        and list in ``fields.pvd`` only the steps the CSV holds."""
+        if not self.vtk:
+            return
+        for path in (self.folder / "vtk").glob("step_*.vtu"):
+            if path.stem[5:].isdigit() and int(path.stem[5:]) >= self.rows:
+                path.unlink(missing_ok=True)
+        if len(self._vtk_steps) > self.rows:
+            self._vtk_steps = self._vtk_steps[:self.rows]
             write_collection(self.folder / "fields.pvd", self._vtk_steps)
 
 

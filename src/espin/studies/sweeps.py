@@ -128,8 +128,8 @@ def rve_size_study(
     plan = {"study": "rve-size", "size_ratios": list(size_ratios), "layer_counts": list(layer_counts),
             "layers_for_sizes": layers_for_sizes, "size_for_layers": size_for_layers, "seeds": seeds}
     pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
-    with _claimed(folder, "rve-size", base, overwrite, tasks):
-        result = _run(tasks, base, plan, folder, pool, on_outcome)
+    with _claimed(folder, "rve-size", base, overwrite, tasks) as claimed:
+        result = _run(tasks, base, plan, folder, pool, on_outcome, claimed)
         ensemble = result.ensemble
         if folder is not None and ensemble.records:
             from espin.studies.figures import plot_curve_band, plot_rve_size
@@ -209,8 +209,9 @@ def sweep(
     seeds = realization_seeds(base, realizations, seed_start)
     tasks = plan_tasks(base, points, seeds, allow_large=allow_large)
     pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
-    with _claimed(folder, "sweep", base, overwrite, tasks):
-        result = _run(tasks, base, {"study": "sweep", "grid": grid, "seeds": seeds}, folder, pool, on_outcome)
+    with _claimed(folder, "sweep", base, overwrite, tasks) as claimed:
+        result = _run(tasks, base, {"study": "sweep", "grid": grid, "seeds": seeds}, folder, pool, on_outcome,
+                      claimed)
         if folder is not None and result.ensemble.records:
             from espin.studies.figures import plot_sweep
 
@@ -269,9 +270,10 @@ def _grid_values(key: str, values: Any) -> list[Any]:
 
 
 def _run(tasks: list[TensileTask], base: Config, plan: dict[str, Any], folder: str | Path | None,
-         pool: dict[str, Any], on_outcome: OnOutcome | None) -> StudyResult:
+         pool: dict[str, Any], on_outcome: OnOutcome | None, claimed: OutputFolder | None) -> StudyResult:
     """Write the plan (before any work), run the ensemble on the task ``pool`` (workers,
-    scheduler, blas_threads, security), write the summary."""
+    scheduler, blas_threads, security), write the summary; the folder's status ``partial`` or
+    ``failed`` when tasks failed."""
     files: dict[str, Path] = {}
     if folder is not None:
         folder = Path(folder)
@@ -279,6 +281,8 @@ def _run(tasks: list[TensileTask], base: Config, plan: dict[str, Any], folder: s
         plan = {**plan, "tasks": [task.key for task in tasks]}
         files["plan"] = atomic_write_bytes(folder / "plan.json", json.dumps(plan, indent=1).encode())
     ensemble = run_ensemble(tasks, folder, **pool, on_outcome=on_outcome)
+    if claimed is not None:
+        claimed.mark(len(ensemble.failures), len(tasks))
     summary = ensemble.summary()
     if folder is not None:
         files["results"] = folder / "results.csv"
