@@ -314,7 +314,7 @@ def _lock(path: Path) -> tuple[int, int]:
     fd = os.open(path, os.O_RDONLY)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
+    except BlockingIOError:
         os.close(fd)
         try:
             other = read_manifest(path)
@@ -324,6 +324,9 @@ def _lock(path: Path) -> tuple[int, int]:
                else "another espin run, starting at the same moment")
         raise ConfigError(f"output folder {path} is being written by {who}: wait for it to finish, or choose "
                           "another folder") from None
+    except OSError:  # a file system without locks (some network mounts): claims are not exclusive there
+        os.close(fd)
+        fd = -1
     _HELD[key] = (fd, 1)
     return key
 
