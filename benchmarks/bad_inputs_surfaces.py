@@ -20,6 +20,9 @@ ok, vague error, refused valid, traceback, hang, silent wrong, data lost):
      a folder of the user's own files, into an unwritable folder
   t  status and exit codes: a study whose tasks all fail / some fail (under -q), a batch whose
      images all fail / some fail, another study into a study's folder, an interrupted specimen
+  c  processes started at one instant on one new folder (2 and 4 sweeps, 2 and 4 specimens, two
+     different sweeps, a sweep and a specimen): exactly one proceeds, the others exit 2 naming
+     the reason, the winner's result whole
 
 A case's extra invariants (``after``) are checked whatever its exit code: a run.json status, no
 NaN in a summary, as many VTK steps as CSV rows. The shared base (a tiny mat's surrogate samples,
@@ -340,6 +343,46 @@ def group_t(m: Matrix) -> None:
         after=lambda o, c, out=out: status_is(out, "partial")(o, c) + no_nan(out / "pooled.toml")(o, c))
 
 
+def concurrent_claims(m: Matrix) -> list[Case]:
+    """Processes forked at one instant onto one new folder (bench_concurrent_claims.py): exactly
+    one proceeds, the others exit 2 naming the reason, the winner's result whole."""
+    from bench_concurrent_claims import COMMANDS, REASONS, folder_problems, run_round
+
+    def sweep_of(key: str):
+        return lambda out: ["study", "sweep", *TINY, "--set", "loading.max_strain=0.02", "--set", "loading.steps=2",
+                            "--grid", key, "--realizations", "1", "-q", "-o", str(out)]
+
+    rounds = [("2 sweeps", "sweep", [COMMANDS["sweep"]] * 2), ("4 sweeps", "sweep", [COMMANDS["sweep"]] * 4),
+              ("2 specimens", "specimen", [COMMANDS["specimen"]] * 2),
+              ("4 specimens", "specimen", [COMMANDS["specimen"]] * 4),
+              ("2 different sweeps", None, [sweep_of("fiber.slack_modulus_MPa=3"),
+                                            sweep_of("fiber.taut_modulus_MPa=2000")]),
+              ("a sweep and a specimen", None, [COMMANDS["sweep"], COMMANDS["specimen"]])]
+    cases = []
+    for name, command, makers in rounds:
+        out = m.out("claim")
+        out.parent.mkdir(parents=True, exist_ok=True)
+        logs = m.outs / f"{out.name}_logs"
+        logs.mkdir()
+        codes, outputs = run_round([make(out) for make in makers], logs)
+        case = Case("c", f"{name} started at once on one new folder", makers[0](out), quick=True)
+        problems = []
+        winners = [k for k, c in enumerate(codes) if c == 0]
+        if len(winners) != 1:
+            problems.append(f"{len(winners)} proceeded (exit codes {codes})")
+        for code, text in zip(codes, outputs):
+            if code != 0 and (code != 2 or not any(r in text for r in REASONS)):
+                problems.append(f"exit {code} without the reason: {text.strip().splitlines()[-1:]}")
+        if command is not None and len(winners) == 1:
+            problems += folder_problems(command, out)
+        traced = any("Traceback" in text for text in outputs)
+        case.outcome = Outcome(codes[0], "\n".join(outputs), 0.0)
+        case.cls, case.why = (("traceback", "a traceback") if traced else ("data lost", "; ".join(problems))
+                              if problems else ("clear error", ""))
+        cases.append(case)
+    return cases
+
+
 def interrupted_specimens(m: Matrix, n: int) -> list[Case]:
     """``espin specimen`` interrupted (SIGINT) at a random time: the CSV and VTK series hold the same
     steps and run.json says failed."""
@@ -372,7 +415,7 @@ def interrupted_specimens(m: Matrix, n: int) -> list[Case]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", default="smixt", help="groups to run, e.g. s,m")
+    ap.add_argument("--only", default="smixtc", help="groups to run, e.g. s,m")
     ap.add_argument("--keep", action="store_true")
     ap.add_argument("--interrupts", type=int, default=4)
     ap.add_argument("--verbose", "-v", action="store_true")
@@ -411,13 +454,16 @@ def main() -> int:
         if args.verbose:
             print(f"    -> {case.cls} ({case.outcome.seconds:.1f} s) {case.why[:150]}", flush=True)
     cases = list(m.cases)
+    if "c" in groups:
+        cases += concurrent_claims(m)
     if "t" in groups and args.interrupts:
         cases += interrupted_specimens(m, args.interrupts)
     table: dict[str, Counter] = defaultdict(Counter)
     for c in cases:
         table[c.group][c.cls] += 1
     names = {"s": "surrogate samples (--surrogate-from)", "m": "specimen meshes and sizes",
-             "i": "inverted SEM images (measure)", "x": "example-data folders", "t": "status and exit codes"}
+             "i": "inverted SEM images (measure)", "x": "example-data folders", "t": "status and exit codes",
+             "c": "runs claiming one new folder at once"}
     print("\n=== counts per group and class")
     print(f"{'group':<42}" + "".join(f"{c:>14}" for c in CLASSES) + f"{'total':>8}")
     total = Counter()

@@ -7,7 +7,8 @@ Run:  python benchmarks/bench_concurrent_claims.py                 # 20 rounds o
 Each round forks the processes from one parent that has imported espin (so they reach the claim
 within milliseconds of each other), releases them together and runs the command's CLI in each.
 A round passes when exactly one process exits 0, every other exits 2 naming the reason (the
-folder is being written by another run), and the folder holds the winner's whole result:
+folder is being written by another run; or, for one that reached the folder after the winner
+had finished, that it holds another run's results), and the folder holds the winner's whole result:
 ``run.json`` complete, the result files (a tiny sweep's results.csv row, a specimen's CSV rows)
 and no temporary file.
 """
@@ -31,13 +32,17 @@ COMMANDS = {
                              "0.3", "--elements-across", "2", "--steps", "3", "--max-strain", "0.02", "-q", "-o",
                              str(out)],
 }
-REASON = "is being written by another"
+REASONS = ("is being written by another", "already holds the results of another", "holds another study")
+"""What a refused process may say: the folder is claimed now, or (a process that reached it after the
+winner had finished) holds the winner's results, or (a different study) the winner's plan."""
 
 
-def run_round(command: str, n: int, folder: Path, logs: Path) -> tuple[list[int], list[str]]:
-    """Fork ``n`` processes running ``command`` into ``folder`` at once: their exit codes and outputs."""
+def run_round(argvs: list[list[str]], logs: Path) -> tuple[list[int], list[str]]:
+    """Fork a process per command line ``argvs`` and start them at once: their exit codes and
+    outputs (logs in ``logs``)."""
     from espin.cli import app
 
+    n = len(argvs)
     go_read, go_write = os.pipe()
     pids = []
     for k in range(n):
@@ -49,7 +54,7 @@ def run_round(command: str, n: int, folder: Path, logs: Path) -> tuple[list[int]
             os.dup2(log, 2)
             os.read(go_read, 1)
             try:
-                app(COMMANDS[command](folder), prog_name="espin", standalone_mode=True)
+                app(argvs[k], prog_name="espin", standalone_mode=True)
                 code = 0
             except SystemExit as done:
                 code = done.code if isinstance(done.code, int) else (0 if done.code is None else 1)
@@ -114,25 +119,27 @@ def main() -> int:
     failures = 0
     for command in args.commands:
         for n in args.processes:
-            outcomes = Counter()
+            outcomes, reasons = Counter(), Counter()
             for r in range(args.rounds):
                 folder = root / f"{command}_{n}_{r}" / "out"
                 folder.parent.mkdir(parents=True)
-                codes, outputs = run_round(command, n, folder, folder.parent)
+                codes, outputs = run_round([COMMANDS[command](folder)] * n, folder.parent)
                 problems = []
                 winners = [k for k, c in enumerate(codes) if c == 0]
                 if len(winners) != 1:
                     problems.append(f"{len(winners)} processes proceeded (exit codes {codes})")
                 for k, (code, text) in enumerate(zip(codes, outputs)):
-                    if code != 0 and (code != 2 or REASON not in text or "Traceback" in text):
+                    if code != 0 and (code != 2 or not any(r in text for r in REASONS) or "Traceback" in text):
                         problems.append(f"process {k}: exit {code}: {text.strip().splitlines()[-1:] or ''}")
                 problems += folder_problems(command, folder)
                 outcomes["ok" if not problems else "FAILED"] += 1
+                reasons.update(next((r for r in REASONS if r in text), "none") for c, text in zip(codes, outputs) if c)
                 if problems:
                     failures += 1
                     print(f"  {command} x{n} round {r}: " + "; ".join(problems), flush=True)
             print(f"{command}, {n} processes at once, {args.rounds} rounds: {outcomes['ok']} passed, "
-                  f"{outcomes['FAILED']} failed", flush=True)
+                  f"{outcomes['FAILED']} failed; refusals: "
+                  + ", ".join(f"{v} '{k}'" for k, v in reasons.most_common()), flush=True)
     print(f"{failures} failed rounds in {time.monotonic() - start:.0f} s ({root})")
     import shutil
 
