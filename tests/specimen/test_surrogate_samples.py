@@ -183,3 +183,27 @@ def test_a_heartbeat_reports_a_silent_phase():
     with Heartbeat(None, lambda: "x", interval=0.01):
         time.sleep(0.05)
     assert silent == []
+
+
+def test_the_command_line_reports_the_build_off_a_terminal_and_resumes(tmp_path, monkeypatch):
+    """CliRunner is not a terminal: the plan, a line per path; a rerun into the folder reuses the paths."""
+    from typer.testing import CliRunner
+
+    from espin.cli import app
+    from espin.specimen import surrogate as module
+
+    import functools
+
+    small = functools.partial(module.build_surrogate, paths=BUILD["paths"], speeds=(1.0,), steps=3)
+    monkeypatch.setattr(module, "build_surrogate", small)  # a build of 4 short paths
+    argv = ["specimen", "plla", "--model", "surrogate", "--set", "rve.size_ratio=30", "--set", "rve.layers=2",
+            "--shape", "strip", "--elements-across", "1", "--max-strain", "0.02", "--steps", "1", "--surrogate-reach",
+            "1", "-o", str(tmp_path / "s")]
+    first = CliRunner().invoke(app, argv)
+    assert first.exit_code == 0, first.output
+    assert "specimen: generating the RVE" in first.output
+    assert "surrogate: 4 RVE paths (4 directions x 1 speeds, 3 steps each" in first.output
+    assert first.output.count("RVE paths done") == 4
+    again = CliRunner().invoke(app, argv)
+    assert again.exit_code == 0, again.output
+    assert "4 finished paths reused" in again.output and "RVE paths done" not in again.output

@@ -269,6 +269,7 @@ def _resolve_rve(source: Any, overrides: dict[str, Any]):
 
 def _run(geometry: Specimen, program: GripProgram, config, rve, settings: dict[str, Any], folder: Path | None,
          figures: bool, on_step: Callable[[SpecimenStep], None] | None) -> SpecimenResult:
+    from espin.core.heartbeat import Heartbeat
     from espin.core.parallel import TaskPool
     from espin.geometry.rve import generate
     from espin.geometry.rve_file import save_rve
@@ -303,7 +304,10 @@ def _run(geometry: Specimen, program: GripProgram, config, rve, settings: dict[s
             material = result.surrogate.material(n)
         else:
             if rve is None:
-                rve = generate(config)
+                with Heartbeat(settings["report"], lambda: "specimen: still generating the RVE") as heartbeat:
+                    heartbeat.say(f"specimen: generating the RVE (side {config.rve.side_um:.4g} um, "
+                                  f"{config.rve.layers} layers)")
+                    rve = generate(config)
             if folder is not None:
                 save_rve(rve, folder / "rve.h5")
             if model == "surrogate":
