@@ -32,8 +32,9 @@ consistent tangent. Newton's method with:
   Newton from the step's predictor does not find the basin of the solution; a stiffer E_b
   leads it there. The last solve is the true model, so the result is exact.
 
-A step that does not converge raises :class:`StepFailed` with the residual history; the
-driver cuts the step.
+A step that does not converge raises :class:`~espin.core.errors.StepNotConverged` with the
+residual history (the fiber law and the linear solver raise its kinds ``inadmissible`` and
+``singular``); the march cuts the step. Any other exception is a bug and goes through.
 """
 
 from __future__ import annotations
@@ -47,14 +48,15 @@ import scipy.sparse as sp
 from threadpoolctl import ThreadpoolController, threadpool_info
 
 from espin.core.config import SolverConfig
-from espin.core.errors import SolverError
+from espin.core.errors import InadmissibleState, StepFailureKind, StepNotConverged
 from espin.geometry.network import Network
 from espin.mechanics.assembly import Kinematics, NetworkAssembler
 from espin.mechanics.bending import FiberJoints, fiber_joints
 from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
 from espin.mechanics.linear_solvers import Factorization
+from espin.mechanics.time_steps import local_error
 
-__all__ = ["StepState", "StepResult", "StepFailed", "FAILURE_KINDS", "EquilibriumSolver"]
+__all__ = ["StepState", "StepResult", "EquilibriumSolver"]
 
 _MAX_ITERATIONS = 200  # default per step: plla seed 6 needs 75 at its first step (kink cycling)
 _MAX_ITERATIONS_MIXED = 500  # under mixed control: buckling chains need hundreds
@@ -82,6 +84,8 @@ class StepState:
         Deformation gradient.
     plastic_stretch : (n_elements,) float64
         lambda_p.
+    stress : (n_elements,) float64 [MPa]
+        Element stress t (it starts the next step's local time error).
     """
 
     time: float
@@ -89,6 +93,7 @@ class StepState:
     free: np.ndarray
     F: np.ndarray
     plastic_stretch: np.ndarray
+    stress: np.ndarray
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,41 +108,6 @@ class StepResult:
     factorizations: int
     residual: float
     residual_history: list[float] = field(default_factory=list)
-
-
-class StepFailed(Exception):
-    """Newton did not converge in a step.
-
-    Attributes
-    ----------
-    reason : str
-        What happened, in words.
-    kind : str
-        Why, as one of :data:`FAILURE_KINDS`.
-    history : list of float [uN]
-        The residual norm at the start and after each iteration (of each solve, one after
-        another, when the continuation was tried).
-    factorizations, iterations : int
-        Tangent factorizations and Newton iterations the attempt took (default for the
-        iterations: those of ``history``, one solve).
-    """
-
-    def __init__(self, reason: str, history: list[float], factorizations: int = 0, kind: str = "stalled",
-                 iterations: int | None = None):
-        super().__init__(reason)
-        self.reason = reason
-        self.kind = kind
-        self.history = history
-        self.factorizations = factorizations
-        self.iterations = max(len(history) - 1, 0) if iterations is None else iterations
-
-
-FAILURE_KINDS = ("stalled", "uphill", "inadmissible", "singular", "stiff")
-"""Why a step failed: the residual stalled within the iteration limit; no step along the
-Newton direction lowered the potential (the tangent points uphill); an iterate left the
-admissible states (non-finite, or the RVE inverted); the plastic flow asked for more time
-steps than a reported step may take (the driver's limit); the tangent could not be factorized or the
-fiber law not solved."""
 
 
 @dataclass(eq=False)
@@ -251,7 +221,7 @@ class EquilibriumSolver:
         return _Step(start, time - start.time, F_prescribed, directions, modes, weight)
 
     def _evaluate(self, z: np.ndarray, step: _Step, near: _Point | None = None) -> _Point:
-        """Everything at the iterate ``z``; an inadmissible state raises :class:`StepFailed`.
+        """Everything at the iterate ``z``; an inadmissible state raises :class:`InadmissibleState`.
 
         ``near``: an evaluated iterate of the same step whose plastic stretches start the
         return mapping (a warm start: same result, fewer iterations of the fiber law).
@@ -260,8 +230,7 @@ class EquilibriumSolver:
         free = z[n:]
         F = step.F_prescribed + np.tensordot(free, step.directions, axes=1) if len(free) else step.F_prescribed
         if not (np.all(np.isfinite(z)) and np.linalg.det(F) > 0.0):
-            raise StepFailed("the iterate left the admissible states (non-finite, or det F <= 0)", [],
-                             kind="inadmissible")
+            raise InadmissibleState("the iterate left the admissible states (non-finite, or det F <= 0)")
         x = self.asm.positions(z[:n], F)
         kin = self.asm.kinematics(x)
         stretch = kin.length / self.l0
@@ -361,9 +330,9 @@ class EquilibriumSolver:
 
         Raises
         ------
-        StepFailed
+        StepNotConverged
             When Newton does not converge within the iteration limit, the line search
-            cannot lower the potential, or the state becomes non-finite.
+            cannot lower the potential, the state becomes non-finite or the tangent singular.
         """
         # With a backend that does not use OpenBLAS, OpenBLAS (numpy's vector products here
         # gain nothing from threads) runs on one thread: its threads spin after each call
@@ -374,18 +343,18 @@ class EquilibriumSolver:
         with openblas:
             try:
                 return self._solve(start, time, F_prescribed, directions, guess_inner, guess_free)
-            except StepFailed as failure:
+            except StepNotConverged as failure:
                 return self._solve_by_continuation(failure, start, time, F_prescribed, directions,
                                                    guess_inner, guess_free)
 
-    def _solve_by_continuation(self, failure: StepFailed, start: StepState, time: float,
+    def _solve_by_continuation(self, failure: StepNotConverged, start: StepState, time: float,
                                F_prescribed: np.ndarray, directions: np.ndarray,
                                guess_inner: np.ndarray, guess_free: np.ndarray) -> StepResult:
         """The step again, through a continuation in the slack modulus (module docstring).
 
         Raises
         ------
-        StepFailed
+        StepNotConverged
             When a stage does not converge; counts include the first attempt's.
         """
         true_law = self._law_update.law
@@ -398,12 +367,11 @@ class EquilibriumSolver:
                 self._law_update.law = replace(true_law, slack_modulus=slack) if factor != 1.0 else true_law
                 try:
                     result = self._solve(start, time, F_prescribed, directions, inner, free)
-                except StepFailed as stage:
-                    raise StepFailed(
+                except StepNotConverged as stage:
+                    raise StepNotConverged(
                         f"{failure.reason}; then the continuation in the slack modulus failed at "
-                        f"E_b = {slack:g} MPa: {stage.reason}",
-                        history + stage.history, factorizations + stage.factorizations, stage.kind,
-                        iterations + stage.iterations,
+                        f"E_b = {slack:g} MPa: {stage.reason}", stage.kind, history=history + stage.history,
+                        iterations=iterations + stage.iterations, factorizations=factorizations + stage.factorizations,
                     ) from None
                 iterations += result.iterations
                 factorizations += result.factorizations
@@ -434,20 +402,17 @@ class EquilibriumSolver:
                 history.append(norm)
                 if ok:
                     n = 2 * self.n_inner
-                    state = StepState(time, p.z[:n].reshape(-1, 2), p.z[n:].copy(), p.F, p.law.plastic_stretch)
+                    state = StepState(time, p.z[:n].reshape(-1, 2), p.z[n:].copy(), p.F, p.law.plastic_stretch,
+                                      p.law.stress)
                     return StepResult(state, p.law, p.force, p.kin, iteration, factorizations, norm, history)
                 if iteration == limit:
                     break
                 direction, used, fact = self._direction(p, step, chord)
                 factorizations += used
                 p = self._line_search(p, direction, step)
-        except StepFailed as failure:
-            raise StepFailed(failure.reason, history, factorizations, failure.kind) from None
-        except (SolverError, ValueError, ArithmeticError) as err:
-            # A singular factorization or a failed return mapping: the step is cut like any
-            # other failure.
-            raise StepFailed(f"{type(err).__name__}: {err}", history, factorizations, "singular") from None
-        raise StepFailed(f"no convergence in {limit} iterations", history, factorizations)
+        except StepNotConverged as failure:
+            raise type(failure)(failure.reason, failure.kind, history=history, factorizations=factorizations) from None
+        raise StepNotConverged(f"no convergence in {limit} iterations", history=history, factorizations=factorizations)
 
     def _line_search(self, p: _Point, direction: np.ndarray, step: _Step) -> _Point:
         """Step length along the Newton direction on the incremental potential Phi.
@@ -467,7 +432,7 @@ class EquilibriumSolver:
         for _ in range(_MAX_SEARCH):
             try:
                 trial = self._evaluate(p.z + alpha * direction, step, p)
-            except StepFailed:  # overshot into inadmissible states: shorten
+            except InadmissibleState:  # overshot into inadmissible states: shorten
                 hi, s_hi = alpha, None
                 alpha = lo + 0.1 * (alpha - lo)
                 continue
@@ -492,7 +457,7 @@ class EquilibriumSolver:
                 break
         if best is not None and self._decreases(p, best, direction, lo, s0, s_lo, step):
             return best  # no better point found, but Phi falls up to it
-        raise StepFailed("line search could not lower the incremental potential", [], kind="uphill")
+        raise StepNotConverged("line search could not lower the incremental potential", StepFailureKind.UPHILL)
 
     def _decreases(self, p: _Point, trial: _Point, direction: np.ndarray, alpha: float, s0: float,
                    s_trial: float, step: _Step) -> bool:
@@ -507,6 +472,13 @@ class EquilibriumSolver:
         middle = self._evaluate(p.z + 0.5 * alpha * direction, step, p)
         s_middle = float(np.dot(middle.residual, direction))
         return alpha / 6.0 * (s0 + 4.0 * s_middle + s_trial) < 0.0
+
+    def time_error(self, start: StepState, result: StepResult) -> float:
+        """Relative local time error of the step from ``start`` to ``result``
+        (:func:`espin.mechanics.time_steps.local_error`, elements weighted by their volume)."""
+        return local_error(self.law, start.stress, start.plastic_stretch, result.law,
+                           result.kinematics.length / self.l0, self.tortuosity, result.state.time - start.time,
+                           self.area * self.l0)
 
     def macroscopic_tangent(self, result: StepResult) -> np.ndarray:
         """Algorithmic macroscopic tangent A_iJkL = dP_iJ / dF_kL [MPa] at a converged step.

@@ -43,7 +43,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from espin.core.errors import ConfigError, SolverError
+from espin.core.errors import ConfigError, SolverError, StepFailureKind, StepNotConverged
 from espin.core.mkl import load_mkl
 
 if TYPE_CHECKING:
@@ -238,8 +238,11 @@ class LinearSolver(_Releasable, ABC):
 
         Raises
         ------
+        StepNotConverged
+            With kind ``singular`` when K cannot be factorized (exactly singular for SuperLU, a
+            zero pivot for PARDISO): a property of the tangent, so the caller's step is cut.
         SolverError
-            If the backend fails (e.g. K exactly singular for SuperLU).
+            If the backend itself fails (memory, a matrix too large for its interface).
         TypeError
             If K is not a float64 CSR matrix.
         ValueError
@@ -425,8 +428,8 @@ def _splu(matrix: sp.csc_matrix, permc_spec: str) -> spla.SuperLU:
             options={"SymmetricMode": True},
         )
     except RuntimeError as exc:  # "Factor is exactly singular"
-        raise SolverError(f"SuperLU factorization of the {matrix.shape[0]}-unknown tangent "
-                          f"failed: {exc}") from exc
+        raise StepNotConverged(f"SuperLU factorization of the {matrix.shape[0]}-unknown tangent failed: {exc}",
+                               StepFailureKind.SINGULAR) from exc
 
 
 class _SuperLUFactorization(Factorization):
@@ -512,6 +515,7 @@ _PARDISO_ERRORS = {
     -10: "error opening out-of-core files",
     -11: "read/write error with out-of-core files",
 }
+_SINGULAR_ERRORS = (-4, -7)  # a property of the tangent: the step is cut; the others are the machine's
 
 
 class PardisoSolver(LinearSolver):
@@ -641,8 +645,10 @@ class _PardisoHandle:
             self._mkl.set_num_threads_local(previous)
         if error.value:
             reason = _PARDISO_ERRORS.get(error.value, "unknown error")
-            raise SolverError(f"PARDISO phase {phase} on the {n}-unknown tangent failed "
-                              f"with error {error.value} ({reason})")
+            message = f"PARDISO phase {phase} on the {n}-unknown tangent failed with error {error.value} ({reason})"
+            if error.value in _SINGULAR_ERRORS:
+                raise StepNotConverged(message, StepFailureKind.SINGULAR)
+            raise SolverError(message)
         return x
 
     def free(self) -> None:

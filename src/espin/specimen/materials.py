@@ -23,7 +23,7 @@ from typing import Protocol
 
 import numpy as np
 
-from espin.core.errors import ConfigError
+from espin.core.errors import ConfigError, InadmissibleState
 
 __all__ = ["PointMaterial", "NeoHookean"]
 
@@ -36,8 +36,9 @@ class PointMaterial(Protocol):
     def evaluate(self, F: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray]:
         """Trial P (n, 2, 2) [MPa] and A (n, 2, 2, 2, 2) [MPa] at F (n, 2, 2) and ``time`` [s].
 
-        A state the material cannot follow (det F <= 0, a point's solve failing) raises an
-        ``ArithmeticError`` or a :class:`~espin.core.errors.SolverError`: the macro step is cut.
+        A state the material cannot follow raises :class:`~espin.core.errors.StepNotConverged`
+        (:class:`~espin.core.errors.InadmissibleState` for det F <= 0; a point's solve failing):
+        the macro step is cut.
         Any other exception is a bug and stops the run."""
 
     def time_error(self) -> float:
@@ -89,7 +90,7 @@ class NeoHookean:
     def evaluate(self, F: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray]:
         J = np.linalg.det(F)
         if np.any(J <= 0.0):
-            raise FloatingPointError(f"det F <= 0 at {int(np.sum(J <= 0.0))} point(s)")
+            raise InadmissibleState(f"det F <= 0 at {int(np.sum(J <= 0.0))} point(s)")
         inv = np.linalg.inv(F)  # F^-1, [n, L, i]
         inv_T = np.swapaxes(inv, 1, 2)  # F^-T, [n, i, L]
         log_J = np.log(J)[:, None, None]

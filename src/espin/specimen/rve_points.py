@@ -23,18 +23,18 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NoReturn
 
 import numpy as np
 
 from espin.core.config import Config
-from espin.core.errors import SolverError
-from espin.core.parallel import TaskPool
+from espin.core.errors import StepNotConverged
+from espin.core.parallel import TaskOutcome, TaskPool
 from espin.geometry.network import Network
 from espin.mechanics.driver import StepRecord, step_record
-from espin.mechanics.equilibrium import EquilibriumSolver, StepFailed, StepState
+from espin.mechanics.equilibrium import EquilibriumSolver, StepState
 from espin.mechanics.fiber_law import FiberLaw
 from espin.mechanics.linear_solvers import make_linear_solver
-from espin.mechanics.time_steps import local_error
 
 __all__ = ["RVEPoints", "rve_tolerance", "PointStates"]
 
@@ -118,25 +118,36 @@ def _solve_chunk(chunk: _Chunk) -> dict[str, np.ndarray]:
         network = chunk.networks[i]
         solver = _solver(chunk.key, 0 if chunk.shared else int(chunk.points[i]), network, chunk.config)
         start = StepState(chunk.start.time, chunk.start.inner[i], np.zeros(0), chunk.start.F[i],
-                          chunk.start.plastic_stretch[i])
+                          chunk.start.plastic_stretch[i], chunk.start.stress[i])
         try:
             result = solver.solve(start, chunk.time, chunk.F[i], _NO_FREE, chunk.guess[i], np.zeros(0))
-        except StepFailed as failure:
-            raise SolverError(f"RVE solve failed ({failure.kind}: {failure.reason})") from None
+        except StepNotConverged as failure:
+            raise type(failure)(f"RVE point {int(chunk.points[i])}: {failure.reason}", failure.kind,
+                                iterations=failure.iterations, factorizations=failure.factorizations) from None
         record = step_record(0, solver, result, 0.0, (result.iterations, result.factorizations, 1), threshold)
         out["P"].append(record.P)
         out["A"].append(solver.macroscopic_tangent(result))
         out["inner"].append(result.state.inner)
         out["plastic_stretch"].append(result.state.plastic_stretch)
         out["stress"].append(result.law.stress)
-        out["local_error"].append(local_error(
-            solver.law, chunk.start.stress[i], chunk.start.plastic_stretch[i], result.law,
-            result.kinematics.length / solver.l0, solver.tortuosity, chunk.time - chunk.start.time,
-            solver.area * solver.l0))
+        out["local_error"].append(solver.time_error(start, result))
         out["recruited_fraction"].append(record.recruited_fraction)
         out["yielded_fraction"].append(record.yielded_fraction)
         out["iterations"].append(result.iterations)
     return {name: values if name in _RAGGED else np.array(values) for name, values in out.items()}
+
+
+def _raise_failed_chunk(outcome: TaskOutcome, points: np.ndarray) -> NoReturn:
+    """Raise what a chunk of points raised: a step that did not converge as itself (the macro
+    step is cut), anything else (a bug) with the points and the worker's traceback added."""
+    exception = outcome.exception
+    if isinstance(exception, StepNotConverged):
+        raise exception
+    where = f"in the RVE solves of points {points[0]}-{points[-1]}; the task's traceback:\n{outcome.traceback}"
+    if exception is None:  # it could not be carried back from the worker: its text
+        raise RuntimeError(f"{outcome.error} ({where})")
+    exception.add_note(where)
+    raise exception
 
 
 def replay_point(network: Network, config: Config, times: np.ndarray, F: np.ndarray) -> list[StepRecord]:
@@ -147,7 +158,8 @@ def replay_point(network: Network, config: Config, times: np.ndarray, F: np.ndar
     solver = EquilibriumSolver(network, FiberLaw.from_config(config.fiber), config.solver,
                                make_linear_solver(config.solver.linear), config.fiber.bending_modulus_MPa)
     X = solver.asm.reference[:network.n_inner]
-    state = StepState(float(times[0]), X @ F[0].T, np.zeros(0), F[0], np.ones(network.n_elements))
+    state = StepState(float(times[0]), X @ F[0].T, np.zeros(0), F[0], np.ones(network.n_elements),
+                      np.zeros(network.n_elements))
     records = []
     for k, (t, F_k) in enumerate(zip(times, F, strict=True)):
         guess = X @ F_k.T + (state.inner - X @ state.F.T)
@@ -213,8 +225,7 @@ class RVEPoints:
         results: list[dict[str, np.ndarray] | None] = [None] * len(tasks)
         for outcome in self.pool.map(_solve_chunk, tasks):
             if not outcome.ok:
-                raise SolverError(f"RVE points {parts[outcome.index][0]}-{parts[outcome.index][-1]}: "
-                                  f"{outcome.error}")
+                _raise_failed_chunk(outcome, parts[outcome.index])
             results[outcome.index] = outcome.value
         merged = {name: ([a for r in results for a in r[name]] if name in _RAGGED
                          else np.concatenate([r[name] for r in results])) for name in results[0]}

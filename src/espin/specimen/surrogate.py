@@ -32,7 +32,7 @@ import numpy as np
 from scipy.interpolate import RBFInterpolator
 
 from espin.core.config import Config
-from espin.core.errors import ConfigError, SolverError
+from espin.core.errors import ConfigError, InadmissibleState, SolverError
 from espin.core.parallel import TaskPool
 from espin.geometry.network import Network
 from espin.mechanics.driver import run_program
@@ -160,7 +160,7 @@ class Surrogate:
         The tangent includes the change of the speed with F."""
         J = np.linalg.det(F)
         if np.any(J <= 0.0):
-            raise FloatingPointError(f"det F <= 0 at {int(np.sum(J <= 0.0))} point(s)")
+            raise InadmissibleState(f"det F <= 0 at {int(np.sum(J <= 0.0))} point(s)")
         E = _green(F)
         n = len(E)
         probes = [E]
