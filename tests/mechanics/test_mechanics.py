@@ -314,13 +314,13 @@ def test_law_on_threads_equals_one_call(monkeypatch):
     rng = np.random.default_rng(2)
     n = 101
     tortuosity = 1 + rng.exponential(0.01, n)
-    threaded = equilibrium._ThreadedLaw(law, tortuosity)
+    threaded = equilibrium._ThreadedLaw(tortuosity)
     assert threaded.pool is not None and len(threaded.chunks) == 3
     stretch = rng.uniform(0.9, 1.1, n)
     plastic_old = rng.uniform(1.0, 1.05, n)
     for guess in (None, plastic_old * 1.001):
         expected = update(law, stretch, plastic_old, tortuosity, 2.0, guess)
-        got = threaded(stretch, plastic_old, 2.0, guess)
+        got = threaded(law, stretch, plastic_old, 2.0, guess)
         for name in ("stress", "plastic_stretch", "tangent", "recruited"):
             np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
 

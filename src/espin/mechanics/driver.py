@@ -23,7 +23,7 @@ from espin.core.errors import SolverError, StepFailureKind, StepNotConverged
 from espin.core.html import html_table
 from espin.geometry.network import Network
 from espin.mechanics.equilibrium import EquilibriumSolver, StepResult, StepState
-from espin.mechanics.fiber_law import FiberLaw, yielded
+from espin.mechanics.fiber_law import yielded
 from espin.mechanics.homogenization import cauchy_stress, nominal_stress, paper_stress
 from espin.mechanics.loading import LoadProgram, load_program
 from espin.mechanics.march import MarchFailed, ReportTally, StepPolicy, march
@@ -360,8 +360,7 @@ def run_program(
     program = program or load_program(config.loading)
     if program.test == "uniaxial" and len(program.free_directions):
         log.warning(FREE_LATERAL_NOTE)
-    solver = EquilibriumSolver(network, FiberLaw.from_config(config.fiber), config.solver, linear_solver,
-                               config.fiber.bending_modulus_MPa)
+    solver = EquilibriumSolver.from_config(network, config, linear_solver)
     threshold = config.output.yield_threshold
     records: list[StepRecord] = []
 

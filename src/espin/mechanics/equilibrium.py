@@ -47,13 +47,13 @@ import numpy as np
 import scipy.sparse as sp
 from threadpoolctl import ThreadpoolController, threadpool_info
 
-from espin.core.config import SolverConfig
+from espin.core.config import Config, SolverConfig
 from espin.core.errors import InadmissibleState, StepFailureKind, StepNotConverged
 from espin.geometry.network import Network
 from espin.mechanics.assembly import Kinematics, NetworkAssembler
 from espin.mechanics.bending import FiberJoints, fiber_joints
 from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
-from espin.mechanics.linear_solvers import Factorization
+from espin.mechanics.linear_solvers import Factorization, LinearSolver
 from espin.mechanics.time_steps import local_error
 
 __all__ = ["StepState", "StepResult", "EquilibriumSolver"]
@@ -136,6 +136,15 @@ class _Step:
     directions: np.ndarray
     modes: np.ndarray  # (n_free, 2 n_border): d x_B / d f_k = G_k X_B
     weight: np.ndarray  # residual row scales for norms (all rows in uN)
+    law: FiberLaw  # the law this solve uses (the continuation's stages soften E_b)
+
+
+@dataclass
+class _TangentChoice:
+    """Which tangent the next Newton iterations factorize: the exact one while it is positive
+    definite; after an indefinite one, the clipped tangent for the next few iterations."""
+
+    clipped_left: int = 0
 
 
 class _ThreadedLaw:
@@ -148,8 +157,7 @@ class _ThreadedLaw:
     on it.
     """
 
-    def __init__(self, law: FiberLaw, tortuosity: np.ndarray) -> None:
-        self.law = law
+    def __init__(self, tortuosity: np.ndarray) -> None:
         self.tortuosity = tortuosity
         n = len(tortuosity)
         available = max((int(pool["num_threads"]) for pool in threadpool_info()), default=1)
@@ -158,12 +166,11 @@ class _ThreadedLaw:
         self.chunks = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
         self.pool = ThreadPoolExecutor(threads) if threads > 1 else None
 
-    def __call__(self, stretch: np.ndarray, plastic_old: np.ndarray, dt: float,
+    def __call__(self, law: FiberLaw, stretch: np.ndarray, plastic_old: np.ndarray, dt: float,
                  guess: np.ndarray | None) -> LawState:
         """:func:`~espin.mechanics.fiber_law.update` of every element."""
         def chunk(c: slice) -> LawState:
-            return update(self.law, stretch[c], plastic_old[c], self.tortuosity[c], dt,
-                          None if guess is None else guess[c])
+            return update(law, stretch[c], plastic_old[c], self.tortuosity[c], dt, None if guess is None else guess[c])
 
         if self.pool is None:
             return chunk(self.chunks[0])
@@ -203,22 +210,27 @@ class EquilibriumSolver:
         self.l0 = network.element_length
         self.area = network.element_area
         self.tortuosity = network.element_tortuosity
-        self._law_update = _ThreadedLaw(law, self.tortuosity)
+        self._law_update = _ThreadedLaw(self.tortuosity)
         self.n_inner = network.n_inner
         self.border_reference = self.asm.reference[network.n_inner:]
         self.force_tolerance_abs = config.atol * law.taut_modulus * float(np.mean(self.area))
         fiber_fraction = float(np.sum(self.area * network.element_contour_length)) / network.reference_volume
         self.stress_tolerance_abs = config.atol * law.taut_modulus * fiber_fraction
-        self._clipped_left = 0
+
+    @classmethod
+    def from_config(cls, network: Network, config: Config, linear_solver: LinearSolver) -> EquilibriumSolver:
+        """The solver of a run's config: its fiber law (with bending) and solver settings."""
+        return cls(network, FiberLaw.from_config(config.fiber), config.solver, linear_solver,
+                   config.fiber.bending_modulus_MPa)
 
     # -- evaluation ---------------------------------------------------------------------------
-    def _context(self, start: StepState, time: float, F_prescribed, directions) -> _Step:
+    def _context(self, start: StepState, time: float, F_prescribed, directions, law: FiberLaw) -> _Step:
         X = self.border_reference
         modes = np.stack([(X @ G.T).ravel() for G in directions]) if len(directions) else np.zeros((0, 2 * len(X)))
         # Residual rows are forces [uN] for inner DOF and V0 P : G_k [uN um] for free
         # components; dividing the latter by L / 2 puts both in uN for norms.
         weight = np.r_[np.ones(2 * self.n_inner), np.full(len(directions), 2.0 / self.network.size)]
-        return _Step(start, time - start.time, F_prescribed, directions, modes, weight)
+        return _Step(start, time - start.time, F_prescribed, directions, modes, weight, law)
 
     def _evaluate(self, z: np.ndarray, step: _Step, near: _Point | None = None) -> _Point:
         """Everything at the iterate ``z``; an inadmissible state raises :class:`InadmissibleState`.
@@ -234,7 +246,7 @@ class EquilibriumSolver:
         x = self.asm.positions(z[:n], F)
         kin = self.asm.kinematics(x)
         stretch = kin.length / self.l0
-        law = self._law_update(stretch, step.start.plastic_stretch, step.dt,
+        law = self._law_update(step.law, stretch, step.start.plastic_stretch, step.dt,
                                None if near is None else near.law.plastic_stretch)
         force, stiffness = axial_force_and_stiffness(law, self.area, self.l0)
         gradient = self.asm.gradient(force, kin)
@@ -286,19 +298,20 @@ class EquilibriumSolver:
         corner = modes @ (K_BB @ modes.T)
         return sp.bmat([[K_II, coupling], [coupling.T, sp.csr_matrix(corner)]], format="csr")
 
-    def _direction(self, p: _Point, step: _Step, chord: Factorization | None
+    def _direction(self, p: _Point, step: _Step, chord: Factorization | None, choice: _TangentChoice
                    ) -> tuple[np.ndarray, int, Factorization]:
         """Newton direction, the number of factorizations it took and the factorization used.
 
         ``chord``: a factorization to reuse (a chord step, no factorization) if it gives a
-        descent direction.
+        descent direction. ``choice`` is updated: an indefinite exact tangent makes the next
+        few iterations take the clipped one directly.
         """
         if chord is not None:
             direction = chord.solve(-p.residual)
             if np.dot(direction, p.residual) < 0.0:
                 return direction, 0, chord
         factorizations = 0
-        if self._clipped_left == 0:
+        if choice.clipped_left == 0:
             fact = self.linear.factorize(self._hessian(p, step, clipped=False))
             factorizations += 1
             # Perturbed pivots mean a (nearly) singular tangent: not usable as exact.
@@ -307,8 +320,8 @@ class EquilibriumSolver:
                 direction = fact.solve(-p.residual)
                 if np.dot(direction, p.residual) < 0.0:
                     return direction, factorizations, fact
-            self._clipped_left = _CLIPPED_AFTER_INDEFINITE
-        self._clipped_left -= 1
+            choice.clipped_left = _CLIPPED_AFTER_INDEFINITE
+        choice.clipped_left -= 1
         fact = self.linear.factorize(self._hessian(p, step, clipped=True))
         return fact.solve(-p.residual), factorizations + 1, fact
 
@@ -342,7 +355,7 @@ class EquilibriumSolver:
                     else ThreadpoolController().select(internal_api="openblas").limit(limits=1))
         with openblas:
             try:
-                return self._solve(start, time, F_prescribed, directions, guess_inner, guess_free)
+                return self._solve(start, time, F_prescribed, directions, guess_inner, guess_free, self.law)
             except StepNotConverged as failure:
                 return self._solve_by_continuation(failure, start, time, F_prescribed, directions,
                                                    guess_inner, guess_free)
@@ -357,40 +370,36 @@ class EquilibriumSolver:
         StepNotConverged
             When a stage does not converge; counts include the first attempt's.
         """
-        true_law = self._law_update.law
         history = list(failure.history)
         iterations, factorizations = failure.iterations, failure.factorizations
         inner, free = guess_inner, guess_free
-        try:
-            for factor in _SLACK_CONTINUATION:
-                slack = min(factor * true_law.slack_modulus, 0.5 * true_law.taut_modulus)
-                self._law_update.law = replace(true_law, slack_modulus=slack) if factor != 1.0 else true_law
-                try:
-                    result = self._solve(start, time, F_prescribed, directions, inner, free)
-                except StepNotConverged as stage:
-                    raise StepNotConverged(
-                        f"{failure.reason}; then the continuation in the slack modulus failed at "
-                        f"E_b = {slack:g} MPa: {stage.reason}", stage.kind, history=history + stage.history,
-                        iterations=iterations + stage.iterations, factorizations=factorizations + stage.factorizations,
-                    ) from None
-                iterations += result.iterations
-                factorizations += result.factorizations
-                history += result.residual_history
-                inner, free = result.state.inner, result.state.free
-        finally:
-            self._law_update.law = true_law
+        for factor in _SLACK_CONTINUATION:
+            slack = min(factor * self.law.slack_modulus, 0.5 * self.law.taut_modulus)
+            law = replace(self.law, slack_modulus=slack) if factor != 1.0 else self.law
+            try:
+                result = self._solve(start, time, F_prescribed, directions, inner, free, law)
+            except StepNotConverged as stage:
+                raise StepNotConverged(
+                    f"{failure.reason}; then the continuation in the slack modulus failed at "
+                    f"E_b = {slack:g} MPa: {stage.reason}", stage.kind, history=history + stage.history,
+                    iterations=iterations + stage.iterations, factorizations=factorizations + stage.factorizations,
+                ) from None
+            iterations += result.iterations
+            factorizations += result.factorizations
+            history += result.residual_history
+            inner, free = result.state.inner, result.state.free
         return StepResult(result.state, result.law, result.force, result.kinematics, iterations,
                           factorizations, result.residual, history)
 
-    def _solve(self, start: StepState, time: float, F_prescribed: np.ndarray,
-               directions: np.ndarray, guess_inner: np.ndarray, guess_free: np.ndarray
-               ) -> StepResult:
+    def _solve(self, start: StepState, time: float, F_prescribed: np.ndarray, directions: np.ndarray,
+               guess_inner: np.ndarray, guess_free: np.ndarray, law: FiberLaw) -> StepResult:
+        """Newton's method from the guess, with ``law`` (the true one, or a continuation stage's)."""
         n_free = len(directions)
         limit = self.iteration_limit(n_free)
-        step = self._context(start, time, F_prescribed, directions)
+        step = self._context(start, time, F_prescribed, directions, law)
         history: list[float] = []
         factorizations = 0
-        self._clipped_left = 0
+        choice = _TangentChoice()
         fact = None
         try:
             p = self._evaluate(np.concatenate([guess_inner.ravel(), guess_free]), step)
@@ -407,7 +416,7 @@ class EquilibriumSolver:
                     return StepResult(state, p.law, p.force, p.kin, iteration, factorizations, norm, history)
                 if iteration == limit:
                     break
-                direction, used, fact = self._direction(p, step, chord)
+                direction, used, fact = self._direction(p, step, chord, choice)
                 factorizations += used
                 p = self._line_search(p, direction, step)
         except StepNotConverged as failure:

@@ -33,7 +33,6 @@ from espin.core.parallel import TaskOutcome, TaskPool
 from espin.geometry.network import Network
 from espin.mechanics.driver import StepRecord, step_record
 from espin.mechanics.equilibrium import EquilibriumSolver, StepState
-from espin.mechanics.fiber_law import FiberLaw
 from espin.mechanics.linear_solvers import make_linear_solver
 
 __all__ = ["RVEPoints", "rve_tolerance", "PointStates"]
@@ -102,8 +101,7 @@ def _solver(key: str, index: int, network: Network, config: Config) -> Equilibri
     if cached is None:
         if len(_SOLVERS) >= _CACHED_SOLVERS:
             del _SOLVERS[next(iter(_SOLVERS))]  # the oldest
-        cached = EquilibriumSolver(network, FiberLaw.from_config(config.fiber), config.solver,
-                                   make_linear_solver(config.solver.linear), config.fiber.bending_modulus_MPa)
+        cached = EquilibriumSolver.from_config(network, config, make_linear_solver(config.solver.linear))
         _SOLVERS[(key, index)] = cached
     return cached
 
@@ -155,8 +153,7 @@ def replay_point(network: Network, config: Config, times: np.ndarray, F: np.ndar
 
     Returns the :class:`StepRecord` of every entry (entry 0 is the start, usually F = I).
     """
-    solver = EquilibriumSolver(network, FiberLaw.from_config(config.fiber), config.solver,
-                               make_linear_solver(config.solver.linear), config.fiber.bending_modulus_MPa)
+    solver = EquilibriumSolver.from_config(network, config, make_linear_solver(config.solver.linear))
     X = solver.asm.reference[:network.n_inner]
     state = StepState(float(times[0]), X @ F[0].T, np.zeros(0), F[0], np.ones(network.n_elements),
                       np.zeros(network.n_elements))
