@@ -193,6 +193,7 @@ class RVEPoints:
             raise ValueError(f"{len(self.networks)} networks for {n_points} points")
         self.config = config
         self.n_points = n_points
+        self.symmetric_tangent = True  # condensed from the Hessian of each RVE's incremental potential
         self.pool = pool or TaskPool(workers=1)
         self.chunks = max(1, min(n_points, chunks_per_worker * (1 if self.pool.serial else self.pool.workers)))
         self.key = f"{id(self)}-{np.random.default_rng().integers(1 << 62)}"

@@ -208,6 +208,7 @@ class SurrogateMaterial:
     def __init__(self, surrogate: Surrogate, n_points: int) -> None:
         self.surrogate = surrogate
         self.n_points = n_points
+        self.symmetric_tangent = False  # dS/dE by differences of an interpolant: not a potential's
         self._U = np.tile(np.eye(2), (n_points, 1, 1))
         self._time = 0.0
         self._trial: tuple[np.ndarray, float, dict[str, np.ndarray]] | None = None
