@@ -85,10 +85,6 @@ def parse_grid(items: list[str] | None) -> dict[str, list[Any]]:
     return grid
 
 
-def _overrides(set_: list[str] | None) -> dict[str, Any]:
-    return {k.replace(".", "__"): v for k, v in parse_set(set_).items()}
-
-
 def _print_study_plan(base: str | None, set_: list[str] | None, points: list[dict[str, Any]], realizations: int,
                       seed_start: int | None, out: Path, workers: int | None, scheduler: str | None,
                       plan: bool | None, quiet: bool) -> None:
@@ -108,7 +104,7 @@ def _print_study_plan(base: str | None, set_: list[str] | None, points: list[dic
 
     def tests() -> list[Any]:
         if not todo and not finished:
-            config = resolve_config(base, **_overrides(set_))
+            config = resolve_config(base, **parse_set(set_))
             seeds = realization_seeds(config, realizations, seed_start)
             tasks = plan_tasks(config, points, seeds, allow_large=True)
             per_point = {}  # one config object per point: the cost does not depend on the seed
@@ -249,7 +245,7 @@ def rve_size(
             base, size_ratios=sizes, layer_counts=layers, layers_for_sizes=layers_for_sizes,
             size_for_layers=size_for_layers, realizations=realizations, seed_start=seed_start,
             folder=out, workers=workers, scheduler=scheduler, blas_threads=blas_threads, security=security,
-            on_outcome=on_outcome, overwrite=overwrite, allow_large=allow_large, **_overrides(set_))), n_points * realizations
+            on_outcome=on_outcome, overwrite=overwrite, allow_large=allow_large, **parse_set(set_))), n_points * realizations
 
     _run_study(prepare, out, _MEANS + _RSDS, quiet)
 
@@ -299,7 +295,7 @@ def sweep(
         return (lambda on_outcome: run_sweep(
             base, parsed, realizations=realizations, seed_start=seed_start, folder=out,
             table_format=table_format, workers=workers, scheduler=scheduler, blas_threads=blas_threads,
-            security=security, on_outcome=on_outcome, overwrite=overwrite, allow_large=allow_large, **_overrides(set_))), n_points * realizations
+            security=security, on_outcome=on_outcome, overwrite=overwrite, allow_large=allow_large, **parse_set(set_))), n_points * realizations
 
     _run_study(prepare, out, _MEANS + _SDS, quiet)
 
@@ -336,7 +332,7 @@ def dof(
     try:
         sizes = _numbers("--size-ratios", size_ratios, float)
         layer_list = _numbers("--layers", layers, int)
-        config = resolve_config(base, **_overrides(set_))
+        config = resolve_config(base, **parse_set(set_))
         seeds = realization_seeds(config, realizations, seed_start)
         with OutputFolder.claim(out, "dof", config_digest(config), ("dof.csv", "dof.png", "dof_fit.csv"),
                                 overwrite=overwrite):

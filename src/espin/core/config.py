@@ -17,7 +17,7 @@ import hashlib
 import math
 import re
 import tomllib
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from importlib import resources
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -37,6 +37,7 @@ from pydantic import (
 from espin.core.errors import ConfigError, InputError
 
 __all__ = [
+    "dotted_overrides",
     "Config",
     "RVEConfig",
     "FiberConfig",
@@ -826,6 +827,12 @@ def load_config(source: str | Path | None = None, overrides: dict[str, Any] | No
     if overrides:
         data = _apply_dotted(data, overrides)
     return config_from_dict(data, label)
+
+
+def dotted_overrides(keywords: Mapping[str, Any]) -> dict[str, Any]:
+    """Overrides given as Python keywords, ``section__key=value`` (or ``**{"section.key": value}``),
+    as the dotted keys ``section.key`` every other function of the package takes."""
+    return {key.replace("__", "."): value for key, value in keywords.items()}
 
 
 def apply_overrides(config: Config, overrides: dict[str, Any]) -> Config:

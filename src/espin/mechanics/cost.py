@@ -182,7 +182,7 @@ def calibrate(*, budget_s: float = CALIBRATION_BUDGET_S, refresh: bool = False) 
     from espin.mechanics.linear_solvers import SuperLUSolver
 
     start = time.perf_counter()  # the modules above are the commands' own: not counted
-    rve = generate("plla", **{k.replace(".", "__"): v for k, v in CALIBRATION_MAT.items()})
+    rve = generate("plla", **CALIBRATION_MAT)
     counted: list[tuple[float, float, int]] = []  # (time, CPU time, iterations so far) after each step
 
     def on_step(record) -> None:

@@ -227,9 +227,10 @@ def specimen(
 
 def _resolve_rve(source: Any, overrides: dict[str, Any]):
     """(config, RVE or None) of the mat; a generated one small unless its size is given."""
+    from espin.core.config import dotted_overrides
     from espin.mechanics.run import resolve_source
 
-    flat = {key.replace("__", "."): value for key, value in overrides.items()}
+    flat = dotted_overrides(overrides)
     config, rve = resolve_source(source, flat)
     if rve is None:
         small = {k: v for k, v in _SMALL_RVE.items() if k not in flat}

@@ -145,9 +145,7 @@ def _simulate_task(task: _Task) -> tuple[np.ndarray, str | None]:
     from espin.mechanics.driver import SimulationFailed
     from espin.mechanics.run import simulate
 
-    overrides = {k.replace(".", "__"): v for k, v in task.fiber} | {
-        "loading__program": task.steps.program(task.strain_rate_per_s),
-    }
+    overrides = dict(task.fiber) | {"loading.program": task.steps.program(task.strain_rate_per_s)}
     try:
         result, failure = simulate(_rve(task.rve_toml), progress=False, **overrides), None
     except SimulationFailed as exc:
