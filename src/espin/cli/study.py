@@ -122,7 +122,8 @@ def _print_study_plan(base: str | None, set_: list[str] | None, points: list[dic
     def text(calibration: Any) -> str:
         line = make_plan(tests(), n_workers, calibration).text() if tests() else "plan: nothing to run"
         if finished:
-            line += f"; {len(finished)} tensile test{'s' * (len(finished) != 1)} already finished in {out}/ not run again"
+            line += (f"; {len(finished)} tensile test{'s' * (len(finished) != 1)} already finished in {out}/"
+                     " not run again")
         return line
 
     n_workers = None if scheduler is not None else (workers or default_workers())
@@ -151,7 +152,8 @@ def _run_with_progress(run, n_tasks: int, quiet: bool):
         def on_outcome(outcome, task) -> None:
             nonlocal failed
             failed += not outcome.ok
-            bar.update(task_id, advance=1, description=f"tensile tests ({failed} failed)" if failed else "tensile tests")
+            bar.update(task_id, advance=1,
+                       description=f"tensile tests ({failed} failed)" if failed else "tensile tests")
             if not console.is_terminal:  # no live bar off a terminal: one plain line per task
                 done = int(bar.tasks[0].completed)
                 console.print(f"tensile tests: {done}/{n_tasks} done ({failed} failed), "
@@ -210,7 +212,8 @@ _RSDS = [f"{p}_rsd" for p in ("modulus_MPa", "yield_stress_MPa", "post_yield_mod
 @study_app.command("rve-size")
 def rve_size(
     base: BaseArg = None,
-    size_ratios: Annotated[str, typer.Option(help="L/D values at --layers-for-sizes layers, comma-separated.")] = "50,100,150,200",
+    size_ratios: Annotated[
+        str, typer.Option(help="L/D values at --layers-for-sizes layers, comma-separated.")] = "50,100,150,200",
     layer_counts: Annotated[str, typer.Option(help="N_l values at --size-for-layers, comma-separated.")] = "5,10,15,20",
     layers_for_sizes: Annotated[int, typer.Option(help="N_l of the L/D series.")] = 5,
     size_for_layers: Annotated[float, typer.Option(help="L/D of the N_l series.")] = 200,
@@ -249,7 +252,8 @@ def rve_size(
             base, size_ratios=sizes, layer_counts=layers, layers_for_sizes=layers_for_sizes,
             size_for_layers=size_for_layers, realizations=realizations, seed_start=seed_start,
             folder=out, workers=workers, scheduler=scheduler, blas_threads=blas_threads, security=security,
-            on_outcome=on_outcome, overwrite=overwrite, allow_large=allow_large, **_overrides(set_))), n_points * realizations
+            on_outcome=on_outcome, overwrite=overwrite, allow_large=allow_large,
+            **_overrides(set_))), n_points * realizations
 
     _run_study(prepare, out, _MEANS + _RSDS, quiet)
 
@@ -299,7 +303,8 @@ def sweep(
         return (lambda on_outcome: run_sweep(
             base, parsed, realizations=realizations, seed_start=seed_start, folder=out,
             table_format=table_format, workers=workers, scheduler=scheduler, blas_threads=blas_threads,
-            security=security, on_outcome=on_outcome, overwrite=overwrite, allow_large=allow_large, **_overrides(set_))), n_points * realizations
+            security=security, on_outcome=on_outcome, overwrite=overwrite, allow_large=allow_large,
+            **_overrides(set_))), n_points * realizations
 
     _run_study(prepare, out, _MEANS + _SDS, quiet)
 
@@ -360,7 +365,8 @@ def _numbers(option: str, text: str, kind: type) -> list:
     try:
         values = [kind(v) for v in text.split(",") if v.strip()]
     except ValueError:
-        raise ConfigError(f"{option}: comma-separated {'integers' if kind is int else 'numbers'} (got {text!r})") from None
+        raise ConfigError(
+            f"{option}: comma-separated {'integers' if kind is int else 'numbers'} (got {text!r})") from None
     if not values:
         raise ConfigError(f"{option}: give at least one value")
     return values

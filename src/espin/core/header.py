@@ -54,7 +54,7 @@ def provenance() -> dict[str, str]:
         "h5py_version": h5py.__version__,
         "python_version": platform.python_version(),
         "units": UNITS,
-        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "created_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
     }
 
 

@@ -6,8 +6,8 @@ walks set the segment directions (``rve.walk``): the paper's turns each segment 
 previous one by a uniform random angle in [-theta_max, +theta_max] (the direction drifts
 without bound); the smooth walk keeps the drawn axis as the fiber's mean direction and adds a
 smooth stationary Gaussian deviation of rms ``waviness_deg`` and correlation length
-``waviness_length_ratio`` D (the fiber bends smoothly but keeps its course). Fibers are laid until the layer reaches its target volume fraction; the fiber that
-crosses the target is kept.
+``waviness_length_ratio`` D (the fiber bends smoothly but keeps its course). Fibers are laid
+until the layer reaches its target volume fraction; the fiber that crosses the target is kept.
 
 Two seedings choose the start point and the first axis:
 

@@ -581,7 +581,8 @@ def ks_two_sample(sample: ArrayLike, target: ArrayLike) -> float:
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class NetworkStatistics:
-    """Statistics of a mat and its network (docs/model.md section 2) and the fit to measured targets (docs/model.md section 7).
+    """Statistics of a mat and its network (docs/model.md section 2) and the fit to measured
+    targets (docs/model.md section 7).
 
     Cross-link conventions
     ----------------------

@@ -385,8 +385,9 @@ class GeometryTargets:
 
     @classmethod
     def from_measurement(cls, measurement: Any, **extra: Any) -> GeometryTargets:
-        """Targets from an :class:`espin.imaging.measurement.SEMMeasurement` (``espin.imaging.measurement.measure(...)``):
-        its fibers table, field of view, shortest chord and edge-to-edge statistics."""
+        """Targets from an :class:`espin.imaging.measurement.SEMMeasurement`
+        (``espin.imaging.measurement.measure(...)``): its fibers table, field of view, shortest
+        chord and edge-to-edge statistics."""
         found = {"field_of_view_um": tuple(measurement.field_of_view_um),
                  "min_chord_um": float(measurement.min_chord_um),
                  "source": f"espin measure of {getattr(measurement, 'source', 'an image')}"}

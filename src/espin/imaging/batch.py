@@ -162,8 +162,8 @@ def measure_batch(images: Sequence[str | Path], out: str | Path, *, overwrite: b
     Raises
     ------
     ConfigError
-        An option is out of range, an image has no scale, a folder holds no image, or ``out`` holds another run's results and ``overwrite`` is False; before any
-        image is measured.
+        An option is out of range, an image has no scale, a folder holds no image, or ``out``
+        holds another run's results and ``overwrite`` is False; before any image is measured.
     """
     options = _measure_options(options)
     files = image_files(images)

@@ -4,10 +4,11 @@ orientation colour map.
 The diameter histogram shows the fully visible fibers (filled; their fitted family, chosen by
 BIC, as a curve) and the partly hidden ones (outlined) apart, over all local widths. The
 overlay draws every traced fiber (its centre line, amber for a fully visible fiber, blue for a
-partly hidden one; twice as thick for a fiber traced from edge to edge of the image) and, at every fourth width sample, a white
-tick across the fiber as long as the width measured there, on the analysed image: a user sees
-at a glance what was traced and measured. A legend below the image says so, and a scale bar
-(a round length, at most a fifth of the image width) sits in its lower right corner.
+partly hidden one; twice as thick for a fiber traced from edge to edge of the image) and, at every
+fourth width sample, a white tick across the fiber as long as the width measured there, on the
+analysed image: a user sees at a glance what was traced and measured. A legend below the image
+says so, and a scale bar (a round length, at most a fifth of the image width) sits in its lower
+right corner.
 
 The orientation map is OrientationJ's colour survey: hue = the local fiber direction of the
 structure tensor (:func:`espin.imaging.orientation.local_orientation`, window sigma w / 2),

@@ -327,7 +327,7 @@ def _pair_shallow_crossings(graph: _Graph, w: float,
         if min(-(u[e] @ axis) for e in outer1) <= 0 or min(u[e] @ axis for e in outer2) <= 0:
             continue
 
-        def deviation(a: int, c: int) -> float:
+        def deviation(a: int, c: int, u: dict[int, np.ndarray] = u, anchor: dict[int, np.ndarray] = anchor) -> float:
             """Bend from a (at j1) to c (at j2), or twice the larger angle between their
             directions and the line joining them (on one straight line they are all 0)."""
             line = anchor[c] - anchor[a]
@@ -602,7 +602,7 @@ def _join_gaps(chains: list, w: float, max_bend: float, shape: tuple) -> list[np
     def assemble(pieces):
         return np.concatenate([chains[i][0][::-1] if r else chains[i][0] for i, r in pieces])
 
-    for turn, gap, a, b in sorted(candidates):
+    for _turn, gap, a, b in sorted(candidates):
         ia, sa = ends[a][:2]
         ib, sb = ends[b][:2]
         if (ia, sa) not in free or (ib, sb) not in free:
