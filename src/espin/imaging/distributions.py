@@ -257,7 +257,7 @@ def fit_diameter_families(diameter_um: np.ndarray) -> DiameterFits:
     aic = {f: 2.0 * k[f] - 2.0 * log_l[f] for f in DIAMETER_FAMILIES}
     bic = {f: k[f] * math.log(n) - 2.0 * log_l[f] for f in DIAMETER_FAMILIES}
     eligible = [f for f in DIAMETER_FAMILIES if math.isfinite(bic[f])
-                and (f != "mixture" or mixture.smaller_share(n) >= MIN_COMPONENT)]
+                and (f != "mixture" or (mixture is not None and mixture.smaller_share(n) >= MIN_COMPONENT))]
     chosen = min(eligible, key=bic.__getitem__)
     return DiameterFits(n, mean, sd, float(np.median(d)), mean, sd, mu, sigma, mixture, log_l,
                         aic, bic, chosen)

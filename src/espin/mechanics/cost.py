@@ -61,6 +61,7 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from espin.core.config import Config
 from espin.geometry.size_estimate import estimate_size
@@ -184,7 +185,8 @@ def calibrate(*, budget_s: float = CALIBRATION_BUDGET_S, refresh: bool = False) 
     from espin.mechanics.linear_solvers import SuperLUSolver
 
     start = time.perf_counter()  # the modules above are the commands' own: not counted
-    rve = generate("plla", **{k.replace(".", "__"): v for k, v in CALIBRATION_MAT.items()})
+    overrides: dict[str, Any] = {k.replace(".", "__"): v for k, v in CALIBRATION_MAT.items()}
+    rve = generate("plla", **overrides)
     counted: list[tuple[float, float, int]] = []  # (time, CPU time, iterations so far) after each step
 
     def on_step(record) -> None:
