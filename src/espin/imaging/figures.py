@@ -141,7 +141,8 @@ def save_overlay(m: MeasuredImage, path: str | Path) -> Path:
     pick = np.arange(0, len(s.width_px), _TICK_EVERY)
     half = 0.5 * s.width_px[pick, None] * s.normal[pick]
     ticks = np.stack([s.point[pick] - half, s.point[pick] + half], axis=1)[:, :, ::-1]
-    ax.add_collection(LineCollection(ticks, colors="white", linewidths=0.6, alpha=0.8))
+    # matplotlib's stubs ask for a Sequence; an (n, 2, 2) array is what it documents and takes.
+    ax.add_collection(LineCollection(ticks, colors="white", linewidths=0.6, alpha=0.8))  # type: ignore[arg-type]
     if len(m.junctions_px):
         ax.plot(m.junctions_px[:, 1], m.junctions_px[:, 0], ".", color="C3", ms=4)
     ax.set(xlim=(-0.5, cols - 0.5), ylim=(rows - 0.5, -0.5))

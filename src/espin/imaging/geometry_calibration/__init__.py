@@ -354,7 +354,8 @@ def calibrate_geometry(
             search_targets, bias = tracer_corrected(targets, measure_renderings(draft, image),
                                                     measurement.measure(draft_rve, search_side)["tortuosity"])
             tracer = {"tortuosity_bias": bias, "first_walk": fitted.scores[fitted.chosen].walk}
-            if not np.array_equal(search_targets.tortuosity, targets.tortuosity):
+            # Both None (no tortuosity sample) compare equal, as meant; numpy's stubs refuse None.
+            if not np.array_equal(search_targets.tortuosity, targets.tortuosity):  # type: ignore[arg-type]
                 fitted = fit_walks(search_targets)
                 evaluations += fitted.evaluations
         if fitted.problem:
