@@ -71,9 +71,9 @@ def parse_grid(items: list[str] | None) -> dict[str, list[Any]]:
                 raise ConfigError(f"--grid {item!r}: start:stop:count needs two numbers and an integer") from None
             if not 1 <= count <= 10_000:
                 raise ConfigError(f"--grid {key}: count must be in [1, 10000] (got {count})")
-            values = np.linspace(start, stop, count)
-            integral = all(float(v).is_integer() for v in values) and "." not in parts[0] + parts[1]
-            grid[key] = [int(v) if integral else float(v) for v in values]  # rve.layers=2:8:4 stays integer
+            spaced = np.linspace(start, stop, count)
+            integral = all(float(v).is_integer() for v in spaced) and "." not in parts[0] + parts[1]
+            grid[key] = [int(v) if integral else float(v) for v in spaced]  # rve.layers=2:8:4 stays integer
             continue
         values = []
         for word in text.split(","):
@@ -111,7 +111,7 @@ def _print_study_plan(base: str | None, set_: list[str] | None, points: list[dic
             config = resolve_config(base, **_overrides(set_))
             seeds = realization_seeds(config, realizations, seed_start)
             tasks = plan_tasks(config, points, seeds, allow_large=True)
-            per_point = {}  # one config object per point: the cost does not depend on the seed
+            per_point: dict[int, Any] = {}  # one config object per point: the cost does not depend on the seed
             for i, task in enumerate(tasks):
                 if (out / "tasks" / f"{task.key}.json").is_file():
                     finished.append(i)
