@@ -491,7 +491,7 @@ def measure(
 
     bar = detect_scale_bar(grey, bar_slice) if bar_slice is not None else None
     if bar is not None:
-        scale, scale_source = float(cast(float, scale_bar_um)) / bar.length_px, "scale_bar"  # given with its rows"
+        scale, scale_source = float(cast(float, scale_bar_um)) / bar.length_px, "scale_bar"  # given with its rows
     elif um_per_px is not None:
         scale, scale_source = float(um_per_px), "um_per_px"
     else:  # checked: the metadata holds a pixel size
