@@ -65,7 +65,8 @@ def generate(
         name = Path(source).stem if source else "plla"
         folder = out if out is not None else Path(f"{name}_rve")
         check_size(config, allow_large=allow_large)  # before the folder is claimed
-        with OutputFolder.claim(folder, "generate", config_digest(config), RVE_OUTPUTS, overwrite=overwrite) as claimed, \
+        with OutputFolder.claim(folder, "generate", config_digest(config), RVE_OUTPUTS,
+                                overwrite=overwrite) as claimed, \
                 Progress(console=console, transient=True) as bar:
             task = bar.add_task("depositing layers", total=config.rve.layers)
 

@@ -364,10 +364,11 @@ def _finished_records(folder: Path, tasks: Sequence[TensileTask]) -> dict[str, d
     A file that cannot be read, is not JSON or is not a complete record of its task is not
     used (a warning names it and the problem, never its contents): the task runs again.
     """
-    done = {}
+    done: dict[str, dict[str, Any]] = {}
     for task in tasks:
         path = folder / "tasks" / f"{task.key}.json"
         if path.is_file():
+            problem: str | None
             try:
                 record = json.loads(path.read_bytes())
             except OSError as err:

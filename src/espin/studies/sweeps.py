@@ -95,8 +95,8 @@ def rve_size_study(
         Config, preset or TOML file (default ``plla``); ``**overrides`` as ``section__key``.
     folder
         Results folder: ``results.csv``, ``summary.csv``, ``study.toml`` (the base config) and
-        ``plan.json`` (sizes and seeds; both written before any work), ``tasks/``, and the figures ``rve_size_<property>.png`` (Figs. A.15-A.17) and
-        ``rve_size_curves.png`` (Fig. A.18, at the largest RVE).
+        ``plan.json`` (sizes and seeds; both written before any work), ``tasks/``, and the figures
+        ``rve_size_<property>.png`` (Figs. A.15-A.17) and ``rve_size_curves.png`` (Fig. A.18, at the largest RVE).
     workers, scheduler, blas_threads, security
         Where the tasks run (:class:`espin.core.parallel.TaskPool`); a Dask scheduler must be
         trusted (it runs the pickled tasks), ``security`` holds the TLS files of a ``tls://``
@@ -139,9 +139,11 @@ def rve_size_study(
             for name, path in plot_rve_size(result.summary, folder, layers_for_sizes=int(layers_for_sizes),
                                             size_for_layers=float(size_for_layers)).items():
                 result.files[name] = path
-            largest = max(ensemble.records, key=lambda r: (r["parameters"]["rve.size_ratio"], r["parameters"]["rve.layers"]))
+            largest = max(ensemble.records,
+                          key=lambda r: (r["parameters"]["rve.size_ratio"], r["parameters"]["rve.layers"]))
             strain, stress = ensemble.curves(**largest["parameters"])
-            label = rf"$\tilde L$ = {largest['parameters']['rve.size_ratio']:g}, $N_l$ = {largest['parameters']['rve.layers']}"
+            label = (rf"$\tilde L$ = {largest['parameters']['rve.size_ratio']:g}, "
+                     rf"$N_l$ = {largest['parameters']['rve.layers']}")
             result.files["curves"] = plot_curve_band(strain, stress, folder / "rve_size_curves.png", label=label)
     return result
 
@@ -218,7 +220,8 @@ def sweep(
             folder = Path(folder)
             if table_format == "parquet":
                 table = result.table
-                result.files["table"] = atomic_write(folder / "sweep.parquet", lambda tmp: table.to_parquet(tmp, index=False))
+                result.files["table"] = atomic_write(folder / "sweep.parquet",
+                                                     lambda tmp: table.to_parquet(tmp, index=False))
             if keys:
                 result.files.update(plot_sweep(result.summary, keys, folder))
     return result
