@@ -289,7 +289,7 @@ class TaskPool:
         self.blas_threads = blas_threads
         self.security = security
         self._executor: Executor | None = None
-        self._closers: list[Callable[[], None]] = []
+        self._closers: list[Callable[[], object]] = []
 
     @property
     def serial(self) -> bool:

@@ -61,7 +61,6 @@ import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
 
 from espin.core.config import Config
 from espin.geometry.size_estimate import estimate_size
@@ -180,12 +179,12 @@ def calibrate(*, budget_s: float = CALIBRATION_BUDGET_S, refresh: bool = False) 
         return _CACHE["speed"]
     from threadpoolctl import threadpool_limits
 
-    from espin.geometry.rve import generate
+    from espin.geometry.rve import generate, resolve_config
     from espin.mechanics.driver import run_program
     from espin.mechanics.linear_solvers import SuperLUSolver
 
     start = time.perf_counter()  # the modules above are the commands' own: not counted
-    rve = generate("plla", **CALIBRATION_MAT)
+    rve = generate(resolve_config("plla", **CALIBRATION_MAT))
     counted: list[tuple[float, float, int]] = []  # (time, CPU time, iterations so far) after each step
 
     def on_step(record) -> None:

@@ -378,7 +378,8 @@ def run_specimen(
 
     def reached(tally: ReportTally[MacroStep]) -> None:
         assert tally.trial is not None
-        record(tally.index, tally.time, tally.trial, (tally.iterations, tally.cuts, tally.substeps), tally.trial.history)
+        counts = (tally.iterations, tally.cuts, tally.substeps)
+        record(tally.index, tally.time, tally.trial, counts, tally.trial.history)
 
     record(0, 0.0, problem.state, (0, 0, 0), [])
     try:
@@ -392,7 +393,8 @@ def run_specimen(
 def _failure_message(stopped: MarchFailed, program: GripProgram, max_cuts: int) -> str:
     """Where the grip program stopped, why, and what to try."""
     failure = stopped.failure
-    where = f"step {stopped.tally.index} of {program.steps} (grip strain {stopped.time * program.strain_rate_per_s:.4g})"
+    strain = stopped.time * program.strain_rate_per_s
+    where = f"step {stopped.tally.index} of {program.steps} (grip strain {strain:.4g})"
     if failure.kind == StepFailureKind.STIFF:
         return (f"{where}: {failure.reason}; the plastic flow is too fast to follow: check fiber.flow_rate_per_s "
                 "and fiber.flow_resistance_MPa, or raise solver.time_rtol")

@@ -145,7 +145,7 @@ def _simulate_task(task: _Task) -> tuple[np.ndarray, str | None]:
     from espin.mechanics.driver import SimulationFailed, SimulationResult
     from espin.mechanics.run import simulate
 
-    overrides = dict(task.fiber) | {"loading.program": task.steps.program(task.strain_rate_per_s)}
+    overrides: dict[str, Any] = dict(task.fiber) | {"loading.program": task.steps.program(task.strain_rate_per_s)}
     result: SimulationResult | None
     try:
         result, failure = simulate(_rve(task.rve_toml), progress=False, **overrides), None
