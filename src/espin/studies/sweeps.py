@@ -21,7 +21,7 @@ from espin.core.atomic import atomic_write, atomic_write_bytes
 from espin.core.config import Config, config_digest, dotted_overrides, write_config
 from espin.core.errors import ConfigError
 from espin.core.output_folder import OutputFolder
-from espin.core.parallel import TaskOutcome, check_pool
+from espin.core.parallel import TaskOutcome, TaskPlace
 from espin.geometry.rve import resolve_config
 from espin.studies.ensemble import Ensemble, TensileTask, plan_tasks, run_ensemble
 
@@ -117,7 +117,7 @@ def rve_size_study(
     if fixed:
         raise ConfigError(f"{', '.join(fixed)}: set by the study's sizes (size_ratios, layer_counts, "
                           "layers_for_sizes, size_for_layers), not as an override")
-    check_pool(workers, scheduler, blas_threads, security)
+    place = TaskPlace(workers, scheduler, blas_threads, security)
     base = resolve_config(base, **flat)
     if not size_ratios and not layer_counts:
         raise ConfigError("size_ratios, layer_counts: give at least one RVE size")
@@ -128,9 +128,8 @@ def rve_size_study(
     tasks = plan_tasks(base, points, seeds, allow_large=allow_large)
     plan = {"study": "rve-size", "size_ratios": list(size_ratios), "layer_counts": list(layer_counts),
             "layers_for_sizes": layers_for_sizes, "size_for_layers": size_for_layers, "seeds": seeds}
-    pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
     with _claimed(folder, "rve-size", base, overwrite):
-        result = _run(tasks, base, plan, folder, pool, on_outcome)
+        result = _run(tasks, base, plan, folder, place, on_outcome)
         ensemble = result.ensemble
         if folder is not None and ensemble.records:
             from espin.studies.figures import plot_curve_band, plot_rve_size
@@ -197,7 +196,7 @@ def sweep(
     -------
     StudyResult
     """
-    check_pool(workers, scheduler, blas_threads, security)
+    place = TaskPlace(workers, scheduler, blas_threads, security)
     base = resolve_config(base, **overrides)
     if table_format not in ("csv", "parquet"):
         raise ConfigError(f"table_format: 'csv' or 'parquet' (got {table_format!r})")
@@ -211,9 +210,8 @@ def sweep(
     points = [dict(zip(keys, combo)) for combo in itertools.product(*grid.values())] if keys else [{}]
     seeds = realization_seeds(base, realizations, seed_start)
     tasks = plan_tasks(base, points, seeds, allow_large=allow_large)
-    pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
     with _claimed(folder, "sweep", base, overwrite):
-        result = _run(tasks, base, {"study": "sweep", "grid": grid, "seeds": seeds}, folder, pool, on_outcome)
+        result = _run(tasks, base, {"study": "sweep", "grid": grid, "seeds": seeds}, folder, place, on_outcome)
         if folder is not None and result.ensemble.records:
             from espin.studies.figures import plot_sweep
 
@@ -254,15 +252,14 @@ def _grid_values(key: str, values: Any) -> list[Any]:
 
 
 def _run(tasks: list[TensileTask], base: Config, plan: dict[str, Any], folder: str | Path | None,
-         pool: dict[str, Any], on_outcome: OnOutcome | None) -> StudyResult:
-    """Write the plan (before any work), run the ensemble on the task ``pool`` (workers,
-    scheduler, blas_threads, security), write the summary."""
+         place: TaskPlace, on_outcome: OnOutcome | None) -> StudyResult:
+    """Write the plan (before any work), run the ensemble where ``place`` says, write the summary."""
     files: dict[str, Path] = {}
     if folder is not None:
         folder = Path(folder)
         files["config"] = write_config(base, folder / "study.toml")
         files["plan"] = atomic_write_bytes(folder / "plan.json", json.dumps(plan, indent=1).encode())
-    ensemble = run_ensemble(tasks, folder, **pool, on_outcome=on_outcome)
+    ensemble = run_ensemble(tasks, folder, place=place, on_outcome=on_outcome)
     summary = ensemble.summary()
     if folder is not None:
         files["results"] = folder / "results.csv"
