@@ -87,8 +87,12 @@ def specimen_curves(folder: str | Path, *, seed: int = 0) -> list[Path]:
     for k, factor in enumerate((0.95, 1.0, 1.06), start=1):
         stress = factor * shape + rng.normal(0.0, 0.02, strain.size)
         stress[0] = 0.0
-        paths.append(atomic_write(folder / f"spec{k}.csv", lambda tmp, stress=stress: np.savetxt(
-            tmp, np.c_[strain, stress], delimiter=",", header="strain,stress_MPa", comments="", fmt="%.6g")))
+        table = np.c_[strain, stress]
+
+        def write(tmp: Path, table: np.ndarray = table) -> None:
+            np.savetxt(tmp, table, delimiter=",", header="strain,stress_MPa", comments="", fmt="%.6g")
+
+        paths.append(atomic_write(folder / f"spec{k}.csv", write))
     return paths
 
 

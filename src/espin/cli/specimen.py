@@ -96,7 +96,7 @@ def specimen_command(
                           allow_surrogate_mismatch=allow_surrogate_mismatch, surrogate_reach=surrogate_reach,
                           out=out, overwrite=overwrite, workers=workers, scheduler=scheduler, on_step=on_step,
                           report=lambda line: console.print(line, highlight=False, soft_wrap=True),
-                          **{k.replace(".", "__"): v for k, v in parse_set(set_).items()})
+                          **parse_set(set_))
     except EspinError as err:
         fail(err)
     console.print(repr(result), highlight=False, soft_wrap=True)

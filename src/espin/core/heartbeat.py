@@ -43,15 +43,16 @@ class Heartbeat:
         """Something was reported elsewhere: restart the silence count."""
         self._beat.set()
 
-    def _run(self) -> None:
+    def _run(self, report: Callable[[str], None]) -> None:
         while not self._stop.is_set():
             if not self._beat.wait(self.interval) and not self._stop.is_set():
-                self.report(self.status())
+                report(self.status())
             self._beat.clear()
 
     def __enter__(self) -> Heartbeat:
         if self.report is not None:
-            self._thread = threading.Thread(target=self._run, name="espin-heartbeat", daemon=True)
+            self._thread = threading.Thread(target=self._run, args=(self.report,), name="espin-heartbeat",
+                                            daemon=True)
             self._thread.start()
         return self
 

@@ -4,9 +4,10 @@ image of a mat) or dark fibers on a bright one (an inverted or a back-lit image)
 Fibers are long thin ridges; the pores between them are irregular. At a few scales (Gaussian
 sigma :data:`SCALES_PX`) the Hessian of the normalised image marks the strongest tenth of the
 pixels; of those, the line-like ones (``1 - |small| / |large| > LINE_ANISOTROPY`` of the two
-curvatures) are bright lines (the large curvature negative) or dark lines (positive). :func:`line_ratio` is the geometric mean over the
-scales of bright-line over dark-line pixels: 1.4 to 4.6 on espin's synthetic image and the two
-real images of ``../shared/data/sem``, 0.2 to 0.7 on the same images inverted. Below
+curvatures) are bright lines (the large curvature negative) or dark lines (positive).
+:func:`line_ratio` is the geometric mean over the scales of bright-line over dark-line pixels:
+1.4 to 4.6 on espin's synthetic image and the two real images of ``../shared/data/sem``, 0.2 to
+0.7 on the same images inverted. Below
 :data:`DARK_FIBERS_BELOW` an image is taken for dark fibers on a bright background.
 """
 
@@ -16,7 +17,7 @@ import numpy as np
 
 from espin.core.errors import SEMError
 
-__all__ = ["SCALES_PX", "LINE_ANISOTROPY", "DARK_FIBERS_BELOW", "line_ratio", "oriented"]
+__all__ = ["SCALES_PX", "LINE_ANISOTROPY", "DARK_FIBERS_BELOW", "line_ratio", "bright_fibers"]
 
 SCALES_PX = (3.0, 5.0, 8.0)
 """Gaussian scales of the Hessian [px]."""
@@ -40,13 +41,13 @@ def line_ratio(grey: np.ndarray) -> float:
         strength = np.maximum(np.abs(large), np.abs(small))
         line = ((strength > np.percentile(strength, 90))
                 & (1.0 - np.minimum(np.abs(large), np.abs(small)) / (strength + 1e-12) > LINE_ANISOTROPY))
-        bright = np.count_nonzero(line & (np.abs(small) > np.abs(large)) & (small < 0.0))
-        dark = np.count_nonzero(line & (np.abs(large) > np.abs(small)) & (large > 0.0))
+        bright = int(np.count_nonzero(line & (np.abs(small) > np.abs(large)) & (small < 0.0)))
+        dark = int(np.count_nonzero(line & (np.abs(large) > np.abs(small)) & (large > 0.0)))
         ratios.append(max(bright, 1) / max(dark, 1))
     return float(np.exp(np.mean(np.log(ratios))))
 
 
-def oriented(grey: np.ndarray, invert: bool | None, source: str) -> tuple[np.ndarray, str]:
+def bright_fibers(grey: np.ndarray, invert: bool | None, source: str) -> tuple[np.ndarray, str]:
     """The image with bright fibers, and what was found and done, for ``measurement.toml``.
 
     Parameters

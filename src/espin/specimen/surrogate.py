@@ -32,7 +32,7 @@ import numpy as np
 from scipy.interpolate import RBFInterpolator
 
 from espin.core.config import Config
-from espin.core.errors import ConfigError, InputError, SolverError
+from espin.core.errors import ConfigError, InadmissibleState, InputError, SolverError
 from espin.core.heartbeat import Heartbeat
 from espin.core.parallel import TaskPool
 from espin.core.progress import _duration
@@ -171,7 +171,8 @@ class Surrogate:
     def _values(self, E: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """Interpolated (S11, S22, S12, fractions) at strains E (n, 3) and speeds (n,)."""
         levels = np.log(np.asarray(self.speeds))
-        at = np.stack([interpolant(E) for interpolant in self._interpolants])  # (levels, n, values)
+        # _interpolants: set by __post_init__ (not a field, so not compared, copied or shown)
+        at = np.stack([interpolant(E) for interpolant in self._interpolants])  # type: ignore[attr-defined]
         if len(levels) == 1:
             return at[0]
         x = np.clip(np.log(speed), levels[0], levels[-1])
@@ -188,7 +189,7 @@ class Surrogate:
         The tangent includes the change of the speed with F."""
         J = np.linalg.det(F)
         if np.any(J <= 0.0):
-            raise FloatingPointError(f"det F <= 0 at {int(np.sum(J <= 0.0))} point(s)")
+            raise InadmissibleState(f"det F <= 0 at {int(np.sum(J <= 0.0))} point(s)")
         E = _green(F)
         n = len(E)
         probes = [E]
@@ -242,6 +243,7 @@ class SurrogateMaterial:
     def __init__(self, surrogate: Surrogate, n_points: int) -> None:
         self.surrogate = surrogate
         self.n_points = n_points
+        self.symmetric_tangent = False  # dS/dE by differences of an interpolant: not a potential's
         self._U = np.tile(np.eye(2), (n_points, 1, 1))
         self._time = 0.0
         self._trial: tuple[np.ndarray, float, dict[str, np.ndarray]] | None = None
@@ -336,8 +338,8 @@ def build_surrogate(network: Network, config: Config, max_strain: float, *, reac
             # to reach x the grip strain, but U stays positive definite: its smallest eigenvalue >= 0.1
             smallest = np.linalg.eigvalsh(_symmetric(g)).min()
             t = min(reach * max_strain, 0.9 / -smallest if smallest < 0.0 else np.inf) * shape
-            tasks.append(_Path(network, config, t / (speed * rate), t, np.eye(2) + t[:, None, None] * _symmetric(g)[None],
-                               speed * rate))
+            U = np.eye(2) + t[:, None, None] * _symmetric(g)[None]
+            tasks.append(_Path(network, config, t / (speed * rate), t, U, speed * rate))
             ends.append(t[-1])
     runs = _kept_runs(samples_path, identity, report)
     todo = [k for k in range(len(tasks)) if k not in runs]
