@@ -8,6 +8,7 @@ during the build would go to a closed port and fail it (no web fonts, no remote 
 
 from __future__ import annotations
 
+import html
 import os
 import re
 import subprocess
@@ -32,6 +33,20 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, f"mkdocs build --strict failed:\n{run.stdout[-4000:]}\n{run.stderr[-8000:]}"
     return out
+
+
+TEX = re.compile(r"\\\(|\\\)|\\\[|\\\]|\$\$|(?<![\w$])\$[^\s$][^$]*?(?<!\s)\$")
+"""A TeX delimiter: ``\\( \\) \\[ \\] $$`` or a ``$...$`` span."""
+
+
+def raw_tex(page: str) -> list[str]:
+    """The TeX delimiters left in the text a reader sees on a page (outside code, scripts,
+    styles, typeset MathML and the notebooks' hidden copy of each code cell): math that was
+    not converted."""
+    text = re.sub(r'<div class="clipboard-copy-txt".*?</div>', " ", page, flags=re.S)
+    text = re.sub(r"<(script|style|pre|code|math)\b.*?</\1>", " ", text, flags=re.S | re.I)
+    text = html.unescape(re.sub(r"<[^>]*>", " ", text))
+    return TEX.findall(text)
 
 
 def _page(site: Path, name: str) -> str:
@@ -80,3 +95,23 @@ def test_home_page_links_the_guides(site):
     home = (site / "index.html").read_text(encoding="utf-8")
     for target in ("getting_started/", "tutorials/fifteen_minutes/", "api/", "model/"):
         assert f'href="{target}' in home or f'href="./{target}' in home, target
+
+
+def test_the_raw_tex_check_sees_a_formula_left_raw():
+    assert raw_tex(r"<p>Let \(x\) be the strain.</p>") == ["\\(", "\\)"]
+    assert raw_tex(r"<div>\[E = 1\]</div>") and raw_tex(r"<p>the volume fraction $\eta$</p>")
+    assert raw_tex(r"<p>$$\sigma$$</p>")
+    for typeset in (r"<p><code>\(x\)</code> and <math><mi>x</mi></math></p>",
+                    r"<pre>echo $HOME $PATH</pre>", "<p>costs 5 $ or 6 $</p>"):
+        assert raw_tex(typeset) == [], typeset
+
+
+def test_math_is_typeset_as_mathml_on_every_page(site):
+    # The model page's formulas and the tutorials' Markdown math, as MathML the browser
+    # typesets with no script and no network; no TeX delimiter left in any page's text.
+    model = _page(site, "model")
+    assert model.count("<math ") >= 100 and 'class="arithmatex"' not in model
+    assert "<math " in _page(site, "tutorials/fit_curves")
+    left = {str(p.relative_to(site)): raw_tex(p.read_text(encoding="utf-8")) for p in site.rglob("*.html")}
+    assert {page: found for page, found in left.items() if found} == {}
+    assert not re.search(r'<script[^>]*src=""', "".join(p.read_text(encoding="utf-8") for p in site.rglob("*.html")))
