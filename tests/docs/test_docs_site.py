@@ -64,6 +64,14 @@ def test_every_page_of_the_nav_is_built(site):
         assert built.exists(), f"{page} was not built"
 
 
+def test_nav_names_each_page_once():
+    # A reader tells the pages apart by their names in the nav: no name twice (a guide and its
+    # API page, a tutorial and its guide).
+    nav = (ROOT / "mkdocs.yml").read_text(encoding="utf-8").split("\nnav:", 1)[1].split("\n\n", 1)[0]
+    names = re.findall(r"^\s+- ([^:\n]+):", nav, flags=re.M)
+    assert len(names) >= 30 and len(names) == len(set(names)), sorted(n for n in names if names.count(n) > 1)
+
+
 def test_api_reference_is_rendered_from_the_docstrings(site):
     mechanics = _page(site, "api/mechanics")
     # The signature and a sentence of the numpy docstring of espin.simulate and its parameters.
