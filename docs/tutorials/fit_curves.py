@@ -146,11 +146,11 @@ designed
 print(designed.format_table())
 
 # %% [markdown]
-# Read the report's last line before the design: it says whether the mean of the 5 fresh
-# seeds met every target (`designed.reached`). A target can be missed although the search's
+# Read the report's `result` line before the design: it says whether the mean of the 5
+# fresh seeds met every target (`designed.reached`). A target can be missed although the search's
 # own mat met it: each realization of a mat differs from the next by a few percent, about
 # the size of the default 5 % tolerance. At full size (measured on commit 834eedb) the fresh
-# seeds' mean modulus was 158.7 MPa against 150 MPa +- 5 %: not met, and the report said
+# seeds' mean modulus was 158.7 MPa against 150 MPa ± 5 %: not met, and the report said
 # so. Then give `realizations=` (each evaluation the mean of several seeds), a larger
 # budget or a wider tolerance, as the message proposes.
 
