@@ -25,7 +25,10 @@ DEAD_PROXY = "http://127.0.0.1:9"
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("site")
-    env = os.environ | {"ESPIN_TUTORIAL_QUICK": "1", "NO_MKDOCS_2_WARNING": "1", "MPLBACKEND": "Agg",
+    # As the README's command builds it: no MPLBACKEND, so the notebooks draw their figures
+    # inline (MPLBACKEND=Agg would leave out every plt.show() figure).
+    env = {k: v for k, v in os.environ.items() if k != "MPLBACKEND"} | {
+                        "ESPIN_TUTORIAL_QUICK": "1", "NO_MKDOCS_2_WARNING": "1",
                         "HTTP_PROXY": DEAD_PROXY, "HTTPS_PROXY": DEAD_PROXY, "http_proxy": DEAD_PROXY,
                         "https_proxy": DEAD_PROXY, "NO_PROXY": "", "no_proxy": ""}
     run = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--config-file",
