@@ -101,7 +101,7 @@ def simulate(
         f"{config.loading.test} test, {program.n_steps} steps: stress {stress[-1]:.4g} MPa at strain "
         f"{result.strain[-1]:.4g} ({config.output.stress_measure}); Newton iterations "
         f"{int(result.iterations.sum())}, factorizations {int(result.factorizations.sum())}",
-        highlight=False,
+        highlight=False, soft_wrap=True,  # one line in a log too (rich wraps at 80 columns there)
     )
     console.print(f"wrote {folder}/", highlight=False)
 
