@@ -68,8 +68,9 @@ Image(filename=str(files["overlay"]), width=520)
 # `espin.calibrate_geometry` searches the deposition parameters (diameter distribution, walk
 # and its waviness, orientation) whose virtual mats, observed in the same window as the
 # image, give the measured distributions. It generates and measures many small mats: with its
-# default 8 seeds per candidate it takes about a minute on 2 cores (`espin calibrate-geometry
-# measured -o sem_mat.toml` from a terminal). The docs' test runs it with 2 seeds and without
+# default 8 seeds per candidate it took 3.4 min on 2 cores shared with other jobs
+# (`espin calibrate-geometry measured -o sem_mat.toml` from a terminal, on the branch of
+# issue 38). The docs' test runs it with 2 seeds and without
 # the check on rendered images, which is quicker and can land elsewhere: compare with the
 # full result below.
 
