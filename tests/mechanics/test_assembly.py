@@ -99,7 +99,7 @@ def test_virial_stress_equals_border_forces(small_rve):
     asm = solver.asm
     F = np.array([[1.03, 0.02], [-0.01, 0.99]])
     X = asm.reference[: net.n_inner]
-    start = StepState(0.0, X, np.zeros(0), np.eye(2), np.ones(net.n_elements))
+    start = StepState(0.0, X, np.zeros(0), np.eye(2), np.ones(net.n_elements), np.zeros(net.n_elements))
     step = solver.solve(start, 1.0, F, np.zeros((0, 2, 2)), X @ F.T, np.zeros(0))
     assert step.iterations > 0  # the affine guess was not the equilibrium
     g = asm.gradient(step.force, step.kinematics).reshape(-1, 2)

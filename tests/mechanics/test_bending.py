@@ -111,7 +111,7 @@ def test_stress_with_bending_equals_the_border_forces():
     solver = EquilibriumSolver(net, law, rve.config.solver, make_linear_solver("auto"), bending_modulus_MPa=E_BEND)
     asm = solver.asm
     X = asm.reference[: net.n_inner]
-    start = StepState(0.0, X, np.zeros(0), np.eye(2), np.ones(net.n_elements))
+    start = StepState(0.0, X, np.zeros(0), np.eye(2), np.ones(net.n_elements), np.zeros(net.n_elements))
     F = np.array([[1.03, 0.004], [0.002, 0.99]])
     step = solver.solve(start, 1.0, F, np.zeros((0, 2, 2)), X @ F.T, np.zeros(0))
 

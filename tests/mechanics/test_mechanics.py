@@ -174,7 +174,7 @@ def test_macroscopic_tangent_matches_finite_differences(linear):
         solver = EquilibriumSolver(net, FiberLaw.from_config(config.fiber), config.solver, linear)
         X = solver.asm.reference[: net.n_inner]
         ones = np.ones(net.n_elements)
-        start = StepState(0.0, X, np.zeros(0), np.eye(2), ones)
+        start = StepState(0.0, X, np.zeros(0), np.eye(2), ones, 0.0 * ones)
         F = np.array([[1.03, 0.004], [0.002, 1.0]])
         no_free = np.zeros((0, 2, 2))
         step = solver.solve(start, 6.0, F, no_free, X @ F.T, np.zeros(0))
@@ -240,7 +240,8 @@ def test_a_failed_step_keeps_the_converged_ones(small_rve, linear, tmp_path, mon
     are written (curve and results) rather than lost."""
     import espin
     from espin.mechanics.driver import SimulationFailed
-    from espin.mechanics.equilibrium import EquilibriumSolver, StepFailed
+    from espin.core.errors import StepNotConverged
+    from espin.mechanics.equilibrium import EquilibriumSolver
 
     solve = EquilibriumSolver.solve
     calls = []
@@ -248,7 +249,7 @@ def test_a_failed_step_keeps_the_converged_ones(small_rve, linear, tmp_path, mon
     def failing_from_step_3(self, start, time, *args):
         calls.append(time)
         if time > 2 * 2.0 + 1e-9:  # steps of 2 s: fail beyond the second step
-            raise StepFailed("forced", [1.0, 0.5])
+            raise StepNotConverged("forced", history=[1.0, 0.5])
         return solve(self, start, time, *args)
 
     monkeypatch.setattr(EquilibriumSolver, "solve", failing_from_step_3)
@@ -313,13 +314,13 @@ def test_law_on_threads_equals_one_call(monkeypatch):
     rng = np.random.default_rng(2)
     n = 101
     tortuosity = 1 + rng.exponential(0.01, n)
-    threaded = equilibrium._ThreadedLaw(law, tortuosity)
+    threaded = equilibrium._ThreadedLaw(tortuosity)
     assert threaded.pool is not None and len(threaded.chunks) == 3
     stretch = rng.uniform(0.9, 1.1, n)
     plastic_old = rng.uniform(1.0, 1.05, n)
     for guess in (None, plastic_old * 1.001):
         expected = update(law, stretch, plastic_old, tortuosity, 2.0, guess)
-        got = threaded(stretch, plastic_old, 2.0, guess)
+        got = threaded(law, stretch, plastic_old, 2.0, guess)
         for name in ("stress", "plastic_stretch", "tangent", "recruited"):
             np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
 

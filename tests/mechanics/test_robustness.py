@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from espin.geometry.rve import generate
-from espin.mechanics.equilibrium import EquilibriumSolver, StepFailed
+from espin.core.errors import StepNotConverged
+from espin.mechanics.equilibrium import EquilibriumSolver
 from espin.mechanics.run import simulate
 
 # Case 2 of the robustness sample: a sparse, wavy, polydisperse, slightly aligned mat, with
@@ -44,7 +45,7 @@ def test_continuation_ends_at_the_true_model(small_rve, monkeypatch):
     def newton_fails_once_per_step(self, start, time, *args):
         if time not in seen:
             seen.add(time)
-            raise StepFailed("forced", [1.0, 1.0])
+            raise StepNotConverged("forced", history=[1.0, 1.0])
         return solve(self, start, time, *args)
 
     monkeypatch.setattr(EquilibriumSolver, "_solve", newton_fails_once_per_step)

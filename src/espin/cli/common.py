@@ -115,18 +115,19 @@ def off_terminal_lines(console: Any, first: str) -> Iterator[Callable[[str], Non
         return
     start = time.monotonic()
     lock = threading.Lock()
-    last = {"text": first, "at": start}
+    last_text, last_at = first, start
 
     def say(text: str, again: bool = False) -> None:
+        nonlocal last_text, last_at
         with lock:
-            last.update(text=text, at=time.monotonic())
-            console.print(f"{'still: ' if again else ''}{text}  [{clock(last['at'] - start)} elapsed]",
+            last_text, last_at = text, time.monotonic()
+            console.print(f"{'still: ' if again else ''}{text}  [{clock(last_at - start)} elapsed]",
                           highlight=False, soft_wrap=True)
 
     def beat() -> None:
         while not stop.wait(min(1.0, HEARTBEAT_S / 4)):
-            if time.monotonic() - last["at"] >= HEARTBEAT_S:
-                say(last["text"], again=True)
+            if time.monotonic() - last_at >= HEARTBEAT_S:
+                say(last_text, again=True)
 
     stop = threading.Event()
     say(first)

@@ -93,7 +93,7 @@ def design_command(
                               "give one, or leave them out")
         targets = parse_targets([*(target or []), *_curves(target_curve or [], curve_range, curve_points,
                                                             curve_tolerance)])
-        config = resolve_config(base, **{k.replace(".", "__"): v for k, v in parse_set(set_).items()})
+        config = resolve_config(base, **parse_set(set_))
         space = DesignSpace.build(config, var or [], constraint or [])
         n_workers = None if scheduler is not None else (workers or default_workers())
         replicated = budget + (replicates - 1) * len(targets.directions)

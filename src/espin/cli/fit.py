@@ -382,7 +382,7 @@ def register(app: typer.Typer) -> None:
         try:
             security = tls_security(tls_ca_file, tls_cert, tls_key)
             overrides = parse_set(set_)
-            config = resolve_config(base, **{k.replace(".", "__"): v for k, v in overrides.items()})
+            config = resolve_config(base, **overrides)
             curve, strain_rate = _curves(curves, rate, _parse_rates(curves_at_rate))
             seed_list = None if seeds is None else _parse_seeds(seeds)
             grid = _parse_grid(average_grid)

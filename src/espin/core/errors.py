@@ -20,9 +20,12 @@ code  meaning
 
 from __future__ import annotations
 
-from typing import ClassVar
+from collections.abc import Sequence
+from enum import StrEnum
+from typing import Any, ClassVar
 
 __all__ = ["EspinError", "ConfigError", "InputError", "RVEFileError", "SolverError", "SEMError",
+           "StepFailureKind", "StepNotConverged", "InadmissibleState",
            "EXIT_USAGE", "EXIT_INPUT", "EXIT_SOLVER"]
 
 EXIT_USAGE = 2
@@ -58,6 +61,72 @@ class SolverError(EspinError, RuntimeError):
     """An equilibrium solve failed; the message says where and why."""
 
     exit_code: ClassVar[int] = EXIT_SOLVER
+
+
+class StepFailureKind(StrEnum):
+    """Why a time step did not converge (compares equal to its lower-case name)."""
+
+    STALLED = "stalled"
+    """The residual stalled within the iteration limit (or the fiber law's return mapping did)."""
+    UPHILL = "uphill"
+    """No step along the Newton direction lowered the potential (the tangent points uphill)."""
+    INADMISSIBLE = "inadmissible"
+    """An iterate left the admissible states (non-finite, an inverted RVE or element)."""
+    SINGULAR = "singular"
+    """The tangent could not be factorized (a part of the network without stiffness)."""
+    STIFF = "stiff"
+    """The time steps the plastic flow asks for fell below the smallest step, or exceeded the
+    budget of a reported step."""
+
+
+class StepNotConverged(SolverError):
+    """One time step could not be solved: the only failure that makes a march cut a step.
+
+    Every other exception raised inside a step (a ``ValueError``, an ``IndexError``) is a bug
+    and stops the run at once.
+
+    Parameters
+    ----------
+    reason
+        What happened, in words.
+    kind
+        Why, as a :class:`StepFailureKind` (default: the class's ``default_kind``).
+    history
+        Residual norms [uN, or N for the specimen] at the start and after each Newton
+        iteration of the attempt (of each of its solves, one after another).
+    iterations
+        Newton iterations the attempt took (default: those of ``history``, one solve).
+    factorizations
+        Tangent factorizations the attempt took.
+    """
+
+    default_kind: ClassVar[StepFailureKind] = StepFailureKind.STALLED
+
+    def __init__(self, reason: str, kind: StepFailureKind | str | None = None, *,
+                 history: Sequence[float] = (), iterations: int | None = None, factorizations: int = 0) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.kind = StepFailureKind(kind or self.default_kind)
+        self.history = list(history)
+        self.iterations = max(len(self.history) - 1, 0) if iterations is None else iterations
+        self.factorizations = factorizations
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # Keyword fields survive pickling (task pools carry the exception back from workers).
+        return (_rebuild_step_failure, (type(self), self.reason, str(self.kind), self.history, self.iterations,
+                                        self.factorizations))
+
+
+def _rebuild_step_failure(cls: type[StepNotConverged], reason: str, kind: str, history: list[float],
+                          iterations: int, factorizations: int) -> StepNotConverged:
+    return cls(reason, kind, history=history, iterations=iterations, factorizations=factorizations)
+
+
+class InadmissibleState(StepNotConverged):
+    """A state outside the model's domain (non-finite stretches, lambda_p <= 0, det F <= 0),
+    met by an iterate: the step is cut like any other that does not converge."""
+
+    default_kind: ClassVar[StepFailureKind] = StepFailureKind.INADMISSIBLE
 
 
 class SEMError(InputError):

@@ -271,4 +271,4 @@ def _existing(path: Path, outputs: Sequence[str]) -> list[str]:
 
 
 def _utc_now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")

@@ -13,8 +13,8 @@ Over ``tcp://`` the traffic is unencrypted and unauthenticated (a warning says s
 other than this machine); ``tls://`` with a ``distributed.security.Security`` (see
 :func:`espin.core.cluster.tls_security`) encrypts it and authenticates both ends.
 
-A task that raises is reported as a failed :class:`TaskOutcome` (with its traceback); the
-others go on.
+A task that raises is reported as a failed :class:`TaskOutcome` (with the exception itself
+where it survives pickling, and its traceback); the others go on.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from __future__ import annotations
 import ipaddress
 import logging
 import os
+import pickle
 import re
 import threading
 import time
@@ -55,6 +56,9 @@ class TaskOutcome:
         The formatted traceback of a failed task.
     seconds : float [s]
         Wall time the task took in its worker.
+    exception : BaseException or None
+        The exception the task raised, of its own class (None if the task returned, or if
+        the exception could not be carried back from its worker: see ``error``).
     """
 
     index: int
@@ -62,6 +66,7 @@ class TaskOutcome:
     error: str | None = None
     traceback: str | None = None
     seconds: float = 0.0
+    exception: BaseException | None = None
 
     @property
     def ok(self) -> bool:
@@ -127,8 +132,13 @@ def _load_threaded_libraries() -> None:
         pass
 
 
-def _call(fn: Callable[[Any], Any], item: Any, blas_threads: int | None) -> tuple[Any, str | None, str | None, float]:
-    """Run one task in a worker; exceptions come back as text, never as a raised error."""
+_Result = tuple[Any, str | None, str | None, float, BaseException | None]
+"""What a task brings back: value, error text, traceback text, seconds, exception."""
+
+
+def _call(fn: Callable[[Any], Any], item: Any, blas_threads: int | None) -> _Result:
+    """Run one task; an exception comes back as data (the object, its text and traceback),
+    never as a raised error."""
     from threadpoolctl import threadpool_limits
 
     if blas_threads is not None:
@@ -138,17 +148,23 @@ def _call(fn: Callable[[Any], Any], item: Any, blas_threads: int | None) -> tupl
         with threadpool_limits(limits=blas_threads):
             value = fn(item)
     except Exception as exc:  # noqa: BLE001 - a task's failure is data, reported to the caller
-        return None, f"{type(exc).__name__}: {exc}", traceback.format_exc(), time.perf_counter() - start
-    return value, None, None, time.perf_counter() - start
+        return None, f"{type(exc).__name__}: {exc}", traceback.format_exc(), time.perf_counter() - start, exc
+    return value, None, None, time.perf_counter() - start, None
 
 
-def _call_in_worker(fn: Callable[[Any], Any], item: Any,
-                    blas_threads: int | None) -> tuple[Any, str | None, str | None, float]:
-    """:func:`_call` in a worker process (local or Dask), its allocator set for numpy first."""
+def _call_in_worker(fn: Callable[[Any], Any], item: Any, blas_threads: int | None) -> _Result:
+    """:func:`_call` in a worker process (local or Dask), its allocator set for numpy first;
+    an exception that does not survive pickling comes back as text only."""
     from espin.core.allocator import keep_freed_memory
 
     keep_freed_memory()
-    return _call(fn, item, blas_threads)
+    value, error, tb, seconds, exc = _call(fn, item, blas_threads)
+    if exc is not None:
+        try:
+            pickle.loads(pickle.dumps(exc))
+        except Exception:  # noqa: BLE001 - any failure to pickle: the text is kept
+            exc = None
+    return value, error, tb, seconds, exc
 
 
 _ADDRESS = re.compile(r"^(?P<scheme>tcp|tls)://(?P<host>\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9._-]+):(?P<port>\d{1,5})$")
@@ -273,7 +289,7 @@ class TaskPool:
         self.blas_threads = blas_threads
         self.security = security
         self._executor: Executor | None = None
-        self._closers: list[Callable[[], None]] = []
+        self._closers: list[Callable[[], object]] = []
 
     @property
     def serial(self) -> bool:
@@ -352,7 +368,8 @@ class TaskPool:
         items = list(items)
         if self.serial:
             for index, item in enumerate(items):
-                yield TaskOutcome(index, *_call(fn, item, self.blas_threads))
+                value, error, tb, seconds, exc = _call(fn, item, self.blas_threads)
+                yield TaskOutcome(index, value, error, tb, seconds, exc)
             return
         suspects: list[int] = []
         try:
@@ -374,14 +391,14 @@ class TaskPool:
         for future in as_completed(futures):
             index = futures[future]
             try:
-                value, error, tb, seconds = future.result()
+                value, error, tb, seconds, raised = future.result()
             except BrokenProcessPool:
                 suspects.append(index)
                 continue
             except Exception as exc:  # noqa: BLE001 - e.g. a Dask worker lost for good
                 yield TaskOutcome(index, None, f"{type(exc).__name__}: {exc}", traceback.format_exc())
                 continue
-            yield TaskOutcome(index, value, error, tb, seconds)
+            yield TaskOutcome(index, value, error, tb, seconds, raised)
         if suspects:
             self._abort()  # the broken pool; a new one is made when needed
 
@@ -405,11 +422,11 @@ class TaskPool:
                     index, solo = running.pop(future)
                     solo.shutdown(wait=False)
                     try:
-                        value, error, tb, seconds = future.result()
+                        value, error, tb, seconds, raised = future.result()
                     except BrokenProcessPool:
                         yield TaskOutcome(index, None, WORKER_DIED, None)
                         continue
-                    yield TaskOutcome(index, value, error, tb, seconds)
+                    yield TaskOutcome(index, value, error, tb, seconds, raised)
         finally:
             for _, solo in running.values():
                 _terminate(solo)

@@ -27,13 +27,33 @@ from pathlib import Path
 from espin.core.errors import InputError
 
 __all__ = ["TextFormat", "SHOWN_CHARS", "check_file", "read_bytes", "decode", "read_text",
-           "text_lines", "too_large", "showable", "shown", "shown_names"]
+           "text_lines", "too_large", "showable", "shown", "shown_names", "parse_number", "missing"]
 
 SHOWN_CHARS = 20
 """Longest field of a file a message quotes [characters]; longer ones are named by length."""
 
 _CONTROL = re.compile(r"[\x00-\x08\x0b\x0e-\x1f\x7f]")
 _OPEN_FLAGS = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0)
+
+
+def parse_number(text: str) -> float | None:
+    """The number ``text`` spells (Python's float syntax: '.' as the decimal mark), or None."""
+    try:
+        return float(text)
+    except ValueError:
+        return None
+
+
+def missing(path: Path) -> bool:
+    """Whether nothing exists at ``path``; other failures to look (no permission, a NUL in the
+    path) are left to the reader to report."""
+    try:
+        path.stat()
+    except FileNotFoundError:
+        return True
+    except (OSError, ValueError):
+        pass
+    return False
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ import numpy as np
 from espin.core.config import Config
 from espin.core.errors import ConfigError, SolverError
 from espin.design.surrogate import PropertySurrogate, fit_surrogate
-from espin.design.targets import STRESS_AT, CurveTarget, DesignTargets, parse_targets
+from espin.design.targets import STRESS_AT, CurveTarget, DesignTargets, Target, parse_targets
 from espin.design.variables import Constraint, DesignSpace, DesignVariable
 from espin.geometry.rve import resolve_config
 from espin.studies.ensemble import TensileTask, plan_tasks, run_ensemble
@@ -363,7 +363,7 @@ def _count(name: str, value: Any, low: int) -> int:
 
 
 def prepare_design(
-    targets: Iterable[str] | Mapping[str, float] | DesignTargets,
+    targets: Iterable[str | Target] | Mapping[str, float] | DesignTargets,
     variables: Iterable[str | tuple[str, float, float] | DesignVariable] | Mapping[str, tuple[float, float]],
     *,
     base: Config | str | Path | None = "plla",
@@ -420,7 +420,7 @@ def prepare_design(
 
 
 def run_design(
-    targets: Iterable[str] | Mapping[str, float] | DesignTargets,
+    targets: Iterable[str | Target] | Mapping[str, float] | DesignTargets,
     variables: Iterable[str | tuple[str, float, float] | DesignVariable] | Mapping[str, tuple[float, float]],
     *,
     base: Config | str | Path | None = "plla",

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 from matplotlib.collections import LineCollection
@@ -86,12 +86,13 @@ def plot_mat(
         widths = linewidth
     norm = BoundaryNorm(np.arange(n_layers + 1) - 0.5, n_layers)
     colormap = matplotlib.colormaps[cmap].resampled(n_layers)
-    lc = LineCollection(segments, linewidths=widths, cmap=colormap, norm=norm, capstyle="round")
+    # matplotlib's stubs ask for a Sequence; an (n, 2, 2) array is what it documents and takes.
+    lc = LineCollection(segments, linewidths=widths, cmap=colormap, norm=norm, capstyle="round")  # type: ignore[arg-type]
     lc.set_array(layer)
     ax.add_collection(lc)
     if window is not None:
         ax.add_patch(
-            Rectangle(window.origin, window.side, window.side, fill=False, edgecolor="red",
+            Rectangle(tuple(window.origin), window.side, window.side, fill=False, edgecolor="red",
                       linewidth=1.8, linestyle="--", zorder=5,
                       label=f"observation window ({window.side:.3g} µm)")
         )
@@ -169,7 +170,8 @@ def _against_target(ax, values: np.ndarray, target: Target | None, label: str, f
         ax.plot(x, target.law.pdf(x), color="k",
                 label=f"measured {_typeset(target.label)}, mean {target.mean:.4g}")
     else:
-        ax.hist(np.clip(target.sample, lo, hi), bins=bins, density=True, histtype="step",
+        ax.hist(np.clip(cast(np.ndarray, target.sample), lo, hi),  # a target without a law has a sample
+                bins=bins, density=True, histtype="step",
                 color="k", label=f"measured {_typeset(target.label)}, mean {target.mean:.4g}")
     ax.legend(fontsize="small")
 
@@ -235,7 +237,7 @@ def plot_statistics(stats: NetworkStatistics, path: str | Path, *, dpi: float = 
     ax = axes[0, 1]
     graded = g.tortuosity
     tortuosity = w.tortuosity if graded is None else graded.mat
-    name = "visible portions" if graded is None else g.tortuosity_sampling
+    name = "visible portions" if graded is None else cast(str, g.tortuosity_sampling)  # set with graded
     _against_target(ax, tortuosity, None if graded is None else graded.target, name, floor=1.0)
     ax.set_yscale("log")
     low, high = ax.get_ylim()

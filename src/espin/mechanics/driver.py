@@ -14,24 +14,20 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from espin.core.config import Config
-from espin.core.errors import SolverError
+from espin.core.errors import SolverError, StepFailureKind, StepNotConverged
 from espin.core.html import html_table
 from espin.geometry.network import Network
-from espin.mechanics.equilibrium import (
-    EquilibriumSolver,
-    StepFailed,
-    StepResult,
-    StepState,
-)
-from espin.mechanics.fiber_law import FiberLaw, yielded
+from espin.mechanics.equilibrium import EquilibriumSolver, StepResult, StepState
+from espin.mechanics.fiber_law import yielded
 from espin.mechanics.homogenization import cauchy_stress, nominal_stress, paper_stress
 from espin.mechanics.loading import LoadProgram, load_program
-from espin.mechanics.time_steps import StepSizeControl, local_error, split
+from espin.mechanics.march import MarchFailed, ReportTally, StepPolicy, march
 
 __all__ = ["StepRecord", "step_record", "SimulationResult", "SimulationFailed", "run_program", "result_from_records",
            "FREE_LATERAL_NOTE", "curve_columns", "curve_summary"]
@@ -44,8 +40,6 @@ FREE_LATERAL_NOTE = (
     "governed by E_b, and equilibrium can be non-unique (compressed chains buckle). Compare "
     "the stress P, not the lateral stretch, between runs."
 )
-
-_GROW_BELOW = 0.1  # of the iteration limit: a sub-step that converged in fewer may let the next double
 
 
 @dataclass(frozen=True, eq=False)
@@ -300,6 +294,37 @@ def _predict(state: StepState, previous: StepState | None, t_next: float, F_next
     return X @ F.T + w, free
 
 
+class _ProgramSteps:
+    """A loading program on one network as a :class:`~espin.mechanics.march.StepProblem`: each
+    attempt solves the equilibrium at the program's F from the predictor."""
+
+    def __init__(self, solver: EquilibriumSolver, program: LoadProgram, first: StepResult) -> None:
+        self.solver, self.program = solver, program
+        self.directions = program.free_directions
+        self.iteration_limit = solver.iteration_limit(len(self.directions))
+        self.state = first.state
+        self.previous: StepState | None = None  # the state before, for the predictor
+
+    def attempt(self, start: float, end: float) -> StepResult:
+        F_next = self.program.prescribed_F(end)
+        guess_inner, guess_free = _predict(self.state, self.previous, end, F_next, self.directions,
+                                           self.solver.asm, self.solver.n_inner)
+        return self.solver.solve(self.state, end, F_next, self.directions, guess_inner, guess_free)
+
+    def error(self, trial: StepResult) -> float:
+        return self.solver.time_error(self.state, trial)
+
+    def commit(self, trial: StepResult) -> None:
+        self.previous, self.state = self.state, trial.state
+
+    def rollback(self) -> None:
+        pass
+
+    def new_segment(self) -> None:
+        """The next report starts a new segment (e.g. unloading): do not extrapolate across it."""
+        self.previous = None
+
+
 def run_program(
     network: Network,
     config: Config,
@@ -329,101 +354,51 @@ def run_program(
     Raises
     ------
     SimulationFailed
-        When a step cannot converge even after ``solver.max_cuts`` halvings; the message
-        names the step, time, strain and the residual history of the last attempt, and
-        ``partial`` holds the curve up to the last converged step.
+        When a step cannot converge even after ``solver.max_cuts`` halvings in a row; the
+        message names the step, time, strain and the residual history of the last attempt,
+        and ``partial`` holds the curve up to the last converged step.
     """
     program = program or load_program(config.loading)
     if program.test == "uniaxial" and len(program.free_directions):
         log.warning(FREE_LATERAL_NOTE)
-    law = FiberLaw.from_config(config.fiber)
-    solver = EquilibriumSolver(network, law, config.solver, linear_solver, config.fiber.bending_modulus_MPa)
-    n_inner = network.n_inner
-    directions = program.free_directions
-    limit = solver.iteration_limit(len(directions))
+    solver = EquilibriumSolver.from_config(network, config, linear_solver)
     threshold = config.output.yield_threshold
     records: list[StepRecord] = []
 
-    def fail(k: int, t: float, failure: StepFailed, cuts: int) -> SimulationFailed:
-        return SimulationFailed(
-            failure, step=k, n_steps=program.n_steps, time=t, strain=program.strain_at(t), cuts=cuts,
-            mixed=bool(len(directions)), partial=result_from_records(config, program, records) if records else None,
-        )
+    def record(k: int, result: StepResult, counts: tuple[int, int, int]) -> None:
+        records.append(step_record(k, solver, result, program.strain[k], counts, threshold))
+        if on_step is not None:
+            on_step(records[-1])
+
+    def fail(failure: StepNotConverged, k: int, time: float, cuts: int) -> SimulationFailed:
+        return SimulationFailed(failure, step=k, n_steps=program.n_steps, time=time, strain=program.strain_at(time),
+                                cuts=cuts, mixed=bool(len(program.free_directions)),
+                                partial=result_from_records(config, program, records) if records else None)
 
     F0 = program.prescribed_F(0.0)
-    state = StepState(
-        time=0.0,
-        inner=solver.asm.reference[:n_inner] @ F0.T,
-        free=np.zeros(len(directions)),
-        F=F0,
-        plastic_stretch=np.ones(network.n_elements),
-    )
+    n_elements = network.n_elements
+    start = StepState(0.0, solver.asm.reference[:network.n_inner] @ F0.T, np.zeros(len(program.free_directions)),
+                      F0, np.ones(n_elements), np.zeros(n_elements))
     try:
-        first = solver.solve(state, 0.0, F0, directions, state.inner, state.free)
-    except StepFailed as failure:
-        raise fail(0, 0.0, failure, 0) from None
-    state = first.state
-    counts = (first.iterations, first.factorizations, 1)
-    records.append(step_record(0, solver, first, program.strain[0], counts, threshold))
-    if on_step is not None:
-        on_step(records[0])
-    previous: StepState | None = None
-    start_law = first.law  # the law's state at the start of the next sub-step
-    volume = solver.area * solver.l0
-    control = None if config.solver.time_rtol == "off" else StepSizeControl(config.solver.time_rtol)
-    step: float | None = None  # the sub-step [s], carried between reported steps
-    for k in range(1, program.n_steps + 1):
-        t_end = program.time[k]
-        counts = [0, 0, 0]
-        cuts = 0
-        if k > 1 and program.segment[k - 1] != program.segment[k - 2]:
-            previous = None  # a new segment (e.g. unloading): do not extrapolate across it
-        attempts = 0
-        while state.time < t_end:
-            attempts += 1
-            if attempts > MAX_TIME_STEPS_PER_REPORT:
-                stiff = StepFailed(f"the plastic flow needed more than {MAX_TIME_STEPS_PER_REPORT:,} time "
-                                   f"steps to reach the reported step (the last {step:.3g} s long)", [],
-                                   kind="stiff", iterations=0)
-                raise fail(k, state.time, stiff, cuts) from None
-            remaining = t_end - state.time
-            h = split(remaining, step)
-            t_next = t_end if h == remaining else state.time + h
-            F_next = program.prescribed_F(t_next)
-            guess_inner, guess_free = _predict(
-                state, previous, t_next, F_next, directions, solver.asm, n_inner
-            )
-            try:
-                result = solver.solve(state, t_next, F_next, directions, guess_inner, guess_free)
-            except StepFailed as failure:
-                counts[0] += failure.iterations
-                counts[1] += failure.factorizations
-                cuts += 1
-                step = h / 2.0
-                if cuts > config.solver.max_cuts:
-                    raise fail(k, t_next, failure, config.solver.max_cuts) from None
-                continue
-            counts[0] += result.iterations
-            counts[1] += result.factorizations
-            step = 2.0 * h if result.iterations < limit * _GROW_BELOW else h
-            if control is not None:
-                accepted, wanted = control.judge(h, local_error(
-                    law, start_law.stress, state.plastic_stretch, result.law,
-                    result.kinematics.length / solver.l0, solver.tortuosity, h, volume))
-                step = min(step, wanted)
-                if not accepted:
-                    continue  # rejected: again from the same state with the smaller step
-            counts[2] += 1
-            previous, state, start_law = state, result.state, result.law
-        record = step_record(k, solver, result, program.strain[k], counts, threshold)
-        records.append(record)
-        if on_step is not None:
-            on_step(record)
+        first = solver.solve(start, 0.0, F0, program.free_directions, start.inner, start.free)
+    except StepNotConverged as failure:
+        raise fail(failure, 0, 0.0, 0) from None
+    record(0, first, (first.iterations, first.factorizations, 1))
+    steps = _ProgramSteps(solver, program, first)
+
+    def reached(tally: ReportTally[StepResult]) -> None:
+        assert tally.trial is not None
+        record(tally.index, tally.trial, (tally.iterations, tally.factorizations, tally.substeps))
+        if tally.index < program.n_steps and program.segment[tally.index] != program.segment[tally.index - 1]:
+            steps.new_segment()
+
+    policy = StepPolicy.from_solver(config.solver)
+    try:
+        march(steps, program.time[1:], policy, on_report=reached)
+    except MarchFailed as stopped:
+        raise fail(stopped.failure, stopped.tally.index, stopped.time, stopped.tally.cuts) from None
     return result_from_records(config, program, records)
 
-
-MAX_TIME_STEPS_PER_REPORT = 10_000
-"""Time steps (accepted, rejected or cut) a reported step may take before the run fails."""
 
 _WHY = {
     "stalled": "the residual stalled",
@@ -461,8 +436,8 @@ class SimulationFailed(SolverError):
         Time and load parameter of the last attempt.
     cuts : int
         Halvings of the step tried.
-    kind : str
-        Why (:data:`espin.mechanics.equilibrium.FAILURE_KINDS`).
+    kind : StepFailureKind
+        Why (compares equal to its name: ``"stalled"``, ``"uphill"``, ...).
     reason : str
         The last attempt's failure, in words.
     history : list of float [uN]
@@ -475,22 +450,22 @@ class SimulationFailed(SolverError):
         Where the details were written, if they were.
     """
 
-    def __init__(self, failure: StepFailed, *, step: int, n_steps: int, time: float, strain: float,
+    def __init__(self, failure: StepNotConverged, *, step: int, n_steps: int, time: float, strain: float,
                  cuts: int, mixed: bool, partial: SimulationResult | None) -> None:
         self.step, self.n_steps, self.time, self.strain, self.cuts = step, n_steps, time, strain, cuts
         self.kind, self.reason, self.history = failure.kind, failure.reason, list(failure.history)
         self.iterations = failure.iterations
-        self.advice = _TRY_MIXED if mixed and failure.kind != "singular" else _TRY[failure.kind]
+        self.advice = _TRY_MIXED if mixed and failure.kind != StepFailureKind.SINGULAR else _TRY[failure.kind]
         self.partial = partial
-        self.log_path = None
+        self.log_path: Path | None = None
         super().__init__(self.summary())
 
     def summary(self) -> str:
         """The one-line message."""
         where = "the initial state" if self.step == 0 else f"step {self.step} of {self.n_steps}"
         cuts = f" after {self.cuts} cuts" if self.cuts else ""
-        why = self.reason if self.kind == "stiff" else _WHY[self.kind]
-        if self.kind == "stalled" and self.history:
+        why = self.reason if self.kind == StepFailureKind.STIFF else _WHY[self.kind]
+        if self.kind == StepFailureKind.STALLED and self.history:
             n = self.iterations
             why += (f" ({n} iteration{'s' * (n != 1)}; residual {self.history[-1]:.3g} uN at the end, "
                     f"{min(self.history):.3g} at best)")

@@ -32,8 +32,9 @@ consistent tangent. Newton's method with:
   Newton from the step's predictor does not find the basin of the solution; a stiffer E_b
   leads it there. The last solve is the true model, so the result is exact.
 
-A step that does not converge raises :class:`StepFailed` with the residual history; the
-driver cuts the step.
+A step that does not converge raises :class:`~espin.core.errors.StepNotConverged` with the
+residual history (the fiber law and the linear solver raise its kinds ``inadmissible`` and
+``singular``); the march cuts the step. Any other exception is a bug and goes through.
 """
 
 from __future__ import annotations
@@ -46,15 +47,16 @@ import numpy as np
 import scipy.sparse as sp
 from threadpoolctl import ThreadpoolController, threadpool_info
 
-from espin.core.config import SolverConfig
-from espin.core.errors import SolverError
+from espin.core.config import Config, SolverConfig
+from espin.core.errors import InadmissibleState, StepFailureKind, StepNotConverged
 from espin.geometry.network import Network
 from espin.mechanics.assembly import Kinematics, NetworkAssembler
 from espin.mechanics.bending import FiberJoints, fiber_joints
 from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
-from espin.mechanics.linear_solvers import Factorization
+from espin.mechanics.linear_solvers import Factorization, LinearSolver
+from espin.mechanics.time_steps import local_error
 
-__all__ = ["StepState", "StepResult", "StepFailed", "FAILURE_KINDS", "EquilibriumSolver"]
+__all__ = ["StepState", "StepResult", "EquilibriumSolver"]
 
 _MAX_ITERATIONS = 200  # default per step: plla seed 6 needs 75 at its first step (kink cycling)
 _MAX_ITERATIONS_MIXED = 500  # under mixed control: buckling chains need hundreds
@@ -82,6 +84,8 @@ class StepState:
         Deformation gradient.
     plastic_stretch : (n_elements,) float64
         lambda_p.
+    stress : (n_elements,) float64 [MPa]
+        Element stress t (it starts the next step's local time error).
     """
 
     time: float
@@ -89,6 +93,7 @@ class StepState:
     free: np.ndarray
     F: np.ndarray
     plastic_stretch: np.ndarray
+    stress: np.ndarray
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,41 +108,6 @@ class StepResult:
     factorizations: int
     residual: float
     residual_history: list[float] = field(default_factory=list)
-
-
-class StepFailed(Exception):
-    """Newton did not converge in a step.
-
-    Attributes
-    ----------
-    reason : str
-        What happened, in words.
-    kind : str
-        Why, as one of :data:`FAILURE_KINDS`.
-    history : list of float [uN]
-        The residual norm at the start and after each iteration (of each solve, one after
-        another, when the continuation was tried).
-    factorizations, iterations : int
-        Tangent factorizations and Newton iterations the attempt took (default for the
-        iterations: those of ``history``, one solve).
-    """
-
-    def __init__(self, reason: str, history: list[float], factorizations: int = 0, kind: str = "stalled",
-                 iterations: int | None = None):
-        super().__init__(reason)
-        self.reason = reason
-        self.kind = kind
-        self.history = history
-        self.factorizations = factorizations
-        self.iterations = max(len(history) - 1, 0) if iterations is None else iterations
-
-
-FAILURE_KINDS = ("stalled", "uphill", "inadmissible", "singular", "stiff")
-"""Why a step failed: the residual stalled within the iteration limit; no step along the
-Newton direction lowered the potential (the tangent points uphill); an iterate left the
-admissible states (non-finite, or the RVE inverted); the plastic flow asked for more time
-steps than a reported step may take (the driver's limit); the tangent could not be factorized or the
-fiber law not solved."""
 
 
 @dataclass(eq=False)
@@ -166,6 +136,15 @@ class _Step:
     directions: np.ndarray
     modes: np.ndarray  # (n_free, 2 n_border): d x_B / d f_k = G_k X_B
     weight: np.ndarray  # residual row scales for norms (all rows in uN)
+    law: FiberLaw  # the law this solve uses (the continuation's stages soften E_b)
+
+
+@dataclass
+class _TangentChoice:
+    """Which tangent the next Newton iterations factorize: the exact one while it is positive
+    definite; after an indefinite one, the clipped tangent for the next few iterations."""
+
+    clipped_left: int = 0
 
 
 class _ThreadedLaw:
@@ -178,8 +157,7 @@ class _ThreadedLaw:
     on it.
     """
 
-    def __init__(self, law: FiberLaw, tortuosity: np.ndarray) -> None:
-        self.law = law
+    def __init__(self, tortuosity: np.ndarray) -> None:
         self.tortuosity = tortuosity
         n = len(tortuosity)
         available = max((int(pool["num_threads"]) for pool in threadpool_info()), default=1)
@@ -188,12 +166,11 @@ class _ThreadedLaw:
         self.chunks = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
         self.pool = ThreadPoolExecutor(threads) if threads > 1 else None
 
-    def __call__(self, stretch: np.ndarray, plastic_old: np.ndarray, dt: float,
+    def __call__(self, law: FiberLaw, stretch: np.ndarray, plastic_old: np.ndarray, dt: float,
                  guess: np.ndarray | None) -> LawState:
         """:func:`~espin.mechanics.fiber_law.update` of every element."""
         def chunk(c: slice) -> LawState:
-            return update(self.law, stretch[c], plastic_old[c], self.tortuosity[c], dt,
-                          None if guess is None else guess[c])
+            return update(law, stretch[c], plastic_old[c], self.tortuosity[c], dt, None if guess is None else guess[c])
 
         if self.pool is None:
             return chunk(self.chunks[0])
@@ -233,25 +210,30 @@ class EquilibriumSolver:
         self.l0 = network.element_length
         self.area = network.element_area
         self.tortuosity = network.element_tortuosity
-        self._law_update = _ThreadedLaw(law, self.tortuosity)
+        self._law_update = _ThreadedLaw(self.tortuosity)
         self.n_inner = network.n_inner
         self.border_reference = self.asm.reference[network.n_inner:]
         self.force_tolerance_abs = config.atol * law.taut_modulus * float(np.mean(self.area))
         fiber_fraction = float(np.sum(self.area * network.element_contour_length)) / network.reference_volume
         self.stress_tolerance_abs = config.atol * law.taut_modulus * fiber_fraction
-        self._clipped_left = 0
+
+    @classmethod
+    def from_config(cls, network: Network, config: Config, linear_solver: LinearSolver) -> EquilibriumSolver:
+        """The solver of a run's config: its fiber law (with bending) and solver settings."""
+        return cls(network, FiberLaw.from_config(config.fiber), config.solver, linear_solver,
+                   config.fiber.bending_modulus_MPa)
 
     # -- evaluation ---------------------------------------------------------------------------
-    def _context(self, start: StepState, time: float, F_prescribed, directions) -> _Step:
+    def _context(self, start: StepState, time: float, F_prescribed, directions, law: FiberLaw) -> _Step:
         X = self.border_reference
         modes = np.stack([(X @ G.T).ravel() for G in directions]) if len(directions) else np.zeros((0, 2 * len(X)))
         # Residual rows are forces [uN] for inner DOF and V0 P : G_k [uN um] for free
         # components; dividing the latter by L / 2 puts both in uN for norms.
         weight = np.r_[np.ones(2 * self.n_inner), np.full(len(directions), 2.0 / self.network.size)]
-        return _Step(start, time - start.time, F_prescribed, directions, modes, weight)
+        return _Step(start, time - start.time, F_prescribed, directions, modes, weight, law)
 
     def _evaluate(self, z: np.ndarray, step: _Step, near: _Point | None = None) -> _Point:
-        """Everything at the iterate ``z``; an inadmissible state raises :class:`StepFailed`.
+        """Everything at the iterate ``z``; an inadmissible state raises :class:`InadmissibleState`.
 
         ``near``: an evaluated iterate of the same step whose plastic stretches start the
         return mapping (a warm start: same result, fewer iterations of the fiber law).
@@ -260,12 +242,11 @@ class EquilibriumSolver:
         free = z[n:]
         F = step.F_prescribed + np.tensordot(free, step.directions, axes=1) if len(free) else step.F_prescribed
         if not (np.all(np.isfinite(z)) and np.linalg.det(F) > 0.0):
-            raise StepFailed("the iterate left the admissible states (non-finite, or det F <= 0)", [],
-                             kind="inadmissible")
+            raise InadmissibleState("the iterate left the admissible states (non-finite, or det F <= 0)")
         x = self.asm.positions(z[:n], F)
         kin = self.asm.kinematics(x)
         stretch = kin.length / self.l0
-        law = self._law_update(stretch, step.start.plastic_stretch, step.dt,
+        law = self._law_update(step.law, stretch, step.start.plastic_stretch, step.dt,
                                None if near is None else near.law.plastic_stretch)
         force, stiffness = axial_force_and_stiffness(law, self.area, self.l0)
         gradient = self.asm.gradient(force, kin)
@@ -317,19 +298,20 @@ class EquilibriumSolver:
         corner = modes @ (K_BB @ modes.T)
         return sp.bmat([[K_II, coupling], [coupling.T, sp.csr_matrix(corner)]], format="csr")
 
-    def _direction(self, p: _Point, step: _Step, chord: Factorization | None
+    def _direction(self, p: _Point, step: _Step, chord: Factorization | None, choice: _TangentChoice
                    ) -> tuple[np.ndarray, int, Factorization]:
         """Newton direction, the number of factorizations it took and the factorization used.
 
         ``chord``: a factorization to reuse (a chord step, no factorization) if it gives a
-        descent direction.
+        descent direction. ``choice`` is updated: an indefinite exact tangent makes the next
+        few iterations take the clipped one directly.
         """
         if chord is not None:
             direction = chord.solve(-p.residual)
             if np.dot(direction, p.residual) < 0.0:
                 return direction, 0, chord
         factorizations = 0
-        if self._clipped_left == 0:
+        if choice.clipped_left == 0:
             fact = self.linear.factorize(self._hessian(p, step, clipped=False))
             factorizations += 1
             # Perturbed pivots mean a (nearly) singular tangent: not usable as exact.
@@ -338,8 +320,8 @@ class EquilibriumSolver:
                 direction = fact.solve(-p.residual)
                 if np.dot(direction, p.residual) < 0.0:
                     return direction, factorizations, fact
-            self._clipped_left = _CLIPPED_AFTER_INDEFINITE
-        self._clipped_left -= 1
+            choice.clipped_left = _CLIPPED_AFTER_INDEFINITE
+        choice.clipped_left -= 1
         fact = self.linear.factorize(self._hessian(p, step, clipped=True))
         return fact.solve(-p.residual), factorizations + 1, fact
 
@@ -361,9 +343,9 @@ class EquilibriumSolver:
 
         Raises
         ------
-        StepFailed
+        StepNotConverged
             When Newton does not converge within the iteration limit, the line search
-            cannot lower the potential, or the state becomes non-finite.
+            cannot lower the potential, the state becomes non-finite or the tangent singular.
         """
         # With a backend that does not use OpenBLAS, OpenBLAS (numpy's vector products here
         # gain nothing from threads) runs on one thread: its threads spin after each call
@@ -373,56 +355,51 @@ class EquilibriumSolver:
                     else ThreadpoolController().select(internal_api="openblas").limit(limits=1))
         with openblas:
             try:
-                return self._solve(start, time, F_prescribed, directions, guess_inner, guess_free)
-            except StepFailed as failure:
+                return self._solve(start, time, F_prescribed, directions, guess_inner, guess_free, self.law)
+            except StepNotConverged as failure:
                 return self._solve_by_continuation(failure, start, time, F_prescribed, directions,
                                                    guess_inner, guess_free)
 
-    def _solve_by_continuation(self, failure: StepFailed, start: StepState, time: float,
+    def _solve_by_continuation(self, failure: StepNotConverged, start: StepState, time: float,
                                F_prescribed: np.ndarray, directions: np.ndarray,
                                guess_inner: np.ndarray, guess_free: np.ndarray) -> StepResult:
         """The step again, through a continuation in the slack modulus (module docstring).
 
         Raises
         ------
-        StepFailed
+        StepNotConverged
             When a stage does not converge; counts include the first attempt's.
         """
-        true_law = self._law_update.law
         history = list(failure.history)
         iterations, factorizations = failure.iterations, failure.factorizations
         inner, free = guess_inner, guess_free
-        try:
-            for factor in _SLACK_CONTINUATION:
-                slack = min(factor * true_law.slack_modulus, 0.5 * true_law.taut_modulus)
-                self._law_update.law = replace(true_law, slack_modulus=slack) if factor != 1.0 else true_law
-                try:
-                    result = self._solve(start, time, F_prescribed, directions, inner, free)
-                except StepFailed as stage:
-                    raise StepFailed(
-                        f"{failure.reason}; then the continuation in the slack modulus failed at "
-                        f"E_b = {slack:g} MPa: {stage.reason}",
-                        history + stage.history, factorizations + stage.factorizations, stage.kind,
-                        iterations + stage.iterations,
-                    ) from None
-                iterations += result.iterations
-                factorizations += result.factorizations
-                history += result.residual_history
-                inner, free = result.state.inner, result.state.free
-        finally:
-            self._law_update.law = true_law
+        for factor in _SLACK_CONTINUATION:
+            slack = min(factor * self.law.slack_modulus, 0.5 * self.law.taut_modulus)
+            law = replace(self.law, slack_modulus=slack) if factor != 1.0 else self.law
+            try:
+                result = self._solve(start, time, F_prescribed, directions, inner, free, law)
+            except StepNotConverged as stage:
+                raise StepNotConverged(
+                    f"{failure.reason}; then the continuation in the slack modulus failed at "
+                    f"E_b = {slack:g} MPa: {stage.reason}", stage.kind, history=history + stage.history,
+                    iterations=iterations + stage.iterations, factorizations=factorizations + stage.factorizations,
+                ) from None
+            iterations += result.iterations
+            factorizations += result.factorizations
+            history += result.residual_history
+            inner, free = result.state.inner, result.state.free
         return StepResult(result.state, result.law, result.force, result.kinematics, iterations,
                           factorizations, result.residual, history)
 
-    def _solve(self, start: StepState, time: float, F_prescribed: np.ndarray,
-               directions: np.ndarray, guess_inner: np.ndarray, guess_free: np.ndarray
-               ) -> StepResult:
+    def _solve(self, start: StepState, time: float, F_prescribed: np.ndarray, directions: np.ndarray,
+               guess_inner: np.ndarray, guess_free: np.ndarray, law: FiberLaw) -> StepResult:
+        """Newton's method from the guess, with ``law`` (the true one, or a continuation stage's)."""
         n_free = len(directions)
         limit = self.iteration_limit(n_free)
-        step = self._context(start, time, F_prescribed, directions)
+        step = self._context(start, time, F_prescribed, directions, law)
         history: list[float] = []
         factorizations = 0
-        self._clipped_left = 0
+        choice = _TangentChoice()
         fact = None
         try:
             p = self._evaluate(np.concatenate([guess_inner.ravel(), guess_free]), step)
@@ -434,20 +411,17 @@ class EquilibriumSolver:
                 history.append(norm)
                 if ok:
                     n = 2 * self.n_inner
-                    state = StepState(time, p.z[:n].reshape(-1, 2), p.z[n:].copy(), p.F, p.law.plastic_stretch)
+                    state = StepState(time, p.z[:n].reshape(-1, 2), p.z[n:].copy(), p.F, p.law.plastic_stretch,
+                                      p.law.stress)
                     return StepResult(state, p.law, p.force, p.kin, iteration, factorizations, norm, history)
                 if iteration == limit:
                     break
-                direction, used, fact = self._direction(p, step, chord)
+                direction, used, fact = self._direction(p, step, chord, choice)
                 factorizations += used
                 p = self._line_search(p, direction, step)
-        except StepFailed as failure:
-            raise StepFailed(failure.reason, history, factorizations, failure.kind) from None
-        except (SolverError, ValueError, ArithmeticError) as err:
-            # A singular factorization or a failed return mapping: the step is cut like any
-            # other failure.
-            raise StepFailed(f"{type(err).__name__}: {err}", history, factorizations, "singular") from None
-        raise StepFailed(f"no convergence in {limit} iterations", history, factorizations)
+        except StepNotConverged as failure:
+            raise type(failure)(failure.reason, failure.kind, history=history, factorizations=factorizations) from None
+        raise StepNotConverged(f"no convergence in {limit} iterations", history=history, factorizations=factorizations)
 
     def _line_search(self, p: _Point, direction: np.ndarray, step: _Step) -> _Point:
         """Step length along the Newton direction on the incremental potential Phi.
@@ -467,7 +441,7 @@ class EquilibriumSolver:
         for _ in range(_MAX_SEARCH):
             try:
                 trial = self._evaluate(p.z + alpha * direction, step, p)
-            except StepFailed:  # overshot into inadmissible states: shorten
+            except InadmissibleState:  # overshot into inadmissible states: shorten
                 hi, s_hi = alpha, None
                 alpha = lo + 0.1 * (alpha - lo)
                 continue
@@ -492,7 +466,7 @@ class EquilibriumSolver:
                 break
         if best is not None and self._decreases(p, best, direction, lo, s0, s_lo, step):
             return best  # no better point found, but Phi falls up to it
-        raise StepFailed("line search could not lower the incremental potential", [], kind="uphill")
+        raise StepNotConverged("line search could not lower the incremental potential", StepFailureKind.UPHILL)
 
     def _decreases(self, p: _Point, trial: _Point, direction: np.ndarray, alpha: float, s0: float,
                    s_trial: float, step: _Step) -> bool:
@@ -507,6 +481,13 @@ class EquilibriumSolver:
         middle = self._evaluate(p.z + 0.5 * alpha * direction, step, p)
         s_middle = float(np.dot(middle.residual, direction))
         return alpha / 6.0 * (s0 + 4.0 * s_middle + s_trial) < 0.0
+
+    def time_error(self, start: StepState, result: StepResult) -> float:
+        """Relative local time error of the step from ``start`` to ``result``
+        (:func:`espin.mechanics.time_steps.local_error`, elements weighted by their volume)."""
+        return local_error(self.law, start.stress, start.plastic_stretch, result.law,
+                           result.kinematics.length / self.l0, self.tortuosity, result.state.time - start.time,
+                           self.area * self.l0)
 
     def macroscopic_tangent(self, result: StepResult) -> np.ndarray:
         """Algorithmic macroscopic tangent A_iJkL = dP_iJ / dF_kL [MPa] at a converged step.

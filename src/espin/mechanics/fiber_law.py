@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike
 
-from espin.core.errors import ConfigError, SolverError
+from espin.core.errors import ConfigError, InadmissibleState, StepNotConverged
 
 if TYPE_CHECKING:
     from espin.core.config import FiberConfig
@@ -284,10 +284,8 @@ def _newton(
             v[more] for v in (index, w_new, lo, hi, step, step_before, adt, plastic_old)
         )
         args = tuple(v[more] for v in args)
-    raise SolverError(
-        f"fiber return mapping did not converge in {_MAX_ITERATIONS} iterations "
-        f"for {index.size} elements"
-    )
+    raise StepNotConverged(f"the fiber law's return mapping did not converge in {_MAX_ITERATIONS} iterations "
+                           f"for {index.size} elements")
 
 
 def _flow_residual(
@@ -298,7 +296,7 @@ def _flow_residual(
     sign: np.ndarray,
     stretch: np.ndarray,
     lr: np.ndarray,
-) -> tuple[np.ndarray, ...]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Return-mapping residual asinh(expm1(w)) - sign g(lambda, lambda_p) for :func:`_newton`."""
     flow = _flow_magnitude(w, adt)
     _, g, _, dg_dplastic = _flow_terms(law, stretch, plastic_old + sign * flow, lr)
@@ -346,7 +344,7 @@ def _solve_flow(
 
 def _recruitment_residual(
     law: FiberLaw, w: np.ndarray, adt: np.ndarray, plastic_old: np.ndarray, g_r: np.ndarray
-) -> tuple[np.ndarray, ...]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Residual asinh(expm1(w)) - g_r / lambda_p^c_p of :func:`_recruitment_flow`."""
     flow = _flow_magnitude(w, adt)
     plastic = plastic_old + flow
@@ -395,7 +393,7 @@ def _prepare(law: FiberLaw, dt: ArrayLike, *arrays: ArrayLike) -> tuple[np.ndarr
     if not np.all(np.isfinite(dt) & (dt >= 0)):
         raise ValueError("dt must be finite and >= 0")
     if not all(np.all(np.isfinite(x)) for x in out) or np.any(out[-2] <= 0):
-        raise ValueError("stretches and tortuosity must be finite, plastic stretches > 0")
+        raise InadmissibleState("the fiber law met a non-finite stretch or tortuosity, or a plastic stretch <= 0")
     return (*out, np.minimum(law.flow_rate * dt, _MAX_FLOW_SCALE))
 
 
@@ -442,10 +440,13 @@ def update(
 
     Raises
     ------
-    SolverError
+    StepNotConverged
         If the return mapping does not converge (not expected: it falls back on bisection).
+    InadmissibleState
+        If a stretch or the tortuosity is not finite, or lambda_p_n <= 0 (an iterate out of the
+        model's domain: the caller's step is cut).
     ValueError
-        If ``dt`` is negative or not finite, an input is not finite or lambda_p_n <= 0.
+        If ``dt`` is negative or not finite (a programming error).
 
     Notes
     -----

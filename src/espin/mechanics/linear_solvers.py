@@ -43,7 +43,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from espin.core.errors import ConfigError, SolverError
+from espin.core.errors import ConfigError, SolverError, StepFailureKind, StepNotConverged
 from espin.core.mkl import load_mkl
 
 if TYPE_CHECKING:
@@ -183,6 +183,7 @@ class Factorization(_Releasable, ABC):
     @cached_property
     def _norm_inf(self) -> float:
         """Max norm of K (its largest absolute row sum)."""
+        assert self._matrix is not None, "released"
         return float(abs(self._matrix).sum(axis=1).max())
 
     def _residual(self, b: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, float]:
@@ -238,8 +239,11 @@ class LinearSolver(_Releasable, ABC):
 
         Raises
         ------
+        StepNotConverged
+            With kind ``singular`` when K cannot be factorized (exactly singular for SuperLU, a
+            zero pivot for PARDISO): a property of the tangent, so the caller's step is cut.
         SolverError
-            If the backend fails (e.g. K exactly singular for SuperLU).
+            If the backend itself fails (memory, a matrix too large for its interface).
         TypeError
             If K is not a float64 CSR matrix.
         ValueError
@@ -251,7 +255,7 @@ class LinearSolver(_Releasable, ABC):
             previous.release()
         pattern = self._pattern
         new_pattern = pattern is None or not pattern.matches(K)
-        if new_pattern:
+        if pattern is None or new_pattern:
             self._pattern = None
             pattern = _Pattern.of(K)
         factorization = self._factorize(pattern.matrix(K.data), new_pattern)
@@ -324,8 +328,10 @@ class SuperLUSolver(LinearSolver):
                 self._ordering = _SymmetricPermutation.of(K, np.argsort(lu.perm_c))
                 return _SuperLUFactorization(lu, K, perm=None)
             self._ordering = _SymmetricPermutation.of(K, perm)
-        lu = _splu(self._ordering.apply(K), "NATURAL")
-        return _SuperLUFactorization(lu, K, self._ordering.perm)
+        ordering = self._ordering
+        assert ordering is not None, "an ordering is made with the pattern"
+        lu = _splu(ordering.apply(K), "NATURAL")
+        return _SuperLUFactorization(lu, K, ordering.perm)
 
     def _release_pattern_data(self) -> None:
         self._ordering = None
@@ -425,8 +431,8 @@ def _splu(matrix: sp.csc_matrix, permc_spec: str) -> spla.SuperLU:
             options={"SymmetricMode": True},
         )
     except RuntimeError as exc:  # "Factor is exactly singular"
-        raise SolverError(f"SuperLU factorization of the {matrix.shape[0]}-unknown tangent "
-                          f"failed: {exc}") from exc
+        raise StepNotConverged(f"SuperLU factorization of the {matrix.shape[0]}-unknown tangent failed: {exc}",
+                               StepFailureKind.SINGULAR) from exc
 
 
 class _SuperLUFactorization(Factorization):
@@ -449,13 +455,16 @@ class _SuperLUFactorization(Factorization):
         if not self._symmetric_pivots:
             return None
         self._check_valid()
+        assert self._lu is not None
         return int(np.count_nonzero(self._lu.U.diagonal() < 0.0))
 
     def _solve(self, b: np.ndarray) -> np.ndarray:
+        lu = self._lu
+        assert lu is not None, "released"
         if self._perm is None:
-            return self._lu.solve(b)
+            return lu.solve(b)
         x = np.empty_like(b)
-        x[self._perm] = self._lu.solve(b[self._perm])
+        x[self._perm] = lu.solve(b[self._perm])
         return x
 
     def _free(self) -> None:
@@ -512,6 +521,7 @@ _PARDISO_ERRORS = {
     -10: "error opening out-of-core files",
     -11: "read/write error with out-of-core files",
 }
+_SINGULAR_ERRORS = (-4, -7)  # a property of the tangent: the step is cut; the others are the machine's
 
 
 class PardisoSolver(LinearSolver):
@@ -554,6 +564,7 @@ class PardisoSolver(LinearSolver):
             self._handle.free()
             self._upper = _UpperTriangle.of(K)
         upper = self._upper
+        assert upper is not None, "made with the pattern"
         values = upper.values(K)
         threads = self._handle.max_threads()
         if self._handle.threads != threads:
@@ -612,7 +623,7 @@ class _PardisoHandle:
              b: np.ndarray | None = None) -> np.ndarray | None:
         """Run a PARDISO phase; return x for phase 33 (b: F-ordered float64), else None."""
         c_int = ctypes.c_int32
-        if upper is None:  # releasing memory: PARDISO reads no matrix, give it a valid one
+        if upper is None or values is None:  # releasing memory: PARDISO reads no matrix, give it a valid one
             upper, values = _UpperTriangle.empty(), np.zeros(1)
         n = len(upper.indptr) - 1
         x = None if b is None else np.zeros_like(b, order="F")
@@ -641,8 +652,10 @@ class _PardisoHandle:
             self._mkl.set_num_threads_local(previous)
         if error.value:
             reason = _PARDISO_ERRORS.get(error.value, "unknown error")
-            raise SolverError(f"PARDISO phase {phase} on the {n}-unknown tangent failed "
-                              f"with error {error.value} ({reason})")
+            message = f"PARDISO phase {phase} on the {n}-unknown tangent failed with error {error.value} ({reason})"
+            if error.value in _SINGULAR_ERRORS:
+                raise StepNotConverged(message, StepFailureKind.SINGULAR)
+            raise SolverError(message)
         return x
 
     def free(self) -> None:
@@ -668,8 +681,9 @@ class _PardisoFactorization(Factorization):
         return self._n_negative
 
     def _solve(self, b: np.ndarray) -> np.ndarray:
-        return self._solver._handle.call(33, self._solver._upper, self._values,
-                                         np.asfortranarray(b))
+        x = self._solver._handle.call(33, self._solver._upper, self._values, np.asfortranarray(b))
+        assert x is not None, "phase 33 returns the solution"
+        return x
 
     def _free(self) -> None:
         if self._solver._current is self:  # phase 0: free the numerical factors only

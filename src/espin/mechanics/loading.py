@@ -39,6 +39,7 @@ import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -50,7 +51,7 @@ from espin.core.config import (
     TransverseCSVLateral,
 )
 from espin.core.errors import ConfigError
-from espin.core.textfiles import TextFormat, read_text, shown_names, text_lines
+from espin.core.textfiles import TextFormat, missing, parse_number, read_text, shown_names, text_lines
 
 __all__ = ["path_program", "LoadProgram", "load_program", "read_table", "MAX_TABLE_BYTES", "MAX_TABLE_ROWS",
            "MAX_TABLE_LINE_CHARS", "MAX_TABLE_MAGNITUDE"]
@@ -80,17 +81,6 @@ def _rotation(direction_deg: float) -> np.ndarray:
     return np.array([[c, -s], [s, c]])
 
 
-def _missing(path: Path) -> bool:
-    """Whether nothing exists at ``path`` (other failures to look are the reader's to report)."""
-    try:
-        path.stat()
-    except FileNotFoundError:
-        return True
-    except (OSError, ValueError):  # no permission, a NUL in the path: reported by the reader
-        pass
-    return False
-
-
 def _table_format(key: str, columns: Sequence[str]) -> TextFormat:
     """What a loading table named by config ``key`` with ``columns`` is, for its checks."""
     return TextFormat(
@@ -110,14 +100,6 @@ def _fields(path: Path, fmt: TextFormat, number: int, line: str) -> list[str]:
         raise fmt.fail(path, f"not a line of CSV (a misplaced '\"'); {fmt.expected}", number) from None
 
 
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
 def _header(path: Path, fmt: TextFormat, lines: Iterator[tuple[int, str]],
             columns: Sequence[str]) -> list[int]:
     """0-based index of each of ``columns`` in the header, the first kept line."""
@@ -127,7 +109,7 @@ def _header(path: Path, fmt: TextFormat, lines: Iterator[tuple[int, str]],
     names = _fields(path, fmt, number, line)
     missing = [name for name in columns if name not in names]
     if missing:
-        found = ("it holds numbers, not column names" if all(map(_is_number, names))
+        found = ("it holds numbers, not column names" if all(parse_number(name) is not None for name in names)
                  else f"its columns are {shown_names(names)}")
         raise fmt.fail(path, f"the header lacks column(s) {', '.join(missing)} ({found}); {fmt.expected}",
                        number)
@@ -147,11 +129,10 @@ def _value(path: Path, fmt: TextFormat, number: int, fields: list[str], index: i
     text = fields[index]
     if not text:
         raise fmt.fail(path, "empty; expected a number such as 0.05 or 5e-2", number, column)
-    try:
-        value = float(text)
-    except ValueError:
+    value = parse_number(text)
+    if value is None:
         raise fmt.fail(path, "not a number; expected a number such as 0.05 or 5e-2 ('.' as the "
-                             "decimal mark)", number, column) from None
+                             "decimal mark)", number, column)
     if not abs(value) <= MAX_TABLE_MAGNITUDE:
         kind = "NaN" if math.isnan(value) else "infinite" if math.isinf(value) else f"{value:.3g}"
         raise fmt.fail(path, f"{kind}; expected a finite number of magnitude at most "
@@ -217,7 +198,7 @@ def read_table(path: Path, columns: Sequence[str], key: str) -> tuple[np.ndarray
         does not increase, or it has fewer than 2 rows: naming ``key``, the file, the line and
         column and the columns expected, never echoing its contents.
     """
-    if _missing(path):
+    if missing(path):
         raise ConfigError(f"{key}: the file it references does not exist: {path}")
     fmt = _table_format(key, columns)
     lines = text_lines(path, read_text(path, fmt), fmt)
@@ -301,7 +282,7 @@ class LoadProgram:
     def prescribed_F(self, t: float) -> np.ndarray:
         """(2, 2) prescribed part of F at time ``t`` [s] (free components at their base)."""
         if self.test == "path":
-            table = self._table
+            table = cast(np.ndarray, self._table)  # set for every path program
             return np.array([np.interp(t, table[:, 0], table[:, k]) for k in (1, 2, 3, 4)]).reshape(2, 2)
         s = self.strain_at(t)
         if self.test == "uniaxial":
@@ -309,7 +290,8 @@ class LoadProgram:
             if kind == "poisson":
                 lateral = 1.0 - value * s
             elif kind == "csv":
-                lateral = 1.0 + float(np.interp(s, value[:, 0], value[:, 1]))
+                curve = cast(np.ndarray, value)  # the transverse table
+                lateral = 1.0 + float(np.interp(s, curve[:, 0], curve[:, 1]))
             else:  # fixed, or free (the unknown f_k add to F'22 = 1)
                 lateral = 1.0
             local = np.array([[1.0 + s, 0.0], [0.0, lateral]])
@@ -367,11 +349,12 @@ def load_program(loading: LoadingConfig) -> LoadProgram:
     """
     R = _rotation(loading.direction_deg)
     if loading.test == "path":
-        table, lines = read_table(loading.path_csv, _PATH_COLUMNS, "loading.path_csv")
-        _check_path_determinants(loading.path_csv, table[:, 1:].reshape(-1, 2, 2), lines)
+        path_csv = cast(Path, loading.path_csv)  # required by a "path" test
+        table, lines = read_table(path_csv, _PATH_COLUMNS, "loading.path_csv")
+        _check_path_determinants(path_csv, table[:, 1:].reshape(-1, 2, 2), lines)
         if np.abs(table[0, 1:] - np.eye(2).ravel()).max() > _START_TOLERANCE:
             fmt = _table_format("loading.path_csv", _PATH_COLUMNS)
-            raise fmt.fail(loading.path_csv, "the first F is not the identity: a path starts from the "
+            raise fmt.fail(path_csv, "the first F is not the identity: a path starts from the "
                            "undeformed RVE (F11 = F22 = 1, F12 = F21 = 0)", int(lines[0]))
         return path_program(table[:, 0], table[:, 1:].reshape(-1, 2, 2))
     times, strains, segments = [0.0], [0.0], []

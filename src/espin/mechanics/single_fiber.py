@@ -12,8 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from espin.mechanics.fiber_law import FiberLaw, elastic_stress, update
-from espin.mechanics.time_steps import StepSizeControl, local_error, split
+from espin.mechanics.fiber_law import FiberLaw, LawState, elastic_stress, update
+from espin.mechanics.march import ReportTally, StepPolicy, march
+from espin.mechanics.time_steps import local_error
 
 __all__ = ["FiberHistory", "constant_rate_history", "pull_fiber"]
 
@@ -50,6 +51,49 @@ class FiberHistory:
     law: FiberLaw
     tortuosity: float
     substeps: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class _FiberStep:
+    """One time step of the fiber law: its state at the end and the step's stretch and length."""
+
+    state: LawState
+    stretch: float
+    dt: float
+    iterations: int = 0  # the law is solved element by element, not by the march's Newton
+    factorizations: int = 0
+
+
+class _Fiber:
+    """The fiber as a :class:`~espin.mechanics.march.StepProblem`: the stretch is linear in
+    time within each interval of the history, and the law integrated by backward Euler."""
+
+    iteration_limit = None
+
+    def __init__(self, law: FiberLaw, time: np.ndarray, stretch: np.ndarray, tortuosity: float) -> None:
+        self.law, self.time, self.history, self.tortuosity = law, time, stretch, tortuosity
+        self.interval = 1  # the interval being integrated: time[interval - 1] to time[interval]
+        self.stress = np.empty_like(stretch)
+        self.plastic = np.ones_like(stretch)
+        self.stress[0] = elastic_stress(law, stretch[0], tortuosity)
+        self.committed = (float(self.stress[0]), 1.0)  # (stress [MPa], lambda_p) now
+
+    def attempt(self, start: float, end: float) -> _FiberStep:
+        k = self.interval
+        at = self.history[k] if end == self.time[k] else np.interp(end, self.time[k - 1:k + 1],
+                                                                    self.history[k - 1:k + 1])
+        return _FiberStep(update(self.law, at, self.committed[1], self.tortuosity, end - start), float(at),
+                          end - start)
+
+    def error(self, trial: _FiberStep) -> float:
+        return local_error(self.law, self.committed[0], self.committed[1], trial.state, trial.stretch,
+                           self.tortuosity, trial.dt)
+
+    def commit(self, trial: _FiberStep) -> None:
+        self.committed = (float(trial.state.stress[0]), float(trial.state.plastic_stretch[0]))
+
+    def rollback(self) -> None:
+        pass
 
 
 def constant_rate_history(
@@ -126,31 +170,16 @@ def pull_fiber(
         raise ValueError("time and stretch must be 1-D of equal length, time non-decreasing")
     if time_rtol is not None and not 0.0 < time_rtol < 1.0:
         raise ValueError(f"time_rtol must be in (0, 1), got {time_rtol}")
-    stress = np.empty_like(stretch)
-    plastic = np.ones_like(stretch)
+    fiber = _Fiber(law, time, stretch, tortuosity)
     substeps = np.zeros(len(stretch), dtype=np.int64)
-    stress[0] = elastic_stress(law, stretch[0], tortuosity)
-    step = None  # the adaptive step, carried between intervals
-    control = StepSizeControl(time_rtol) if time_rtol is not None else None
-    for k in range(1, len(stretch)):
-        t, t_end = time[k - 1], time[k]
-        t_stress, t_plastic = stress[k - 1], plastic[k - 1]
-        while True:
-            remaining = t_end - t
-            h = split(remaining, step) if remaining > 0.0 else remaining
-            last = h == remaining
-            at = stretch[k] if last else np.interp(t + h, time[k - 1:k + 1], stretch[k - 1:k + 1])
-            state = update(law, at, t_plastic, tortuosity, h)
-            if time_rtol is not None and h > 0.0:
-                accepted, step = control.judge(h, local_error(law, t_stress, t_plastic, state, at, tortuosity, h))
-                if not accepted:
-                    continue
-            substeps[k] += 1
-            t_stress, t_plastic = state.stress[0], state.plastic_stretch[0]
-            if last:
-                break
-            t += h
-        stress[k], plastic[k] = t_stress, t_plastic
+
+    def reached(tally: ReportTally[_FiberStep]) -> None:
+        fiber.interval += 1
+        fiber.stress[tally.index], fiber.plastic[tally.index] = fiber.committed
+        substeps[tally.index] = tally.substeps
+
+    march(fiber, time[1:], StepPolicy(time_rtol=time_rtol), start=float(time[0]), on_report=reached)
+    stress, plastic = fiber.stress, fiber.plastic
     return FiberHistory(
         time=time,
         stretch=stretch,

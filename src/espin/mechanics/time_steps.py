@@ -9,10 +9,9 @@ an estimate of the step's local error that costs no extra solve: the rate at the
 step's own (lambda_p - lambda_p_n) / dt, the rate at the start follows from the stress there.
 An element's stress error is the elastic modulus times the elastic-stretch error it causes,
 M(e) e / lambda_p d lambda_p; a step's error is the volume-weighted sum of those over the
-volume-weighted sum of |t|, a relative stress error. A step is accepted when that is at most
-the tolerance (``solver.time_rtol``), and the next step is scaled by 0.9 sqrt(tol / error)
-(the local error is O(dt^2)), by a factor between 1/5 and 2; the step after a rejected one
-does not grow.
+volume-weighted sum of |t|, a relative stress error. The march (:mod:`espin.mechanics.march`)
+accepts a step when that is at most the tolerance (``solver.time_rtol``) and scales the next
+by 0.9 sqrt(tol / error) (the local error is O(dt^2)).
 """
 
 from __future__ import annotations
@@ -22,11 +21,8 @@ from numpy.typing import ArrayLike
 
 from espin.mechanics.fiber_law import FiberLaw, LawState, elastic_modulus
 
-__all__ = ["flow_rate", "local_error", "next_step", "split", "StepSizeControl"]
+__all__ = ["flow_rate", "local_error"]
 
-_SAFETY = 0.9
-_SHRINK_MIN = 0.2
-_GROW_MAX = 2.0
 _MAX_ARGUMENT = 700.0  # sinh overflows beyond ~710
 
 
@@ -86,42 +82,3 @@ def local_error(
     if error == 0.0:
         return 0.0
     return error / scale if scale > 0.0 else np.inf
-
-
-def split(remaining: float, step: float | None) -> float:
-    """The next time step [s] towards a reported point ``remaining`` seconds away: the
-    interval cut into equal steps no longer than ``step`` (None: one step)."""
-    if step is None:
-        return remaining
-    return remaining / max(1.0, np.ceil(remaining / step - 1e-9))
-
-
-def next_step(dt: float, error: float, tolerance: float) -> float:
-    """The step after one with relative ``error`` (accepted or not) [s]."""
-    if error == 0.0:
-        return _GROW_MAX * dt
-    factor = _SAFETY * np.sqrt(tolerance / error)
-    return dt * float(np.clip(factor, _SHRINK_MIN, _GROW_MAX))
-
-
-class StepSizeControl:
-    """The accept / next-step rule of one integration (the driver's and the single fiber's).
-
-    Parameters
-    ----------
-    tolerance
-        Relative local error allowed per step, in (0, 1).
-    """
-
-    def __init__(self, tolerance: float) -> None:
-        self.tolerance = tolerance
-        self._rejected = False
-
-    def judge(self, dt: float, error: float) -> tuple[bool, float]:
-        """Whether a step of ``dt`` [s] with relative ``error`` is accepted, and the next step [s]."""
-        accepted = error <= self.tolerance
-        step = next_step(dt, error, self.tolerance)
-        if accepted and self._rejected:
-            step = min(step, dt)
-        self._rejected = not accepted
-        return accepted, step

@@ -198,7 +198,8 @@ def specimen(
     program = GripProgram(max_strain, steps, 1.0)  # the rate is checked with the config below
     geometry = make_specimen(shape, elements_across, **dict(shape_options or {}))
     if model == "neo_hookean":
-        config, rve = None, None
+        config: Any = None  # else the mat's Config
+        rve = None
     else:
         config, rve = _resolve_rve(source, overrides)
         if rve is not None and rve_seeds == "per_point":
@@ -227,9 +228,10 @@ def specimen(
 
 def _resolve_rve(source: Any, overrides: dict[str, Any]):
     """(config, RVE or None) of the mat; a generated one small unless its size is given."""
+    from espin.core.config import dotted_overrides
     from espin.mechanics.run import resolve_source
 
-    flat = {key.replace("__", "."): value for key, value in overrides.items()}
+    flat = dotted_overrides(overrides)
     config, rve = resolve_source(source, flat)
     if rve is None:
         small = {k: v for k, v in _SMALL_RVE.items() if k not in flat}
@@ -243,7 +245,7 @@ def _run(geometry: Specimen, program: GripProgram, config, rve, settings: dict[s
     from espin.core.parallel import TaskPool
     from espin.geometry.rve import generate
     from espin.geometry.rve_file import save_rve
-    from espin.specimen.materials import NeoHookean
+    from espin.specimen.materials import NeoHookean, PointMaterial
     from espin.specimen.membrane import Membrane
     from espin.specimen.result import SpecimenWriter, points_history
     from espin.specimen.rve_points import RVEPoints, rve_tolerance
@@ -263,6 +265,7 @@ def _run(geometry: Specimen, program: GripProgram, config, rve, settings: dict[s
                     blas_threads=settings["blas_threads"], security=settings["security"])
     with pool:
         time_rtol = None
+        material: PointMaterial
         if model == "neo_hookean":
             material = NeoHookean.from_uniaxial(n, settings["modulus_MPa"], settings["poisson_ratio"])
         elif settings["samples"] is not None:  # an earlier run's surrogate: no RVE needed

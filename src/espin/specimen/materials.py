@@ -23,7 +23,7 @@ from typing import Protocol
 
 import numpy as np
 
-from espin.core.errors import ConfigError
+from espin.core.errors import ConfigError, InadmissibleState
 
 __all__ = ["PointMaterial", "NeoHookean"]
 
@@ -32,12 +32,16 @@ class PointMaterial(Protocol):
     """The interface of a material at ``n_points`` quadrature points."""
 
     n_points: int
+    symmetric_tangent: bool
+    """True when A has the major symmetry A_iJkL = A_kLiJ (a hyperelastic material, or RVEs whose
+    step minimizes a potential): the macro tangent is then solved by espin's symmetric solvers."""
 
     def evaluate(self, F: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray]:
         """Trial P (n, 2, 2) [MPa] and A (n, 2, 2, 2, 2) [MPa] at F (n, 2, 2) and ``time`` [s].
 
-        A state the material cannot follow (det F <= 0, a point's solve failing) raises an
-        ``ArithmeticError`` or a :class:`~espin.core.errors.SolverError`: the macro step is cut.
+        A state the material cannot follow raises :class:`~espin.core.errors.StepNotConverged`
+        (:class:`~espin.core.errors.InadmissibleState` for det F <= 0; a point's solve failing):
+        the macro step is cut.
         Any other exception is a bug and stops the run."""
 
     def time_error(self) -> float:
@@ -72,6 +76,7 @@ class NeoHookean:
         if not lame_MPa >= 0.0:
             raise ConfigError(f"lame_MPa = {lame_MPa}: must be >= 0 MPa")
         self.n_points = n_points
+        self.symmetric_tangent = True
         self.mu = float(shear_modulus_MPa)
         self.lam = float(lame_MPa)
 
@@ -89,7 +94,7 @@ class NeoHookean:
     def evaluate(self, F: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray]:
         J = np.linalg.det(F)
         if np.any(J <= 0.0):
-            raise FloatingPointError(f"det F <= 0 at {int(np.sum(J <= 0.0))} point(s)")
+            raise InadmissibleState(f"det F <= 0 at {int(np.sum(J <= 0.0))} point(s)")
         inv = np.linalg.inv(F)  # F^-1, [n, L, i]
         inv_T = np.swapaxes(inv, 1, 2)  # F^-T, [n, i, L]
         log_J = np.log(J)[:, None, None]

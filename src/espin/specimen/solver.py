@@ -8,17 +8,18 @@ homogeneous material stretches homogeneously). ``lateral = "fixed"`` holds u_y =
 sides too (the boundary chains that meet the grips; a hole and a notch stay free): the width
 cannot change.
 
-Each step is solved by Newton's method on the free DOF with the materials' tangent: the first
-iterate comes from the last converged tangent and the grip increment (no material call), then
-K du = -r until max |r| <= rtol max |f| over the DOF (the grip reactions set the scale; the
-scale is at least the force of 1e-6 of the strain at the tangent of the step). A step whose
-materials fail, or whose Newton iterations stall or exceed ``max_iterations``, is cut in half
-(time and grip displacement together) and the materials roll back to the last converged state;
-after ``max_cuts`` halvings in a row the run stops with :class:`SpecimenFailed`; a step that
-converged easily lets the next one double. With ``time_rtol`` the time steps also follow the
-largest local error of the points' plastic update (rejected steps roll back too), never longer
-right after a cut than the cut step. A material's state is committed only when the macro step
-has converged and been accepted.
+Each time step is solved by Newton's method on the free DOF with the materials' tangent: the
+first iterate comes from the last converged tangent and the grip increment (no material call),
+then K du = -r until max |r| <= rtol max |f| over the DOF (the grip reactions set the scale; the
+scale is at least the force of 1e-6 of the strain at the tangent of the step). The time steps
+are taken by the march (:mod:`espin.mechanics.march`, time = grip strain / strain rate): a step
+whose materials fail (:class:`~espin.core.errors.StepNotConverged`), or whose Newton iterations
+stall or exceed ``max_iterations``, is cut in half and the materials roll back to the last
+converged state; after ``max_cuts`` halvings in a row the run stops with
+:class:`SpecimenFailed`; with ``time_rtol`` the steps also follow the largest local error of
+the points' plastic update (rejected steps roll back too). A material's state is committed
+only when the macro step has converged and been accepted. Any other exception a material
+raises is a bug and stops the run.
 """
 
 from __future__ import annotations
@@ -32,19 +33,16 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from skfem import Basis, ElementQuad1, ElementTriP1, MeshTri
 
-from espin.core.errors import ConfigError, SolverError
-from espin.mechanics.time_steps import StepSizeControl, split
+from espin.core.errors import ConfigError, SolverError, StepFailureKind, StepNotConverged
+from espin.mechanics.linear_solvers import make_linear_solver
+from espin.mechanics.march import MarchFailed, ReportTally, StepPolicy, march
 from espin.specimen.materials import PointMaterial
 from espin.specimen.membrane import Membrane
 from espin.specimen.shapes import Specimen
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SpecimenStep", "SpecimenFailed", "GripProgram", "run_specimen", "GRIPS", "LATERAL"]
-
-MAX_TIME_STEPS_PER_STEP = 10_000
-"""Time steps (accepted, rejected or cut) one recorded step may take before the run fails."""
-_EASY = 0.2  # of the iteration limit: a sub-step that converged in fewer may let the next double
+__all__ = ["SpecimenStep", "SpecimenFailed", "GripProgram", "MacroStep", "run_specimen", "GRIPS", "LATERAL"]
 
 GRIPS = ("clamped", "sliding")
 LATERAL = ("free", "fixed")
@@ -214,6 +212,80 @@ class _Extensometer:
         return float((ends[1] - ends[0]) / self.length)
 
 
+@dataclass(frozen=True, eq=False)
+class MacroStep:
+    """A converged macro Newton solve of one time step.
+
+    Attributes
+    ----------
+    u : (n_dofs,) float64 [mm]
+        Nodal displacements.
+    F, P : (n_points, 2, 2) float64 [-, MPa]
+        Deformation gradient and nominal stress at the quadrature points.
+    f : (n_dofs,) float64 [N]
+        Internal nodal forces (reactions on the prescribed DOF).
+    K : (n_dofs, n_dofs) sparse [N/mm]
+        The tangent at the solution (the next step's predictor).
+    iterations, factorizations : int
+        Newton iterations and linear factorizations.
+    history : list of float [N]
+        max |r| over the free DOF at each iteration.
+    """
+
+    u: np.ndarray
+    F: np.ndarray
+    P: np.ndarray
+    f: np.ndarray
+    K: sp.csr_matrix
+    iterations: int
+    factorizations: int
+    history: list[float]
+
+
+class _MacroSolves:
+    """Factorizations of the free block of the macro tangent: espin's symmetric solvers (PARDISO or
+    SuperLU, the pattern analysed once per run) for a material with a symmetric tangent, else
+    SuperLU's LU with partial pivoting."""
+
+    def __init__(self, symmetric: bool) -> None:
+        self.linear = make_linear_solver("auto") if symmetric else None
+
+    def factorize(self, K: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
+        """The solve of K x = b, as a function of b."""
+        if K.shape[0] == 0:  # every DOF prescribed (a patch test on one element)
+            return np.copy
+        if self.linear is not None:
+            return self.linear.factorize(K.tocsr()).solve
+        return spla.splu(K.tocsc()).solve
+
+
+class _GripSteps:
+    """The specimen under its grip program as a :class:`~espin.mechanics.march.StepProblem`:
+    time t is grip strain / strain rate, each attempt one macro Newton solve."""
+
+    def __init__(self, membrane: Membrane, material: PointMaterial, constraints: _Constraints,
+                 program: GripProgram, rtol: float, max_iterations: int, start: MacroStep) -> None:
+        self.membrane, self.material, self.constraints, self.program = membrane, material, constraints, program
+        self.rtol, self.iteration_limit = rtol, max_iterations
+        self.state = start
+        self.solves = _MacroSolves(material.symmetric_tangent)
+
+    def attempt(self, start: float, end: float) -> MacroStep:
+        strain = end * self.program.strain_rate_per_s
+        return _newton(self.membrane, self.material, self.constraints, self.solves, self.state,
+                       self.constraints.values(strain), end, self.rtol, self.iteration_limit)
+
+    def error(self, trial: MacroStep) -> float:
+        return self.material.time_error()
+
+    def commit(self, trial: MacroStep) -> None:
+        self.material.commit()
+        self.state = trial
+
+    def rollback(self) -> None:
+        self.material.rollback()
+
+
 def run_specimen(
     specimen: Specimen,
     material: PointMaterial,
@@ -272,7 +344,8 @@ def run_specimen(
     Raises
     ------
     SpecimenFailed
-        When a step does not converge after ``max_cuts`` halvings.
+        When a step does not converge after ``max_cuts`` halvings in a row, or its time steps
+        fall below the smallest.
     """
     if not thickness_mm > 0.0:
         raise ConfigError(f"thickness_mm = {thickness_mm}: must be > 0 mm")
@@ -284,118 +357,82 @@ def run_specimen(
     constraints = _Constraints(membrane, specimen, grips, lateral, affine_F)
     gauge = _Extensometer(membrane, specimen)
     area = specimen.gauge_width_mm * thickness_mm
-    control = None if time_rtol is None else StepSizeControl(time_rtol)
 
     u = np.zeros(membrane.n_dofs)
     F = membrane.deformation_gradient(u)
     P, A = material.evaluate(F, 0.0)
     material.commit()
     f = membrane.internal_force(P)
-    K = membrane.tangent(A)
+    problem = _GripSteps(membrane, material, constraints, program, rtol, max_iterations,
+                         MacroStep(u, F, P, f, membrane.tangent(A), 0, 0, []))
     steps: list[SpecimenStep] = []
 
-    def record(index: int, time: float, strain: float, counts: tuple[int, int, int], history: list[float]):
-        force = float(f[constraints.moving].sum())
-        step = SpecimenStep(index, time, strain, strain * specimen.grip_length_mm, force, gauge.strain(u),
-                            force / area, *counts, history, u.copy(), F, P, material.fields())
+    def record(index: int, time: float, state: MacroStep, counts: tuple[int, int, int], history: list[float]):
+        strain = float(program.strain[index])
+        force = float(state.f[constraints.moving].sum())
+        step = SpecimenStep(index, time, strain, strain * specimen.grip_length_mm, force, gauge.strain(state.u),
+                            force / area, *counts, history, state.u.copy(), state.F, state.P, material.fields())
         steps.append(step)
         if on_step is not None:
             on_step(step)
 
-    record(0, 0.0, 0.0, (0, 0, 0), [])
-    strain_now, time_now = 0.0, 0.0
-    increment: float | None = None  # the sub-step in grip strain, carried between recorded steps
-    for index, target in enumerate(program.strain[1:], start=1):
-        iterations, cuts, substeps, history = 0, 0, 0, []
-        in_a_row = 0  # halvings since the last converged sub-step
-        smallest = 1e-9 * (target - strain_now)
-        attempts = 0
-        while strain_now < target - 1e-12 * target:
-            attempts += 1
-            h = split(target - strain_now, increment)
-            if attempts > MAX_TIME_STEPS_PER_STEP or h < smallest:
-                raise SpecimenFailed(
-                    f"step {index} of {program.steps} (grip strain {strain_now:.4g}): the time steps the "
-                    f"points' local error asks for fell below {smallest:.3g} in grip strain (or exceeded "
-                    f"{MAX_TIME_STEPS_PER_STEP:,}); the plastic flow is too fast to follow: check "
-                    "fiber.flow_rate_per_s and fiber.flow_resistance_MPa, or raise solver.time_rtol", steps)
-            next_strain = target if h == target - strain_now else strain_now + h
-            next_time = time_now + h / program.strain_rate_per_s
-            try:
-                solved = _newton(membrane, material, constraints, u, f, K, constraints.values(next_strain),
-                                 next_time, rtol, max_iterations)
-            except _NotConverged as failure:
-                iterations += failure.iterations
-                material.rollback()
-                cuts += 1
-                in_a_row += 1
-                if in_a_row > max_cuts:
-                    raise SpecimenFailed(
-                        f"step {index} of {program.steps} (grip strain {next_strain:.4g}) did not converge "
-                        f"after {max_cuts} halvings in a row: {failure.reason}. Try more steps, or a smaller "
-                        "max_strain", steps) from None
-                increment = 0.5 * h
-                log.info("grip strain %.4g: step cut to %.3g (%s)", next_strain, increment, failure.reason)
-                continue
-            iterations += solved[5]
-            # grow again after an easy step, as a single RVE's driver does; never beyond a halving's size
-            # right after a cut
-            grown = 2.0 * h if solved[5] <= _EASY * max_iterations else h
-            increment = h if in_a_row else grown
-            if control is not None:
-                accepted, wanted = control.judge(h / program.strain_rate_per_s, material.time_error())
-                increment = min(wanted * program.strain_rate_per_s, h if in_a_row else np.inf)
-                if not accepted:
-                    material.rollback()
-                    log.debug("grip strain %.4g: time step rejected (local error %.3g), next %.3g", next_strain,
-                              material.time_error(), increment)
-                    continue
-            in_a_row = 0
-            material.commit()
-            u, F, P, f, K, _, history = solved
-            strain_now, time_now = next_strain, next_time
-            substeps += 1
-        record(index, time_now, float(target), (iterations, cuts, substeps), history)
+    def reached(tally: ReportTally[MacroStep]) -> None:
+        assert tally.trial is not None
+        counts = (tally.iterations, tally.cuts, tally.substeps)
+        record(tally.index, tally.time, tally.trial, counts, tally.trial.history)
+
+    record(0, 0.0, problem.state, (0, 0, 0), [])
+    try:
+        march(problem, program.strain[1:] / program.strain_rate_per_s,
+              StepPolicy(time_rtol=time_rtol, max_cuts=max_cuts), on_report=reached)
+    except MarchFailed as stopped:
+        raise SpecimenFailed(_failure_message(stopped, program, max_cuts), steps) from None
     return steps
 
 
-class _NotConverged(Exception):
-    def __init__(self, reason: str, iterations: int):
-        super().__init__(reason)
-        self.reason = reason
-        self.iterations = iterations
+def _failure_message(stopped: MarchFailed, program: GripProgram, max_cuts: int) -> str:
+    """Where the grip program stopped, why, and what to try."""
+    failure = stopped.failure
+    strain = stopped.time * program.strain_rate_per_s
+    where = f"step {stopped.tally.index} of {program.steps} (grip strain {strain:.4g})"
+    if failure.kind == StepFailureKind.STIFF:
+        return (f"{where}: {failure.reason}; the plastic flow is too fast to follow: check fiber.flow_rate_per_s "
+                "and fiber.flow_resistance_MPa, or raise solver.time_rtol")
+    return (f"{where} did not converge after {max_cuts} halvings in a row: {failure.reason}. Try more steps, or a "
+            "smaller max_strain")
 
 
-def _newton(membrane: Membrane, material: PointMaterial, constraints: _Constraints, u0: np.ndarray,
-            f0: np.ndarray, K0: sp.csr_matrix, prescribed: np.ndarray, time: float, rtol: float,
-            max_iterations: int):
-    """One (sub-)step from the converged (u0, f0, K0) to the ``prescribed`` values; returns the
-    new state, the iterations and the residual history."""
+def _newton(membrane: Membrane, material: PointMaterial, constraints: _Constraints, solves: _MacroSolves,
+            start: MacroStep, prescribed: np.ndarray, time: float, rtol: float, max_iterations: int) -> MacroStep:
+    """One time step from the converged ``start`` to the ``prescribed`` values at ``time``.
+
+    Raises
+    ------
+    StepNotConverged
+        When the material cannot follow (its own failure, passed on) or Newton stalls.
+    """
     free, dofs = constraints.free, constraints.dofs
-    u = u0.copy()
-    step = prescribed - u0[dofs]
+    u = start.u.copy()
+    step = prescribed - start.u[dofs]
     u[dofs] += step
-    K_ff = K0[free][:, free]
-    u[free] += spla.spsolve(K_ff.tocsc(), -(f0[free] + K0[free][:, dofs] @ step))
+    K0 = start.K
+    u[free] += solves.factorize(K0[free][:, free])(-(start.f[free] + K0[free][:, dofs] @ step))
+    factorizations = 1
     # The residual scale: at least the force that 1e-6 of the increment makes at this tangent.
     floor = 1e-6 * float(np.max(np.abs(K0[:, dofs] @ step), initial=0.0))
     history: list[float] = []
     for iteration in range(max_iterations + 1):
-        try:
-            F = membrane.deformation_gradient(u)
-            P, A = material.evaluate(F, time)
-        except (ArithmeticError, SolverError) as err:
-            raise _NotConverged(f"the material failed ({type(err).__name__}: {err})", iteration) from None
+        F = membrane.deformation_gradient(u)
+        P, A = material.evaluate(F, time)
         f = membrane.internal_force(P)
         norm = float(np.max(np.abs(f[free]), initial=0.0))
         history.append(norm)
         if norm <= rtol * max(float(np.max(np.abs(f))), floor):
-            return u, F, P, f, membrane.tangent(A), iteration, history
-        if not np.isfinite(norm) or (iteration >= 4 and norm > history[-4]):
-            break
-        if iteration == max_iterations:
+            return MacroStep(u, F, P, f, membrane.tangent(A), iteration, factorizations, history)
+        if not np.isfinite(norm) or (iteration >= 4 and norm > history[-4]) or iteration == max_iterations:
             break
         K = membrane.tangent(A)
-        u[free] -= spla.spsolve(K[free][:, free].tocsc(), f[free])
-    raise _NotConverged(f"Newton stalled (max |r| {history[0]:.3g} -> {history[-1]:.3g} N in "
-                        f"{len(history) - 1} iterations)", len(history) - 1)
+        u[free] -= solves.factorize(K[free][:, free])(f[free])
+        factorizations += 1
+    raise StepNotConverged(f"Newton stalled (max |r| {history[0]:.3g} -> {history[-1]:.3g} N in "
+                           f"{len(history) - 1} iterations)", history=history, factorizations=factorizations)

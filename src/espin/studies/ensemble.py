@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from espin.core.atomic import atomic_write, atomic_write_bytes
-from espin.core.config import Config, config_digest
+from espin.core.config import Config, config_digest, dotted_overrides
 from espin.core.errors import ConfigError
 from espin.core.parallel import TaskOutcome, TaskPool, check_pool
 from espin.geometry.size_estimate import check_size
@@ -237,11 +237,11 @@ class Ensemble:
     def curves(self, **point: Any) -> tuple[np.ndarray, np.ndarray]:
         """Strain and the stacked stress curves of the tasks at one parameter point.
 
-        Keyword names are the parameter names with dots replaced by ``__``. Curves are
-        interpolated onto the strain of the first one (they share it when the loading is the
-        same).
+        Keyword names are the parameter names with dots replaced by ``__`` (or the dotted names
+        through ``**{...}``). Curves are interpolated onto the strain of the first one (they
+        share it when the loading is the same).
         """
-        wanted = {k.replace("__", "."): v for k, v in point.items()}
+        wanted = dotted_overrides(point)
         chosen = [r for r in self.records if all(r["parameters"].get(k) == v for k, v in wanted.items())]
         if not chosen:
             raise KeyError(f"no finished task at {wanted}")
@@ -364,10 +364,11 @@ def _finished_records(folder: Path, tasks: Sequence[TensileTask]) -> dict[str, d
     A file that cannot be read, is not JSON or is not a complete record of its task is not
     used (a warning names it and the problem, never its contents): the task runs again.
     """
-    done = {}
+    done: dict[str, dict[str, Any]] = {}
     for task in tasks:
         path = folder / "tasks" / f"{task.key}.json"
         if path.is_file():
+            problem: str | None
             try:
                 record = json.loads(path.read_bytes())
             except OSError as err:

@@ -18,7 +18,7 @@ from typing import Any, Literal
 import pandas as pd
 
 from espin.core.atomic import atomic_write, atomic_write_bytes
-from espin.core.config import Config, config_digest, write_config
+from espin.core.config import Config, config_digest, dotted_overrides, write_config
 from espin.core.errors import ConfigError
 from espin.core.output_folder import OutputFolder
 from espin.core.parallel import TaskOutcome, check_pool
@@ -95,8 +95,8 @@ def rve_size_study(
         Config, preset or TOML file (default ``plla``); ``**overrides`` as ``section__key``.
     folder
         Results folder: ``results.csv``, ``summary.csv``, ``study.toml`` (the base config) and
-        ``plan.json`` (sizes and seeds; both written before any work), ``tasks/``, and the figures ``rve_size_<property>.png`` (Figs. A.15-A.17) and
-        ``rve_size_curves.png`` (Fig. A.18, at the largest RVE).
+        ``plan.json`` (sizes and seeds; both written before any work), ``tasks/``, and the figures
+        ``rve_size_<property>.png`` (Figs. A.15-A.17) and ``rve_size_curves.png`` (Fig. A.18, at the largest RVE).
     workers, scheduler, blas_threads, security
         Where the tasks run (:class:`espin.core.parallel.TaskPool`); a Dask scheduler must be
         trusted (it runs the pickled tasks), ``security`` holds the TLS files of a ``tls://``
@@ -112,12 +112,13 @@ def rve_size_study(
     -------
     StudyResult
     """
-    fixed = sorted(k.replace("__", ".") for k in overrides if k in ("rve__size_ratio", "rve__size_um", "rve__layers"))
+    flat = dotted_overrides(overrides)
+    fixed = sorted(k for k in flat if k in ("rve.size_ratio", "rve.size_um", "rve.layers"))
     if fixed:
         raise ConfigError(f"{', '.join(fixed)}: set by the study's sizes (size_ratios, layer_counts, "
                           "layers_for_sizes, size_for_layers), not as an override")
     check_pool(workers, scheduler, blas_threads, security)
-    base = resolve_config(base, **overrides)
+    base = resolve_config(base, **flat)
     if not size_ratios and not layer_counts:
         raise ConfigError("size_ratios, layer_counts: give at least one RVE size")
     points = [{"rve.size_ratio": float(s), "rve.layers": int(layers_for_sizes)} for s in size_ratios]
@@ -138,9 +139,11 @@ def rve_size_study(
             for name, path in plot_rve_size(result.summary, folder, layers_for_sizes=int(layers_for_sizes),
                                             size_for_layers=float(size_for_layers)).items():
                 result.files[name] = path
-            largest = max(ensemble.records, key=lambda r: (r["parameters"]["rve.size_ratio"], r["parameters"]["rve.layers"]))
-            strain, stress = ensemble.curves(**{k.replace(".", "__"): v for k, v in largest["parameters"].items()})
-            label = rf"$\tilde L$ = {largest['parameters']['rve.size_ratio']:g}, $N_l$ = {largest['parameters']['rve.layers']}"
+            largest = max(ensemble.records,
+                          key=lambda r: (r["parameters"]["rve.size_ratio"], r["parameters"]["rve.layers"]))
+            strain, stress = ensemble.curves(**largest["parameters"])
+            label = (rf"$\tilde L$ = {largest['parameters']['rve.size_ratio']:g}, "
+                     rf"$N_l$ = {largest['parameters']['rve.layers']}")
             result.files["curves"] = plot_curve_band(strain, stress, folder / "rve_size_curves.png", label=label)
     return result
 
@@ -217,7 +220,8 @@ def sweep(
             folder = Path(folder)
             if table_format == "parquet":
                 table = result.table
-                result.files["table"] = atomic_write(folder / "sweep.parquet", lambda tmp: table.to_parquet(tmp, index=False))
+                result.files["table"] = atomic_write(folder / "sweep.parquet",
+                                                     lambda tmp: table.to_parquet(tmp, index=False))
             if keys:
                 result.files.update(plot_sweep(result.summary, keys, folder))
     return result
