@@ -92,7 +92,7 @@ def specimen_command(
                           **parse_set(set_))
     except EspinError as err:
         fail(err)
-    console.print(repr(result), highlight=False, soft_wrap=True)
+    console.print(result.format_summary(), highlight=False, soft_wrap=True)
     console.print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir())), highlight=False,
                   soft_wrap=True)
 
