@@ -11,7 +11,6 @@ import pytest
 
 import espin
 from espin.core.errors import ConfigError, InputError, SolverError
-from espin.core.heartbeat import Heartbeat
 from espin.specimen import surrogate as surrogate_module
 from espin.specimen.shapes import strip
 from espin.specimen.surrogate import build_surrogate, read_surrogate
@@ -171,28 +170,14 @@ def test_the_path_program_strain_is_the_stretch_not_the_time(rve):
     assert all(np.isclose(strain, 0.02) and np.isclose(time, 0.02 / rate) for time, strain in program_strains)
 
 
-def test_a_heartbeat_reports_a_silent_phase():
-    import time
-
-    lines = []
-    with Heartbeat(lines.append, lambda: "still going", interval=0.05) as heartbeat:
-        heartbeat.say("start")
-        time.sleep(0.3)
-    assert lines[0] == "start" and lines.count("still going") >= 2
-    silent = []
-    with Heartbeat(None, lambda: "x", interval=0.01):
-        time.sleep(0.05)
-    assert silent == []
-
-
 def test_the_command_line_reports_the_build_off_a_terminal_and_resumes(tmp_path, monkeypatch):
     """CliRunner is not a terminal: the plan, a line per path; a rerun into the folder reuses the paths."""
+    import functools
+
     from typer.testing import CliRunner
 
     from espin.cli import app
     from espin.specimen import surrogate as module
-
-    import functools
 
     small = functools.partial(module.build_surrogate, paths=BUILD["paths"], speeds=(1.0,), steps=3)
     monkeypatch.setattr(module, "build_surrogate", small)  # a build of 4 short paths

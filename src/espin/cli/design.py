@@ -7,7 +7,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from espin.cli.common import OverwriteOpt, PlanOpt, SetOpt, fail, parse_set, print_plan
+from espin.cli.common import OverwriteOpt, PlanOpt, SetOpt, fail, off_terminal_lines, parse_set, print_plan
 
 __all__ = ["register"]
 
@@ -100,16 +100,20 @@ def design_command(
         print_plan(lambda calibration: _plan_text(space, targets, budget, replicates, verify, n_workers, calibration),
                    console, plan, lambda: _plan_seconds(space, targets, replicated, verify, REFERENCE_CALIBRATION))
 
-        def on_batch(evaluations: list, best: Any) -> None:
-            ids = f"{evaluations[0].id}-{evaluations[-1].id}" if len(evaluations) > 1 else str(evaluations[0].id)
-            shown = ", ".join(f"{key.removeprefix('rve.')} {value:.4g}" for key, value in best.values.items())
-            console.print(f"designs {ids} ({evaluations[0].stage}) done; best so far #{best.id}: {shown}",
-                          highlight=False, soft_wrap=True)
+        with off_terminal_lines(console, "designing: the first batch of tensile tests") as say:
 
-        result = design(targets, var or [], base=config, constraints=constraint or [], budget=budget, batch=batch,
-                        initial=initial, replicates=replicates, verify=verify, seed=seed, realizations=realizations,
-                        folder=out,
-                        workers=workers, scheduler=scheduler, overwrite=overwrite, on_batch=on_batch)
+            def on_batch(evaluations: list, best: Any) -> None:
+                ids = f"{evaluations[0].id}-{evaluations[-1].id}" if len(evaluations) > 1 else str(evaluations[0].id)
+                shown = ", ".join(f"{key.removeprefix('rve.')} {value:.4g}" for key, value in best.values.items())
+                line = f"designs {ids} ({evaluations[0].stage}) done; best so far #{best.id}: {shown}"
+                if console.is_terminal:
+                    console.print(line, highlight=False, soft_wrap=True)
+                say(line)  # off a terminal: with the time elapsed, repeated while the next batch runs
+
+            result = design(targets, var or [], base=config, constraints=constraint or [], budget=budget,
+                            batch=batch, initial=initial, replicates=replicates, verify=verify, seed=seed,
+                            realizations=realizations, folder=out, workers=workers, scheduler=scheduler,
+                            overwrite=overwrite, on_batch=on_batch)
     except EspinError as err:
         fail(err)
     console.print(result.format_table(), highlight=False, soft_wrap=True)

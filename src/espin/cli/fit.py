@@ -25,6 +25,7 @@ from espin.cli.common import (
     StressColumnOpt,
     curve_warnings,
     fail,
+    off_terminal_lines,
     parse_set,
     print_plan,
     read_options,
@@ -395,14 +396,14 @@ def register(app: typer.Typer) -> None:
                                eta_tolerance=eta_tolerance, read_options=csv_options)
             _print_fit_plan(curve, plan_inputs, workers, scheduler, console, plan)
             with OutputFolder.claim(out, "fit", digest, FIT_OUTPUTS, overwrite=overwrite, resume="same-inputs"), \
-                    curve_warnings(), console.status("fitting") as status:
+                    curve_warnings(), console.status("fitting") as status, \
+                    off_terminal_lines(console, "fitting: the first evaluation") as say:
 
                 def on_evaluation(record: dict) -> None:
                     line = (f"evaluation {record['evaluation']} ({record['stage']}): "
                             f"SSE {record['sse_MPa2']:.4g} MPa^2")
                     status.update(line)
-                    if not console.is_terminal:  # no live status off a terminal: one plain line each
-                        console.print(line, highlight=False)
+                    say(line)  # off a terminal: one plain line each, repeated while the next runs
 
                 result = fit(
                     curve, base=config, parameters=[p for p in params.split(",") if p.strip()],

@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from espin.cli.common import OverwriteOpt, SetOpt, fail, parse_set
+from espin.cli.common import OverwriteOpt, SetOpt, fail, off_terminal_lines, parse_set
 
 __all__ = ["register"]
 
@@ -84,22 +84,31 @@ def specimen_command(
 
     console = Console(stderr=True, quiet=quiet, width=140)
 
-    def on_step(step) -> None:
-        console.print(f"step {step.index}/{steps}: grip strain {step.grip_strain:.4g}, force {step.force_N:.4g} N "
-                      f"({step.iterations} iterations, {step.substeps} time steps)", highlight=False)
-
     try:
-        result = specimen(source or "plla", shape, model=model, thickness_mm=thickness, max_strain=max_strain,
-                          steps=steps, grips=grips, lateral=lateral, elements_across=elements_across,
-                          shape_options=_shape_options(shape_option), rve_seeds=rve_seeds, rtol=rtol,
-                          modulus_MPa=modulus, poisson_ratio=poisson, surrogate_from=surrogate_from,
-                          allow_surrogate_mismatch=allow_surrogate_mismatch, surrogate_reach=surrogate_reach,
-                          out=out, overwrite=overwrite, workers=workers, scheduler=scheduler, on_step=on_step,
-                          report=lambda line: console.print(line, highlight=False, soft_wrap=True),
-                          **parse_set(set_))
+        with off_terminal_lines(console, "specimen: starting") as say:
+
+            def line(text: str) -> None:
+                """A progress line: plain on a terminal; off one with the time elapsed, repeated while
+                the next is long in coming (a surrogate path, an FE^2 step)."""
+                if console.is_terminal:
+                    console.print(text, highlight=False, soft_wrap=True)
+                else:
+                    say(text)
+
+            def on_step(step) -> None:
+                line(f"step {step.index}/{steps}: grip strain {step.grip_strain:.4g}, force {step.force_N:.4g} N "
+                     f"({step.iterations} iterations, {step.substeps} time steps)")
+
+            result = specimen(source or "plla", shape, model=model, thickness_mm=thickness, max_strain=max_strain,
+                              steps=steps, grips=grips, lateral=lateral, elements_across=elements_across,
+                              shape_options=_shape_options(shape_option), rve_seeds=rve_seeds, rtol=rtol,
+                              modulus_MPa=modulus, poisson_ratio=poisson, surrogate_from=surrogate_from,
+                              allow_surrogate_mismatch=allow_surrogate_mismatch, surrogate_reach=surrogate_reach,
+                              out=out, overwrite=overwrite, workers=workers, scheduler=scheduler, on_step=on_step,
+                              report=line, **parse_set(set_))
     except EspinError as err:
         fail(err)
-    console.print(repr(result), highlight=False, soft_wrap=True)
+    console.print(result.format_summary(), highlight=False, soft_wrap=True)
     console.print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir())), highlight=False,
                   soft_wrap=True)
 

@@ -7,7 +7,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from espin.cli.common import AllowLargeOpt, OverwriteOpt, PlanOpt, fail, parse_set, print_plan
+from espin.cli.common import AllowLargeOpt, OverwriteOpt, PlanOpt, fail, off_terminal_lines, parse_set, print_plan
 from espin.core.errors import EXIT_SOLVER
 
 __all__ = ["register", "parse_grid"]
@@ -142,7 +142,8 @@ def _run_with_progress(run, n_tasks: int, quiet: bool):
     console = Console(stderr=True, quiet=quiet)
     failed = 0
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  TextColumn("ETA"), TimeRemainingColumn(), console=console, transient=True) as bar:
+                  TextColumn("ETA"), TimeRemainingColumn(), console=console, transient=True) as bar, \
+            off_terminal_lines(console, f"tensile tests: 0/{n_tasks} done") as say:
         task_id = bar.add_task("tensile tests", total=n_tasks)
 
         def on_outcome(outcome, task) -> None:
@@ -150,10 +151,8 @@ def _run_with_progress(run, n_tasks: int, quiet: bool):
             failed += not outcome.ok
             bar.update(task_id, advance=1,
                        description=f"tensile tests ({failed} failed)" if failed else "tensile tests")
-            if not console.is_terminal:  # no live bar off a terminal: one plain line per task
-                done = int(bar.tasks[0].completed)
-                console.print(f"tensile tests: {done}/{n_tasks} done ({failed} failed), "
-                              f"{bar.tasks[0].elapsed:.0f} s", highlight=False)
+            # off a terminal (no live bar): one plain line per task, repeated while the next runs
+            say(f"tensile tests: {int(bar.tasks[0].completed)}/{n_tasks} done ({failed} failed)")
 
         return run(on_outcome)
 

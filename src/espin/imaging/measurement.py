@@ -600,8 +600,9 @@ def _image_metadata(image: str | Path | np.ndarray,
         where = ("no pixel size in the image's metadata (FEI or Zeiss microscope tags, an "
                  "ImageJ description with a length unit; the dpi of a TIFF is not one)"
                  if isinstance(image, (str, Path)) else "an image array has no metadata")
-        raise ConfigError("no scale: give um_per_px, or scale_bar_um (the bar's length in um) "
-                          f"with scale_bar_rows (START:STOP, the image rows that hold it); {where}")
+        raise ConfigError("no scale: give um_per_px (--um-per-px), or scale_bar_um (--scale-bar-um, "
+                          "the bar's length in um) with scale_bar_rows (--scale-bar-rows START:STOP, "
+                          f"the image rows that hold it); {where}")
     return metadata, ""
 
 

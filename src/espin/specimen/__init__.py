@@ -211,8 +211,8 @@ def specimen(
         Show the steps done and the force: in a Jupyter notebook as a bar, elsewhere as a line
         per step on stderr. Default (None): in a notebook only.
     report
-        Called with a line of progress of the surrogate's build (its plan, each finished RVE
-        path, and at least every 25 s); None: silent.
+        Called with a line as a long phase starts or advances (the RVE's generation, the
+        surrogate's build: its plan and each finished RVE path); None: silent.
     **overrides
         Config keys as ``section__key=value``.
 
@@ -302,7 +302,6 @@ def _run(geometry: Specimen, program: GripProgram, config: Any, rve: Any, settin
          report: Callable[[str], None] | None = None) -> SpecimenResult:
     """The run: ``source`` is the samples file of ``samples``; ``report`` gets the lines of the
     phases that take long (the RVE's generation, the surrogate's build)."""
-    from espin.core.heartbeat import Heartbeat
     from espin.geometry.rve import generate
     from espin.geometry.rve_file import save_rve
     from espin.specimen.materials import NeoHookean, PointMaterial
@@ -335,10 +334,10 @@ def _run(geometry: Specimen, program: GripProgram, config: Any, rve: Any, settin
             material = result.surrogate.material(n)
         else:
             if rve is None:
-                with Heartbeat(report, lambda: "specimen: still generating the RVE") as heartbeat:
-                    heartbeat.say(f"specimen: generating the RVE (side {config.rve.side_um:.4g} um, "
-                                  f"{config.rve.layers} layers)")
-                    rve = generate(config)
+                if report is not None:
+                    report(f"specimen: generating the RVE (side {config.rve.side_um:.4g} um, {config.rve.layers} "
+                           "layers)")
+                rve = generate(config)
             if folder is not None:
                 save_rve(rve, folder / "rve.h5")
             if model == "surrogate":

@@ -227,6 +227,12 @@ class SpecimenResult:
     def __repr__(self) -> str:
         return "SpecimenResult(" + ", ".join(f"{k}: {v}" for k, v in self._summary().items()) + ")"
 
+    def format_summary(self) -> str:
+        """The result in plain lines, one ``name  value`` each (what ``espin specimen`` prints)."""
+        rows = self._summary()
+        width = max(map(len, rows))
+        return "\n".join(f"{name:<{width}}  {value}" for name, value in rows.items())
+
     def _repr_html_(self) -> str:
         return html_table("SpecimenResult", list(self._summary().items()))
 

@@ -33,9 +33,8 @@ from scipy.interpolate import RBFInterpolator
 
 from espin.core.config import Config
 from espin.core.errors import ConfigError, InadmissibleState, InputError, SolverError
-from espin.core.heartbeat import Heartbeat
 from espin.core.parallel import TaskPool
-from espin.core.progress import _duration
+from espin.core.progress import clock
 from espin.geometry.network import Network
 from espin.mechanics.driver import SimulationFailed, run_program
 from espin.mechanics.linear_solvers import make_linear_solver
@@ -305,8 +304,9 @@ def build_surrogate(network: Network, config: Config, max_strain: float, *, reac
         finishes; the finished paths it already holds for this very build (an interrupted or failed
         earlier run) are used instead of run again. None: nothing written or reused.
     report
-        Called with a line when the build starts, when each path finishes and at least every
-        :data:`espin.core.heartbeat.HEARTBEAT_S` seconds in between; None: silent.
+        Called with a line when the build starts and when each path finishes (the command line
+        repeats the last one while a path runs: :func:`espin.cli.common.off_terminal_lines`);
+        None: silent.
 
     Raises
     ------
@@ -354,21 +354,21 @@ def build_surrogate(network: Network, config: Config, max_strain: float, *, reac
     def status() -> str:
         elapsed = time_module.perf_counter() - start
         finished = len(runs) - (len(tasks) - len(todo))
-        left = (f", about {_duration(elapsed / finished * (len(todo) - finished))} left" if finished else "")
-        return (f"surrogate: {len(runs)} of {len(tasks)} RVE paths done, {_duration(elapsed)} elapsed{left}")
+        left = f", about {clock(elapsed / finished * (len(todo) - finished))} left" if finished else ""
+        return f"surrogate: {len(runs)} of {len(tasks)} RVE paths done{left}"
 
-    with Heartbeat(report, status) as heartbeat:
-        heartbeat.say(f"surrogate: {len(tasks)} RVE paths ({len(G)} directions x {len(rates)} speeds, {steps} "
-                      f"steps each, to {reach:g} x the grip strain {max_strain:g}) on {pool.description}"
-                      + (f"; {len(runs)} finished paths reused from {samples_path}" if runs else ""))
-        for outcome in pool.map(_run_path, [tasks[k] for k in todo]):
-            k = todo[outcome.index]
-            if not outcome.ok or isinstance(outcome.value, _PathFailure):
-                raise SolverError(_failure(name(k), outcome, ends[k], identity, len(runs), samples_path)) from None
-            runs[k] = outcome.value
-            if samples_path is not None:
-                write_samples(Path(samples_path), identity, runs)
-            heartbeat.say(f"{status()}: {name(k)} in {outcome.seconds:.0f} s")
+    say = report or (lambda line: None)
+    say(f"surrogate: {len(tasks)} RVE paths ({len(G)} directions x {len(rates)} speeds, {steps} steps each, to "
+        f"{reach:g} x the grip strain {max_strain:g}) on {pool.description}"
+        + (f"; {len(runs)} finished paths reused from {samples_path}" if runs else ""))
+    for outcome in pool.map(_run_path, [tasks[k] for k in todo]):
+        k = todo[outcome.index]
+        if not outcome.ok or isinstance(outcome.value, _PathFailure):
+            raise SolverError(_failure(name(k), outcome, ends[k], identity, len(runs), samples_path)) from None
+        runs[k] = outcome.value
+        if samples_path is not None:
+            write_samples(Path(samples_path), identity, runs)
+        say(f"{status()}: {name(k)} in {outcome.seconds:.0f} s")
     return Surrogate.from_runs(identity, runs, G, time_module.perf_counter() - start)
 
 
