@@ -52,6 +52,7 @@ def simulate(
 
     from espin.analysis.properties import curve_marks
     from espin.core.errors import EspinError
+    from espin.mechanics.driver import MEASURES
     from espin.mechanics.loading import load_program
     from espin.mechanics.run import resolve_source
     from espin.mechanics.run import simulate as run_simulation
@@ -80,7 +81,7 @@ def simulate(
             task = bar.add_task("generating", total=program.n_steps, info="")
 
             def on_step(record) -> None:
-                stress = record.P if config.output.stress_measure == "nominal" else record.P_paper
+                stress = getattr(record, MEASURES[config.output.stress_measure])
                 R = program.rotation
                 local = R.T @ stress @ R
                 value = local[0, 1] if program.test == "simple_shear" else local[0, 0]
