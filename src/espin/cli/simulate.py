@@ -15,7 +15,13 @@ __all__ = ["register"]
 def simulate(
     source: Annotated[
         Optional[str],
-        typer.Argument(help="Preset (plla), TOML config, or a saved RVE file (.h5). Default: plla."),
+        typer.Argument(help="Preset (plla), TOML config, a saved RVE file (.h5), or a network file made "
+                            "elsewhere (the authors' mesh text, docs/networks.md). Default: plla."),
+    ] = None,
+    config: Annotated[
+        Optional[str],
+        typer.Option("--config", "-c", help="With a network file: the preset or TOML config whose fiber, "
+                                            "loading, solver and output apply. Default: plla."),
     ] = None,
     out: Annotated[
         Optional[Path], typer.Option("--out", "-o", help="Results folder. Default: <name>_test.")
@@ -25,7 +31,7 @@ def simulate(
         typer.Option(help="loading.test: uniaxial, equibiaxial, pure_shear, simple_shear, path."),
     ] = None,
     lateral: Annotated[
-        Optional[str], typer.Option(help="loading.lateral for uniaxial: fixed or free.")
+        Optional[str], typer.Option(help="loading.lateral for uniaxial: fixed or free (other forms: --set).")
     ] = None,
     direction_deg: Annotated[
         Optional[float], typer.Option(help="loading.direction_deg: loading axis, degrees from +x.")
@@ -52,6 +58,7 @@ def simulate(
 
     from espin.analysis.properties import curve_marks
     from espin.core.errors import EspinError
+    from espin.geometry.network import Network
     from espin.mechanics.driver import MEASURES
     from espin.mechanics.loading import load_program
     from espin.mechanics.run import resolve_source
@@ -72,7 +79,8 @@ def simulate(
         name = Path(source).stem if source else "plla"
         folder = out if out is not None else Path(f"{name}_test")
         # Validate everything (config, tables of the loading program) before any work.
-        config, rve = resolve_source(source, overrides)
+        config_source = config
+        config, rve = resolve_source(source, overrides, config_source)
         target = config if rve is None else rve
         program = load_program(config.loading)
         columns = (TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[info]}"),
@@ -91,7 +99,8 @@ def simulate(
                 if not console.is_terminal:  # no live bar off a terminal: one plain line per step
                     console.print(f"step {record.index}/{program.n_steps}: {info}", highlight=False)
 
-            result = run_simulation(target, folder, on_step=on_step, overwrite=overwrite,
+            result = run_simulation(target, folder, config=config if isinstance(rve, Network) else None,
+                                    on_step=on_step, overwrite=overwrite,
                                     allow_large=allow_large, curve_marks=curve_marks)
     except EspinError as err:
         fail(err)

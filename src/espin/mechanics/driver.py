@@ -38,7 +38,7 @@ __all__ = ["StepRecord", "step_record", "MEASURES", "SimulationResult", "Simulat
 log = logging.getLogger(__name__)
 
 FREE_LATERAL_NOTE = (
-    "lateral = free: in this 2-D network fibers resist compression only with the slack "
+    "lateral = free or {stress_MPa = s}: in this 2-D network fibers resist compression only with the slack "
     "modulus E_b, so the mat contracts laterally far more than a real one, the response is "
     "governed by E_b, and equilibrium can be non-unique (compressed chains buckle). Compare "
     "the stress P, not the lateral stretch, between runs."

@@ -15,7 +15,7 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon
 
-from espin.core.config import Config, PoissonLateral
+from espin.core.config import Config, PoissonLateral, StressLateral
 from espin.core.figures import save_figure
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -145,6 +145,8 @@ def _test_label(config: Config) -> str:
             text += f", lateral {lateral}"
         elif isinstance(lateral, PoissonLateral):
             text += f", lateral $\\nu$ = {lateral.poisson_ratio:g}"
+        elif isinstance(lateral, StressLateral):
+            text += f", lateral stress {lateral.stress_MPa:g} MPa ({config.output.stress_measure})"
         else:
             text += f", lateral from {lateral.transverse_csv.name}"
     return text

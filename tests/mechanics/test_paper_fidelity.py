@@ -1,0 +1,103 @@
+"""The stress measures, the lateral stress target and affine kinematics, against what is known
+exactly: a grid of straight fibers (whose equilibrium is affine) and the identities between the
+measures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from espin.core.config import ConfigError, config_from_dict
+from espin.mechanics.driver import run_program
+from espin.mechanics.linear_solvers import make_linear_solver
+from tests.conftest import grid_network
+
+E_T = 3000.0  # MPa
+N = 4  # fibers each way
+SIZE, D = 10.0, 0.2  # um
+AREA = np.pi * D**2 / 4.0
+
+
+def _run(network, **sections):
+    base = {"fiber": {"flow_rate_per_s": 0.0}, "loading": {"max_strain": 0.04, "steps": 4}}
+    for key, value in sections.items():
+        base[key] = base.get(key, {}) | value
+    return run_program(network, config_from_dict(base), make_linear_solver("superlu"))
+
+
+def _stress_tolerance(result, network) -> float:
+    """The solver's tolerance on a free stress component [MPa]: rtol max |P| + atol E_t phi
+    (phi: fiber volume fraction; docs/model.md section 4), at the largest stretch (Kirchhoff)."""
+    phi = float(np.sum(network.element_area * network.element_contour_length)) / network.reference_volume
+    return (1e-6 * np.abs(result.P).max() + 1e-8 * E_T * phi) * np.abs(result.F).max()
+
+
+def _fiber_stress(stretch: np.ndarray) -> np.ndarray:
+    """Engineering stress of a straight elastic fiber [MPa] (taut above stretch 1, else E_b)."""
+    return np.where(stretch >= 1.0, E_T * (stretch - 1.0), 3.0 * (stretch - 1.0))
+
+
+@pytest.mark.parametrize("kinematics", ["equilibrium", "affine"])
+def test_grid_stresses_in_every_measure(kinematics):
+    """Pulled along x with F22 = 1, only the x fibers carry load: P11 = N A t / (L D) with
+    t = E_t (F11 - 1); Eq. 17 equals P for straight fibers; Kirchhoff = P F^T = det F Cauchy."""
+    result = _run(grid_network(N, SIZE, D), solver={"kinematics": kinematics})
+    F11 = result.F[:, 0, 0]
+    P11 = N * AREA * _fiber_stress(F11) / (SIZE * D)
+    np.testing.assert_allclose(result.P[:, 0, 0], P11, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(result.P_paper, result.P, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(result.kirchhoff, result.P @ np.transpose(result.F, (0, 2, 1)), rtol=1e-9, atol=1e-12)
+    det = np.linalg.det(result.F)[:, None, None]
+    np.testing.assert_allclose(result.kirchhoff, det * result.cauchy, rtol=1e-12, atol=1e-15)
+    assert result.stress("kirchhoff")[-1] == pytest.approx(P11[-1] * F11[-1], rel=1e-9)
+
+
+@pytest.mark.parametrize("kinematics", ["equilibrium", "affine"])
+@pytest.mark.parametrize("measure", ["nominal", "kirchhoff"])
+def test_lateral_stress_target_on_the_grid(kinematics, measure):
+    """lateral = {stress_MPa = s}: the y fibers hold s. Nominal: N A E_t (F22 - 1) / (L D) = s;
+    Kirchhoff: that times F22 = s. F12 stays 0 and the x fibers do not notice."""
+    s = 0.5  # MPa
+    network = grid_network(N, SIZE, D)
+    result = _run(network, loading={"lateral": {"stress_MPa": s}},
+                  solver={"kinematics": kinematics}, output={"stress_measure": measure})
+    c = N * AREA * E_T / (SIZE * D)  # MPa per unit lateral strain
+    # nominal: c (F22 - 1) = s; Kirchhoff: c (F22 - 1) F22 = s
+    F22 = 1.0 + s / c if measure == "nominal" else (1.0 + np.sqrt(1.0 + 4.0 * s / c)) / 2.0
+    np.testing.assert_allclose(result.F[:, 1, 1], F22, rtol=1e-7)
+    assert np.all(result.F[:, 0, 1] == 0.0) and np.all(result.F[:, 1, 0] == 0.0)
+    held = result.P if measure == "nominal" else result.kirchhoff
+    np.testing.assert_allclose(held[:, 1, 1], s, rtol=0.0, atol=_stress_tolerance(result, network))
+    np.testing.assert_allclose(result.P[:, 0, 0], N * AREA * _fiber_stress(result.F[:, 0, 0]) / (SIZE * D),
+                               rtol=1e-7, atol=1e-12)
+
+
+def test_lateral_target_in_a_rotated_frame(small_rve):
+    """Loading at 30 deg: the Kirchhoff tau'22 of the loading frame is held at the target, and
+    the equilibrium and affine runs both hold it."""
+    for kinematics in ("equilibrium", "affine"):
+        result = _run(small_rve.network, loading={"lateral": {"stress_MPa": 0.02}, "direction_deg": 30.0,
+                                                  "max_strain": 0.02, "steps": 2},
+                      solver={"kinematics": kinematics}, output={"stress_measure": "kirchhoff"})
+        local = result.loading_frame(result.kirchhoff)
+        np.testing.assert_allclose(local[:, 1, 1], 0.02, rtol=0.0, atol=_stress_tolerance(result, small_rve.network))
+        assert result.loading_frame(result.F)[-1, 1, 1] < 1.0  # the mat contracts laterally
+
+
+def test_affine_is_stiffer_than_equilibrium(small_rve):
+    """The affine network model bounds the equilibrated one from above (lateral fixed), and its
+    recorded residual is the inner nodes' force imbalance (zero only at equilibrium)."""
+    affine = _run(small_rve.network, solver={"kinematics": "affine"})
+    relaxed = _run(small_rve.network)
+    assert np.all(affine.P[1:, 0, 0] > relaxed.P[1:, 0, 0])
+    assert np.all(affine.residual[1:] > 1e3 * relaxed.residual[1:].max())
+    assert np.all(affine.iterations == 0) and np.all(affine.factorizations == 0)
+
+
+def test_bad_combinations_are_refused_before_work():
+    with pytest.raises(ConfigError, match="stress_measure"):
+        config_from_dict({"loading": {"lateral": {"stress_MPa": 0.01}}, "output": {"stress_measure": "paper"}})
+    with pytest.raises(ConfigError, match="bending_modulus_MPa"):
+        config_from_dict({"solver": {"kinematics": "affine"}, "fiber": {"bending_modulus_MPa": 3000.0}})
+    with pytest.raises(ConfigError, match="loading.lateral"):
+        config_from_dict({"loading": {"test": "equibiaxial", "lateral": {"stress_MPa": 0.01}}})
