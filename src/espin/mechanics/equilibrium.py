@@ -26,7 +26,9 @@ V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
   control, |P : G_k| <= rtol max |P| + atol E_t phi (phi: fiber volume over V0);
 * with fiber bending on (``fiber.bending_modulus_MPa`` > 0, :mod:`espin.mechanics.bending`),
   the joints' springs add to Phi, its gradient and its Hessian (the clipped tangent keeps
-  their positive semi-definite part);
+  their positive semi-definite part), and a node's force tolerance grows by the precision its
+  joints' forces are known to (:meth:`~espin.mechanics.bending.FiberJoints.force_resolution`:
+  next to an element of 1e-6 D the rounding of the positions alone exceeds the tolerance);
 * when Newton fails, a continuation in the slack modulus before the driver cuts the step:
   the step is solved with E_b raised 100-fold (capped at E_t / 2), then 10-fold, then with
   the true E_b, each solve starting from the equilibrium of the one before. Slack and
@@ -267,7 +269,11 @@ class EquilibriumSolver:
         n = 2 * self.n_inner
         g = p.residual[:n]
         force_norm = float(np.max(np.abs(g))) if n else 0.0
-        ok = force_norm <= self.config.rtol * float(np.max(np.abs(p.force), initial=0.0)) + self.force_tolerance_abs
+        tolerance = self.config.rtol * float(np.max(np.abs(p.force), initial=0.0)) + self.force_tolerance_abs
+        if self.joints is None:
+            ok = force_norm <= tolerance
+        else:  # the joints' forces are known only to the rounding of the positions (bending module notes)
+            ok = bool(np.all(np.abs(g) <= tolerance + self.joints.force_resolution(p.x, self.asm.n_dof)[:n]))
         if n_free:
             V0 = self.network.reference_volume
             stress = np.abs(p.residual[n:]) / V0
