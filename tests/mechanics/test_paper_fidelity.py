@@ -101,3 +101,79 @@ def test_bad_combinations_are_refused_before_work():
         config_from_dict({"solver": {"kinematics": "affine"}, "fiber": {"bending_modulus_MPa": 3000.0}})
     with pytest.raises(ConfigError, match="loading.lateral"):
         config_from_dict({"loading": {"test": "equibiaxial", "lateral": {"stress_MPa": 0.01}}})
+
+
+def _write_plain(path, network, **changes):
+    """The plain HDF5 network format of ``network`` (docs/mechanics.md), with datasets changed."""
+    import h5py
+
+    data = {"nodes/position_um": network.node_position,
+            "nodes/border": np.arange(network.n_nodes) >= network.n_inner,
+            "segments/nodes": network.element_nodes, "segments/diameter_um": network.element_diameter,
+            "segments/l0_um": network.element_length, "segments/tortuosity": network.element_tortuosity,
+            "segments/plastic_stretch": np.ones(network.n_elements)} | changes
+    with h5py.File(path, "w") as f:
+        f.attrs.update(side_um=network.size, layer_thickness_um=network.thickness, layers=network.n_layers)
+        for name, values in data.items():
+            if values is not None:
+                f[name] = values
+    return path
+
+
+def test_a_network_in_the_plain_format_runs_as_the_same_network(small_rve, tmp_path):
+    """An espin network written in the plain format and read back gives the same curve; a bad
+    dataset is refused naming it."""
+    from espin.core.errors import InputError
+    from espin.geometry.network_file import read_network
+    from espin.mechanics.run import simulate
+
+    net = small_rve.network
+    path = _write_plain(tmp_path / "net.h5", net)
+    read = read_network(path)
+    np.testing.assert_array_equal(read.element_nodes, net.element_nodes)
+    np.testing.assert_allclose(read.element_tortuosity, net.element_tortuosity, rtol=1e-15)
+    kw = {"loading": {"max_strain": 0.02, "steps": 2}}
+    ours = _run(net, **kw)
+    theirs = simulate(path, config=config_from_dict({"fiber": {"flow_rate_per_s": 0.0}} | kw))
+    np.testing.assert_allclose(theirs.P, ours.P, rtol=1e-12, atol=1e-12)
+    with pytest.raises(InputError, match="tortuosity"):
+        read_network(_write_plain(tmp_path / "bad.h5", net, **{"segments/tortuosity": np.full(net.n_elements, 0.5)}))
+    with pytest.raises(InputError, match="l0"):
+        read_network(_write_plain(tmp_path / "bad2.h5", net, **{"segments/l0_um": 1.1 * net.element_length}))
+    with pytest.raises(InputError, match="segments/diameter_um"):
+        read_network(_write_plain(tmp_path / "bad3.h5", net, **{"segments/diameter_um": None}))
+
+
+def test_the_authors_format_is_read_with_its_checks(tmp_path):
+    """A small network in the authors' text format: nodes renumbered inner first, positions from
+    the square's corner, tortuosity and plastic stretch kept; a broken segment is refused."""
+    from espin.core.errors import InputError
+    from espin.geometry.network_file import read_network
+
+    text = """*Parametros
+    0.10000000E+0002
+    0.50000000E+0000
+         2
+*Coordenadas
+         4
+           0 1   -0.50000000E+0001    0.00000000E+0000   -0.50000000E+0001    0.00000000E+0000
+           1 2    0.00000000E+0000    0.00000000E+0000    0.00000000E+0000    0.00000000E+0000
+           2 1    0.50000000E+0001    0.00000000E+0000    0.50000000E+0001    0.00000000E+0000
+           3 1    0.00000000E+0001    0.50000000E+0001    0.00000000E+0001    0.50000000E+0001
+*Fibras
+         3
+           0    0.50000000E+0000    0.50000000E+0001    0.11000000E+0001    0.10000000E+0001    F    0    1
+           1    0.50000000E+0000    0.50000000E+0001    0.10000000E+0001    0.12000000E+0001    F    1    2
+           2    0.50000000E+0000    0.50000000E+0001    0.10000000E+0001    0.10000000E+0001    F    1    3
+"""
+    path = tmp_path / "malla.txt"
+    path.write_text(text)
+    net = read_network(path)
+    assert net.n_inner == 1 and net.n_nodes == 4 and net.reference_volume == pytest.approx(100.0 * 2 * 0.5)
+    np.testing.assert_allclose(net.node_position[0], [5.0, 5.0])  # the cross-link, first
+    np.testing.assert_allclose(net.element_tortuosity, [1.1, 1.0, 1.0])
+    np.testing.assert_allclose(net.initial_plastic_stretch, [1.0, 1.2, 1.0])
+    assert net.element_fiber.tolist() == [0, 0, 1]
+    path.write_text(text.replace("F    1    3", "T    1    3"))
+    with pytest.raises(InputError, match="segment 2 is marked broken"):
+        read_network(path)

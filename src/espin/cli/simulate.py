@@ -16,7 +16,7 @@ def simulate(
     source: Annotated[
         Optional[str],
         typer.Argument(help="Preset (plla), TOML config, a saved RVE file (.h5), or a network file made "
-                            "elsewhere (the authors' mesh text, docs/networks.md). Default: plla."),
+                            "elsewhere (plain HDF5 or the authors' mesh text, docs/mechanics.md). Default: plla."),
     ] = None,
     config: Annotated[
         Optional[str],

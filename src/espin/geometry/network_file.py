@@ -1,5 +1,22 @@
 """Networks made elsewhere: read a fiber network that espin did not generate.
 
+Two formats: a plain HDF5 file, and the text of the model's original authors.
+
+The plain format (HDF5)
+-----------------------
+::
+
+    /          attrs: side_um (L), layer_thickness_um (D), layers
+    /nodes     position_um (n, 2) float: reference positions in the square [0, L]^2
+               border (n,) bool: the node follows x = F X (a fiber end on the border)
+    /segments  nodes (m, 2) int: the two nodes (0-based) of each segment
+               diameter_um (m,), l0_um (m,): the reference end-to-end length
+               tortuosity (m,): lamr = L0 / l0 >= 1 (contour over end-to-end length)
+               plastic_stretch (m,), optional: lamp > 0 at the start of the test (default 1)
+
+Consecutive segments that share a node make one fiber. It is recognised by its ``/segments``
+group (an espin RVE file has ``/network`` instead).
+
 The authors' mesh format
 ------------------------
 The text file of the model's original authors (``danielcaballero88/Nanofibrous_Mesh_Processor``,
@@ -24,6 +41,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import h5py
 import numpy as np
 
 from espin.core.errors import ConfigError, InputError
@@ -43,10 +61,17 @@ MAX_NETWORK_BYTES = 256 * 2**20
 
 
 def is_network_file(path: str | Path) -> bool:
-    """Whether ``path`` is a network file this module reads (the authors' ``*Parametros`` text)."""
+    """Whether ``path`` is a network file this module reads: an HDF5 file with a
+    ``/segments`` group, or text starting with ``*Parametros``."""
     path = Path(path)
-    if path.suffix.lower() in (".h5", ".hdf5", ".toml") or not path.is_file():
+    if not path.is_file() or path.suffix.lower() == ".toml":
         return False
+    if h5py.is_hdf5(path):
+        try:
+            with h5py.File(path, "r") as f:
+                return "segments" in f and "nodes" in f
+        except OSError:
+            return False
     with open(path, encoding="latin-1") as fh:
         head = fh.read(4096).lstrip()
     return head.startswith("*Parametros")
@@ -143,7 +168,7 @@ def _sections(path: Path, text: str) -> dict[str, list[str]]:
     for name in ("Parametros", "Coordenadas", "Fibras"):
         if name not in sections:
             raise InputError(f"{path}: no *{name} section; expected the authors' mesh format (the *Parametros, "
-                             "*Coordenadas and *Fibras sections, docs/networks.md)")
+                             "*Coordenadas and *Fibras sections, docs/mechanics.md)")
     return sections
 
 
@@ -197,16 +222,65 @@ def _read_authors(path: Path) -> Network:
         raise InputError(f"{path}: *Fibras: segment {broken[0]} is marked broken; espin reads intact networks")
     nodes = segment[:, 4:6].astype(np.int64)
     position = node[:, 2:4] + size / 2.0
-    chord = np.hypot(*(position[np.clip(nodes[:, 1], 0, len(node) - 1)]
-                       - position[np.clip(nodes[:, 0], 0, len(node) - 1)]).T)
     network = network_from_segments(position, kind == 1.0, nodes, segment[:, 0], segment[:, 2], segment[:, 3],
                                     size=size, thickness=thickness, n_layers=n_layers, what=str(path))
-    off = np.flatnonzero(np.abs(segment[:, 1] - chord) > _LENGTH_RTOL * chord + _POSITION_RTOL * size)
+    _check_l0(path, "*Fibras", segment[:, 1], position[nodes[:, 1]] - position[nodes[:, 0]], size)
+    return network
+
+
+def _dataset(f: h5py.File, path: Path, name: str, kind: str, columns: int | None, count: int | None) -> np.ndarray:
+    """A dataset of the plain format, checked: its type (``float``, ``int``, or ``bool``: also
+    integers 0 / 1), its shape ((count,) or (count, columns); count None: any) and finite values."""
+    if name not in f or not isinstance(f[name], h5py.Dataset):
+        raise InputError(f"{path}: no dataset /{name} (the plain network format, docs/mechanics.md)")
+    data = f[name][()]
+    if kind == "float":
+        ok = np.issubdtype(data.dtype, np.floating) or np.issubdtype(data.dtype, np.integer)
+    elif kind == "int":
+        ok = np.issubdtype(data.dtype, np.integer)
+    else:
+        ok = data.dtype == bool or (np.issubdtype(data.dtype, np.integer) and np.isin(data, (0, 1)).all())
+    rows = data.shape[0] if data.ndim and count is None else count
+    expected = (rows,) + ((columns,) if columns else ())
+    if not ok or data.shape != expected:
+        want = f"({'n' if count is None else count}{', ' + str(columns) if columns else ''}) {kind}"
+        raise InputError(f"{path}: /{name} is {data.dtype} of shape {data.shape}; expected {want}")
+    if kind == "float" and not np.all(np.isfinite(data)):
+        raise InputError(f"{path}: /{name} holds a value that is not finite")
+    return data.astype(bool if kind == "bool" else np.int64 if kind == "int" else float)
+
+
+def _read_plain(path: Path) -> Network:
+    with h5py.File(path, "r") as f:
+        try:
+            size, thickness = float(f.attrs["side_um"]), float(f.attrs["layer_thickness_um"])
+            n_layers = int(f.attrs["layers"])
+        except (KeyError, TypeError, ValueError):
+            raise InputError(f"{path}: the root needs the attributes side_um, layer_thickness_um and layers "
+                             "(numbers)") from None
+        position = _dataset(f, path, "nodes/position_um", "float", 2, None)
+        border = _dataset(f, path, "nodes/border", "bool", None, len(position))
+        nodes = _dataset(f, path, "segments/nodes", "int", 2, None)
+        m = len(nodes)
+        diameter = _dataset(f, path, "segments/diameter_um", "float", None, m)
+        l0 = _dataset(f, path, "segments/l0_um", "float", None, m)
+        tortuosity = _dataset(f, path, "segments/tortuosity", "float", None, m)
+        plastic = (_dataset(f, path, "segments/plastic_stretch", "float", None, m)
+                   if "segments/plastic_stretch" in f else np.ones(m))
+    network = network_from_segments(position, border, nodes, diameter, tortuosity, plastic, size=size,
+                                    thickness=thickness, n_layers=n_layers, what=str(path))
+    _check_l0(path, "/segments/l0_um", l0, position[nodes[:, 1]] - position[nodes[:, 0]], size)
+    return network
+
+
+def _check_l0(path: Path, where: str, l0: np.ndarray, vector: np.ndarray, size: float) -> None:
+    """l0 is the distance of each segment's nodes (to the rounding of text)."""
+    chord = np.hypot(*vector.T)
+    off = np.flatnonzero(~(np.abs(l0 - chord) <= _LENGTH_RTOL * chord + _POSITION_RTOL * size))
     if off.size:
         k = off[0]
-        raise InputError(f"{path}: *Fibras: segment {k} has l0 {segment[k, 1]:.8g} um but its nodes lie "
+        raise InputError(f"{path}: {where}: segment {k} has l0 {l0[k]:.8g} um but its nodes lie "
                          f"{chord[k]:.8g} um apart; l0 is the reference end-to-end length")
-    return network
 
 
 def read_network(path: str | Path) -> Network:
@@ -222,4 +296,4 @@ def read_network(path: str | Path) -> Network:
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"network file not found: {path}")
-    return _read_authors(path)
+    return _read_plain(path) if h5py.is_hdf5(path) else _read_authors(path)

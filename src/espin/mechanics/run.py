@@ -88,7 +88,7 @@ def simulate(
     ----------
     source
         An :class:`RVE`, a saved RVE file (``.h5``), a :class:`Network` or a network file made
-        elsewhere (docs/networks.md), a :class:`Config`, a preset name or a TOML file; default
+        elsewhere (docs/mechanics.md), a :class:`Config`, a preset name or a TOML file; default
         the ``plla`` preset (generated).
     out
         Results folder. When given: ``run.json`` (the manifest, ``running`` until the run
