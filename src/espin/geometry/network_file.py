@@ -47,7 +47,7 @@ import numpy as np
 from espin.core.errors import ConfigError, InputError
 from espin.geometry.network import Network
 
-__all__ = ["read_network", "network_from_segments", "is_network_file"]
+__all__ = ["is_network_file", "network_from_segments", "read_network"]
 
 _LENGTH_RTOL = 1e-6
 """Relative tolerance of l0 against the distance of a segment's nodes, and of node positions
