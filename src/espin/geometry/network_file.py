@@ -239,7 +239,7 @@ def _dataset(f: h5py.File, path: Path, name: str, kind: str, columns: int | None
     elif kind == "int":
         ok = np.issubdtype(data.dtype, np.integer)
     else:
-        ok = data.dtype == bool or (np.issubdtype(data.dtype, np.integer) and np.isin(data, (0, 1)).all())
+        ok = data.dtype == bool or (np.issubdtype(data.dtype, np.integer) and bool(np.isin(data, (0, 1)).all()))
     rows = data.shape[0] if data.ndim and count is None else count
     expected = (rows,) + ((columns,) if columns else ())
     if not ok or data.shape != expected:
