@@ -177,3 +177,17 @@ def test_the_authors_format_is_read_with_its_checks(tmp_path):
     path.write_text(text.replace("F    1    3", "T    1    3"))
     with pytest.raises(InputError, match="segment 2 is marked broken"):
         read_network(path)
+
+
+@pytest.mark.parametrize("kinematics", ["equilibrium", "affine"])
+def test_a_network_that_starts_stretched_plastically(kinematics):
+    """A network read with plastic stretch lamp = 1.1 on every segment (elastic law): the x
+    fibers of the grid stay slack until F11 = 1.1, t = E_b (F11 / 1.1 - 1), then taut."""
+    from dataclasses import replace
+
+    net = grid_network(N, SIZE, D)
+    net = replace(net, element_plastic_stretch=np.full(net.n_elements, 1.1))
+    result = _run(net, loading={"max_strain": 0.12, "steps": 4}, solver={"kinematics": kinematics})
+    e = result.F[:, 0, 0] / 1.1
+    t = np.where(e >= 1.0, E_T * (e - 1.0), 3.0 * (e - 1.0))
+    np.testing.assert_allclose(result.P[:, 0, 0], N * AREA * t / (SIZE * D), rtol=1e-7, atol=1e-9)
