@@ -92,6 +92,12 @@ def test_affine_is_stiffer_than_equilibrium(small_rve):
     assert np.all(affine.P[1:, 0, 0] > relaxed.P[1:, 0, 0])
     assert np.all(affine.residual[1:] > 1e3 * relaxed.residual[1:].max())
     assert np.all(affine.iterations == 0) and np.all(affine.factorizations == 0)
+    # equilibrated: tau - P F^T = (1 / V0) sum over inner nodes of r_n (x) x_n, bounded by the residual
+    net = small_rve.network
+    bound = net.n_inner * relaxed.residual[:, None, None] * np.abs(relaxed.final.positions).max() / net.reference_volume
+    PFt = relaxed.P @ np.transpose(relaxed.F, (0, 2, 1))
+    assert np.all(np.abs(relaxed.kirchhoff - PFt) <= bound)
+    assert np.abs(relaxed.kirchhoff - relaxed.P_paper).max() > 1e-3 * np.abs(relaxed.P).max()  # not Eq. 17
 
 
 def test_bad_combinations_are_refused_before_work():
