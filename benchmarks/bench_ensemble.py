@@ -29,6 +29,7 @@ def run_mode(mode: str, realizations: int, size_ratio: float, layers: int) -> di
     import numpy as np
 
     from espin.geometry.rve import resolve_config
+    from espin.core.parallel import TaskPlace
     from espin.studies.ensemble import plan_tasks, run_ensemble
 
     base = resolve_config("plla", rve__size_ratio=size_ratio, rve__layers=layers)
@@ -40,7 +41,7 @@ def run_mode(mode: str, realizations: int, size_ratio: float, layers: int) -> di
         "dask": {"scheduler": "local"},
     }[mode]
     start = time.perf_counter()
-    ensemble = run_ensemble(tasks, **options)
+    ensemble = run_ensemble(tasks, place=TaskPlace(**options))
     wall = time.perf_counter() - start
     peak_self = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     peak_children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024

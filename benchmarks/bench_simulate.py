@@ -62,7 +62,7 @@ def run_case(size_ratio: float, layers: int, strain: float, steps: int, linear: 
     solver = linear_solvers.make_linear_solver(linear)
     _timed(solver, "factorize", "factorize", totals)
     _timed(linear_solvers.Factorization, "solve", "solve", totals)
-    _timed(equilibrium.EquilibriumSolver, "_line_search", "line_search", totals)
+    _timed(equilibrium, "line_search", "line_search", totals)  # the name equilibrium calls
     overrides = dict(rve__size_ratio=size_ratio, rve__layers=layers, loading__max_strain=strain,
                      loading__steps=steps, loading__lateral=lateral, solver__linear=linear)
     if elastic:

@@ -9,6 +9,17 @@ import pytest
 
 from espin.geometry.mat import FiberMat
 
+SHARED = Path(__file__).resolve().parents[2] / "shared"
+"""The project's shared data, beside the clone (``../shared``): only what a clone's parent holds,
+never a path of one machine."""
+
+
+def needs_shared(*files: Path) -> pytest.MarkDecorator:
+    """Skip a test (or a module, as ``pytestmark``) unless every one of ``files`` (under
+    :data:`SHARED`) exists; the reason names the missing ones."""
+    missing = [str(f) for f in files if not f.is_file()]
+    return pytest.mark.skipif(bool(missing), reason="needs ../shared beside the clone; missing: " + ", ".join(missing))
+
 
 def make_mat(fibers: list[list[tuple[float, float]]], layers: list[int], size: float = 10.0,
              diameter: float = 0.1, n_layers: int | None = None) -> FiberMat:

@@ -277,3 +277,28 @@ def test_every_figure_types_units_and_symbols(pulled, caught, tmp_path):
         if bars:
             joined = " ".join(texts(fig))
             assert "mean ± sd" in joined and re.search(r"\bn = \d", joined), joined
+
+
+def test_no_figure_cuts_off_a_label(pulled, caught, tmp_path):
+    # Every title, axis label and legend text lies inside its figure once drawn (comparison.png's
+    # x label did not).
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    _figures_of_every_stage(pulled, tmp_path)
+    cut = []
+    for fig in caught:
+        canvas = FigureCanvasAgg(fig)
+        canvas.draw()
+        renderer = canvas.get_renderer()
+        width, height = canvas.get_width_height()
+        labels = [*fig.texts] + [t for ax in fig.axes for t in (ax.title, ax._left_title, ax._right_title,
+                                                                ax.xaxis.label, ax.yaxis.label)]
+        labels += [t for ax in fig.axes if ax.get_legend() for t in ax.get_legend().get_texts()]
+        labels += [t for legend in fig.legends for t in legend.get_texts()]
+        for text in labels:
+            if not text.get_visible() or not text.get_text().strip():
+                continue
+            box = text.get_window_extent(renderer)
+            if box.x0 < -0.5 or box.y0 < -0.5 or box.x1 > width + 0.5 or box.y1 > height + 0.5:
+                cut.append(f"{text.get_text()!r} in a figure of {fig.axes[0].get_title()!r}")
+    assert not cut, "\n".join(cut)

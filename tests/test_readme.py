@@ -74,6 +74,8 @@ RUNS: dict[str, Run | Skip] = {
             folders={"plla_test": "simulate"}),  # its files: the README paragraph (PLLA_TEST_FILES)
     'pip install ".[test]" && python -m pytest -q':
         Skip("the test suite itself (this test is part of it); CI runs the install and this command"),
+    "ESPIN_TUTORIAL_QUICK=1 mkdocs build --strict":
+        Skip("tests/docs/test_docs_site.py builds the site the same way (quick tutorials, --strict, offline)"),
     # Use
     "espin generate plla --size-ratio 100 --layers 5 --seed 3 -o small_rve":
         Run(outputs=_in("small_rve", RVE_FILES), folders={"small_rve": "generate"}),

@@ -56,6 +56,7 @@ def test_rising_curve_has_no_strength_and_sparse_curve_no_chord():
     assert np.isnan(p.chord_modulus_MPa) and np.isnan(p.offset_yield_stress_MPa)
     assert np.isnan(p.tensile_strength_MPa) and np.isnan(p.strain_at_break)
     assert "no chord modulus" in p.note and "no tensile strength" in p.note
+    assert "--chord-range LO:HI" in p.note  # what to do, by the flag's name
     with pytest.raises(CurveError, match="chord range 0.05 % to 0.25 % strain holds 0 point"):
         standard_properties(strain, stress, require_chord=True)
     q = standard_properties(strain, stress, chord_range=(0.0, 0.02))

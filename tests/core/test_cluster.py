@@ -16,7 +16,7 @@ from espin.core.errors import ConfigError
 ])
 def test_job_script(system, directives):
     cluster = jobqueue_cluster(system, workers_per_job=4, memory_per_worker="3GB", walltime="02:00:00",
-                               queue="normal", account="proj42", prologue=["source /opt/espin/.venv/bin/activate"])
+                               queue="normal", account="proj42", prologue=["source ~/espin/.venv/bin/activate"])
     try:
         script = cluster.job_script()
     finally:
@@ -25,7 +25,7 @@ def test_job_script(system, directives):
         assert line in script, line
     for variable in THREAD_VARIABLES:
         assert f"export {variable}=1" in script
-    assert script.index("source /opt/espin/.venv/bin/activate") < script.index("dask_worker")
+    assert script.index("source ~/espin/.venv/bin/activate") < script.index("dask_worker")
     assert f"{sys.executable} -m distributed.cli.dask_worker" in script
     assert "--nthreads 1" in script and "--nworkers 4" in script
     assert len(cluster.worker_spec) == 0  # nothing submitted

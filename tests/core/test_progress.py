@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import espin
+from espin.core.parallel import TaskPlace
 from espin.core.progress import NotebookProgress, in_notebook
 
 
@@ -55,7 +56,7 @@ def test_ensemble_shows_one_bar_of_tests_in_a_notebook(monkeypatch):
     monkeypatch.setattr(progress, "NotebookProgress", Recorder)
     base = load_config("plla", {"rve.size_ratio": 30, "rve.layers": 2, "loading.max_strain": 0.04,
                                 "loading.steps": 4})
-    ensemble = run_ensemble(plan_tasks(base, [{}], [1, 2]), workers=1)
+    ensemble = run_ensemble(plan_tasks(base, [{}], [1, 2]), place=TaskPlace(1))
     assert len(ensemble.records) == 2
     # One bar for the two tests, none for each test's simulation (they run with progress=False).
     assert [(b.total, b.what, b.shown) for b in bars] == [(2, "test", [1, 2])]

@@ -8,6 +8,7 @@ during the build would go to a closed port and fail it (no web fonts, no remote 
 
 from __future__ import annotations
 
+import html
 import os
 import re
 import subprocess
@@ -24,7 +25,10 @@ DEAD_PROXY = "http://127.0.0.1:9"
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("site")
-    env = os.environ | {"ESPIN_TUTORIAL_QUICK": "1", "NO_MKDOCS_2_WARNING": "1", "MPLBACKEND": "Agg",
+    # As the README's command builds it: no MPLBACKEND, so the notebooks draw their figures
+    # inline (MPLBACKEND=Agg would leave out every plt.show() figure).
+    env = {k: v for k, v in os.environ.items() if k != "MPLBACKEND"} | {
+                        "ESPIN_TUTORIAL_QUICK": "1", "NO_MKDOCS_2_WARNING": "1",
                         "HTTP_PROXY": DEAD_PROXY, "HTTPS_PROXY": DEAD_PROXY, "http_proxy": DEAD_PROXY,
                         "https_proxy": DEAD_PROXY, "NO_PROXY": "", "no_proxy": ""}
     run = subprocess.run([sys.executable, "-m", "mkdocs", "build", "--strict", "--config-file",
@@ -32,6 +36,20 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Path:
                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, f"mkdocs build --strict failed:\n{run.stdout[-4000:]}\n{run.stderr[-8000:]}"
     return out
+
+
+TEX = re.compile(r"\\\(|\\\)|\\\[|\\\]|\$\$|(?<![\w$])\$[^\s$][^$]*?(?<!\s)\$")
+"""A TeX delimiter: ``\\( \\) \\[ \\] $$`` or a ``$...$`` span."""
+
+
+def raw_tex(page: str) -> list[str]:
+    """The TeX delimiters left in the text a reader sees on a page (outside code, scripts,
+    styles, typeset MathML and the notebooks' hidden copy of each code cell): math that was
+    not converted."""
+    text = re.sub(r'<div class="clipboard-copy-txt".*?</div>', " ", page, flags=re.S)
+    text = re.sub(r"<(script|style|pre|code|math)\b.*?</\1>", " ", text, flags=re.S | re.I)
+    text = html.unescape(re.sub(r"<[^>]*>", " ", text))
+    return TEX.findall(text)
 
 
 def _page(site: Path, name: str) -> str:
@@ -47,6 +65,14 @@ def test_every_page_of_the_nav_is_built(site):
         stem = page.rsplit(".", 1)[0]
         built = site / "index.html" if stem == "index" else site / stem.removesuffix("/index") / "index.html"
         assert built.exists(), f"{page} was not built"
+
+
+def test_nav_names_each_page_once():
+    # A reader tells the pages apart by their names in the nav: no name twice (a guide and its
+    # API page, a tutorial and its guide).
+    nav = (ROOT / "mkdocs.yml").read_text(encoding="utf-8").split("\nnav:", 1)[1].split("\n\n", 1)[0]
+    names = re.findall(r"^\s+- ([^:\n]+):", nav, flags=re.M)
+    assert len(names) >= 30 and len(names) == len(set(names)), sorted(n for n in names if names.count(n) > 1)
 
 
 def test_api_reference_is_rendered_from_the_docstrings(site):
@@ -80,3 +106,26 @@ def test_home_page_links_the_guides(site):
     home = (site / "index.html").read_text(encoding="utf-8")
     for target in ("getting_started/", "tutorials/fifteen_minutes/", "api/", "model/"):
         assert f'href="{target}' in home or f'href="./{target}' in home, target
+
+
+def test_the_raw_tex_check_sees_a_formula_left_raw():
+    assert raw_tex(r"<p>Let \(x\) be the strain.</p>") == ["\\(", "\\)"]
+    assert raw_tex(r"<div>\[E = 1\]</div>") and raw_tex(r"<p>the volume fraction $\eta$</p>")
+    assert raw_tex(r"<p>$$\sigma$$</p>")
+    for typeset in (r"<p><code>\(x\)</code> and <math><mi>x</mi></math></p>",
+                    r"<pre>echo $HOME $PATH</pre>", "<p>costs 5 $ or 6 $</p>"):
+        assert raw_tex(typeset) == [], typeset
+
+
+def test_math_is_typeset_as_mathml_on_every_page(site):
+    # The model page's formulas and the tutorials' Markdown math, as MathML the browser
+    # typesets with no script and no network; no TeX delimiter left in any page's text.
+    model = _page(site, "model")
+    assert model.count("<math ") >= 100 and 'class="arithmatex"' not in model
+    assert "<math " in _page(site, "tutorials/fit_curves")
+    left = {str(p.relative_to(site)): raw_tex(p.read_text(encoding="utf-8")) for p in site.rglob("*.html")}
+    assert {page: found for page, found in left.items() if found} == {}
+    pages = "".join(p.read_text(encoding="utf-8") for p in site.rglob("*.html"))
+    assert not re.search(r'<script[^>]*src=""', pages)
+    # A TeX command the converter does not know would be shown as its name: none is.
+    assert not re.findall(r"<m[a-z]+[^>]*>\\[A-Za-z]+", pages)

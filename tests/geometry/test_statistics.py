@@ -372,3 +372,21 @@ def test_orientation_moments_of_a_tiny_network_and_of_targets():
     assert m["target_tensor_12"] == pytest.approx(r1 * np.sin(2 * mean) / 2, rel=1e-6)
     summary = network_statistics(mat, network, aligned).summary()
     assert summary["orientation_cos4"] == pytest.approx(2 / 3) and "orientation_tensor_deviation" in summary
+
+
+def test_chords_along_an_edge_are_the_fibers_that_leave_through_the_edge_they_entered():
+    # The spikes at 0 and 90 deg of the end-to-end orientation: exactly these fibers, which the
+    # statistics figure draws apart as a boundary artefact.
+    import espin.geometry.rve
+    from espin.geometry.figures import along_an_edge
+    from espin.geometry.rve_folder import rve_statistics
+
+    rve = espin.geometry.rve.generate("plla", rve__size_ratio=100, rve__layers=5)
+    mat = rve.mat
+    same_edge = []
+    for i in range(len(mat.fiber_offsets) - 1):
+        first, last = mat.vertices[mat.fiber_offsets[i]], mat.vertices[mat.fiber_offsets[i + 1] - 1]
+        same_edge.append(any(abs(first[k] - e) < 1e-9 and abs(last[k] - e) < 1e-9
+                             for k in (0, 1) for e in (0.0, mat.size)))
+    edge = along_an_edge(rve_statistics(rve).fiber_orientation)
+    assert edge.tolist() == same_edge and 0 < edge.sum() < 0.2 * len(edge)

@@ -11,12 +11,13 @@ import pytest
 import tifffile
 
 import espin.geometry.rve
+from conftest import SHARED, needs_shared
 from espin.core.errors import ConfigError, SEMError
 from espin.imaging.measurement import measure
 from espin.imaging.metadata import MetadataWarning, pixel_size_from_tags, read_pixel_size
 from espin.imaging.synthetic import render_sem
 
-PLGA = Path("/work/shared/data/sem/PLGA-1500_1.tif")
+PLGA = SHARED / "data" / "sem" / "PLGA-1500_1.tif"
 BLANK = np.zeros((32, 32), dtype=np.uint8)
 
 
@@ -87,7 +88,7 @@ def test_dpi_is_never_a_pixel_size(tmp_path):
     assert read_pixel_size(png) is None
 
 
-@pytest.mark.skipif(not PLGA.is_file(), reason="real SEM images not available")
+@needs_shared(PLGA)
 def test_plga_image_has_only_dpi():
     assert read_pixel_size(PLGA) is None  # 256 per inch: not 99 um/px
 
@@ -210,3 +211,4 @@ def test_cli_measure_with_the_metadata_scale(fei_tiff, tmp_path, measure_app):
                      resolutionunit="INCH")
     bad = CliRunner().invoke(measure_app, ["measure", str(dpi), "-o", str(tmp_path / "bad")])
     assert bad.exit_code == 2 and "no scale" in bad.output and "metadata" in bad.output
+    assert "--um-per-px" in bad.output and "--scale-bar-rows" in bad.output  # the flags, by name

@@ -13,15 +13,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from conftest import SHARED, needs_shared
 from espin.imaging.image import read_image
 from espin.imaging.measurement import measure
 
-SEM = Path(__file__).parents[3] / "shared" / "data" / "sem"
+SEM = SHARED / "data" / "sem"
 PLGA = SEM / "PLGA-1500_1.tif"
 NANO = SEM / "nanofiber_fiji_diameterj.tif"
 
-pytestmark = pytest.mark.skipif(not (PLGA.is_file() and NANO.is_file()),
-                                reason=f"real SEM images not found in {SEM}")
+pytestmark = needs_shared(PLGA, NANO)
 
 
 @pytest.fixture(scope="module")

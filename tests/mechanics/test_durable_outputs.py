@@ -120,6 +120,16 @@ def test_overwrite_leaves_no_stale_steps(tmp_path):
     assert (folder / "notes.txt").read_text() == "mine"  # not espin's: left alone
 
 
+def test_a_complete_run_lists_the_files_it_wrote(tmp_path):
+    # A converged run writes no solver.log: its run.json does not promise one (nor a file twice).
+    folder = tmp_path / "run"
+    espin.simulate("plla", folder, loading__steps=2, output__figures=False, **TINY)
+    outputs = read_manifest(folder).outputs
+    assert "solver.log" not in outputs and not (folder / "solver.log").exists()
+    assert len(outputs) == len(set(outputs)) and {"curve.csv", "results.h5", "vtk/step_*.vtu"} <= set(outputs)
+    assert all(list(folder.glob(pattern)) for pattern in outputs)
+
+
 def test_an_interrupted_run_is_marked_failed(tmp_path):
     with pytest.raises(KeyboardInterrupt):
         espin.simulate("plla", tmp_path / "run", on_step=_interrupt_at(2), loading__steps=5, output__figures=False, **TINY)

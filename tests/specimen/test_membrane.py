@@ -3,6 +3,8 @@ limit, mesh convergence and the stress concentration at a hole (no RVEs)."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 from scipy.optimize import brentq
@@ -138,6 +140,8 @@ def test_cli_runs_a_closed_form_dogbone_and_keeps_its_folder(tmp_path):
             "--steps", "2", "--max-strain", "0.1", "--lateral", "free", "-o", str(out)]
     done = CliRunner().invoke(app, args)
     assert done.exit_code == 0, done.output
+    assert "SpecimenResult(" not in done.output  # a summary for people, not a Python repr
+    assert re.search(r"^grip force +\d", done.output, flags=re.M), done.output
     table = np.loadtxt(out / "force_displacement.csv", delimiter=",", skiprows=1)
     assert table.shape == (3, 10) and table[-1, 4] > table[1, 4] > 0.0
     # the gauge section (4 mm wide) strains more than the grips' 10 %: the wide ends barely stretch

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from espin.core.errors import ConfigError
+from espin.core.parallel import TaskPlace
 from espin.geometry.rve import resolve_config
 from espin.studies.ensemble import plan_tasks, run_ensemble, run_tensile
 
@@ -44,7 +45,7 @@ def test_plan_validates_every_point_before_work():
 
 def test_failure_isolated_and_rerun_resumes(tmp_path, monkeypatch):
     tasks = plan_tasks(tiny_base(), [{"fiber.flow_resistance_MPa": 4.0}, {"fiber.flow_resistance_MPa": 6.0}], [1, 2, 3])
-    first = run_ensemble(tasks, tmp_path, workers=1, task_function=fake_task)
+    first = run_ensemble(tasks, tmp_path, place=TaskPlace(1), task_function=fake_task)
     assert len(first.records) == 4 and len(first.failures) == 2
     failed = json.loads((tmp_path / "failed" / f"{tasks[1].key}.json").read_text())
     assert failed["seed"] == 2 and failed["parameters"] == {"fiber.flow_resistance_MPa": 4.0}
@@ -52,7 +53,7 @@ def test_failure_isolated_and_rerun_resumes(tmp_path, monkeypatch):
     assert len((tmp_path / "results.csv").read_text().splitlines()) == 1 + 4
 
     monkeypatch.setenv("ESPIN_TEST_FIX", "second")
-    second = run_ensemble(tasks, tmp_path, workers=1, task_function=fake_task)
+    second = run_ensemble(tasks, tmp_path, place=TaskPlace(1), task_function=fake_task)
     assert second.skipped == 4 and not second.failures
     runs = {(r["parameters"]["fiber.flow_resistance_MPa"], r["seed"]): r["run"] for r in second.records}
     assert runs == {(4.0, 1): "first", (4.0, 2): "second", (4.0, 3): "first",
@@ -66,17 +67,17 @@ def test_failure_isolated_and_rerun_resumes(tmp_path, monkeypatch):
 def test_damaged_task_file_runs_again(tmp_path, monkeypatch):
     monkeypatch.setenv("ESPIN_TEST_FIX", "first")
     tasks = plan_tasks(tiny_base(), [{}], [1, 2])
-    run_ensemble(tasks, tmp_path, workers=1, task_function=fake_task)
+    run_ensemble(tasks, tmp_path, place=TaskPlace(1), task_function=fake_task)
     (tmp_path / "tasks" / f"{tasks[0].key}.json").write_text('{"key": "trunc')  # e.g. a full disk
     monkeypatch.setenv("ESPIN_TEST_FIX", "again")
-    again = run_ensemble(tasks, tmp_path, workers=1, task_function=fake_task)
+    again = run_ensemble(tasks, tmp_path, place=TaskPlace(1), task_function=fake_task)
     assert again.skipped == 1 and [r["run"] for r in again.records] == ["again", "first"]
 
 
 def test_serial_processes_and_dask_agree_exactly():
     tasks = plan_tasks(tiny_base(), [{"fiber.flow_resistance_MPa": 5.0}], [1, 2])
-    runs = [run_ensemble(tasks, workers=1), run_ensemble(tasks, workers=2),
-            run_ensemble(tasks, workers=2, scheduler="local")]
+    runs = [run_ensemble(tasks, place=TaskPlace(1)), run_ensemble(tasks, place=TaskPlace(2)),
+            run_ensemble(tasks, place=TaskPlace(2, "local"))]
     reference = runs[0].records
     assert len(reference) == 2
     for other in runs[1:]:

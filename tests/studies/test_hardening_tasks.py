@@ -13,6 +13,7 @@ import pytest
 
 from espin.core.config import config_to_toml
 from espin.core.errors import ConfigError, InputError
+from espin.core.parallel import TaskPlace
 from espin.geometry.rve import resolve_config
 from espin.studies.ensemble import PROPERTIES, plan_tasks, run_ensemble
 from espin.studies.sweeps import sweep
@@ -67,11 +68,11 @@ def test_key_hashes_a_loading_path_file(tmp_path):
 def test_an_edited_referenced_file_runs_its_tasks_again(tmp_path, monkeypatch):
     csv, folder = tmp_path / "lateral.csv", tmp_path / "study"
     write_lateral(csv)
-    first = run_ensemble(plan_tasks(lateral_base(csv), [{}], [1, 2]), folder, workers=1, task_function=record_task)
+    first = run_ensemble(plan_tasks(lateral_base(csv), [{}], [1, 2]), folder, place=TaskPlace(1), task_function=record_task)
     assert len(first.records) == 2
     write_lateral(csv, slope=0.5)
     monkeypatch.setenv("ESPIN_TEST_RUN", "second")
-    again = run_ensemble(plan_tasks(lateral_base(csv), [{}], [1, 2]), folder, workers=1, task_function=record_task)
+    again = run_ensemble(plan_tasks(lateral_base(csv), [{}], [1, 2]), folder, place=TaskPlace(1), task_function=record_task)
     assert again.skipped == 0 and again.unplanned == 2
     assert [r["run"] for r in again.records] == ["second", "second"]
 
@@ -114,7 +115,7 @@ GOOD = {**dict.fromkeys(PROPERTIES, 1.0), "has_yield": True, "strain": [0.0, 0.1
 ])
 def test_a_malformed_task_file_runs_again_with_a_warning(tmp_path, monkeypatch, caplog, text, problem):
     tasks = plan_tasks(resolve_config("plla", **TINY), [{}], [1, 2])
-    run_ensemble(tasks, tmp_path, workers=1, task_function=record_task)
+    run_ensemble(tasks, tmp_path, place=TaskPlace(1), task_function=record_task)
     damaged = tmp_path / "tasks" / f"{tasks[0].key}.json"
     if text == "KEY":
         damaged.write_bytes((tmp_path / "tasks" / f"{tasks[1].key}.json").read_bytes())
@@ -124,7 +125,7 @@ def test_a_malformed_task_file_runs_again_with_a_warning(tmp_path, monkeypatch, 
         damaged.write_text(text.replace('"KEY"', json.dumps(tasks[0].key)))
     monkeypatch.setenv("ESPIN_TEST_RUN", "again")
     with caplog.at_level(logging.WARNING, logger="espin.studies.ensemble"):
-        again = run_ensemble(tasks, tmp_path, workers=1, task_function=record_task)
+        again = run_ensemble(tasks, tmp_path, place=TaskPlace(1), task_function=record_task)
     assert again.skipped == 1 and [r["run"] for r in again.records] == ["again", "first"]
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert len(warnings) == 1 and damaged.name in warnings[0] and problem in warnings[0], warnings
@@ -134,7 +135,7 @@ def test_a_malformed_task_file_runs_again_with_a_warning(tmp_path, monkeypatch, 
 
 def test_a_record_that_would_not_resume_is_a_failure(tmp_path):
     tasks = plan_tasks(resolve_config("plla", **TINY), [{}], [1])
-    result = run_ensemble(tasks, tmp_path, workers=1, task_function=empty_record_task)
+    result = run_ensemble(tasks, tmp_path, place=TaskPlace(1), task_function=empty_record_task)
     assert not result.records and len(result.failures) == 1
     assert "record lacks key" in result.failures[0]["error"]
     assert not list((tmp_path / "tasks").glob("*.json")) and (tmp_path / "failed" / f"{tasks[0].key}.json").is_file()
@@ -154,7 +155,7 @@ def test_stale_temporaries_of_interrupted_writes_are_removed(tmp_path):
         path.write_bytes(b"")
         if path is not fresh:
             os.utime(path, (an_hour_ago, an_hour_ago))
-    run_ensemble(tasks, tmp_path, workers=1, task_function=record_task)
+    run_ensemble(tasks, tmp_path, place=TaskPlace(1), task_function=record_task)
     assert not any(path.exists() for path in stale)
     assert fresh.exists() and all(path.exists() for path in foreign)
 

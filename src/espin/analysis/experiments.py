@@ -469,7 +469,7 @@ def _columns(table: _Table, header: list[str] | None, strain_column: int | str |
     if x_col == y_col:
         where = table.at(0) if header is not None else str(table.path)
         named = header is not None and x_col < len(header)
-        column = f"{shown(header[x_col], 'name')} (index {x_col})" if named else f"{x_col}"
+        column = f"{shown(header[x_col], 'name')} (index {x_col})" if named and header is not None else f"{x_col}"
         raise CurveFileError(
             f"{where}: strain and stress would both be read from column {column}; they must be "
             "different columns: give --strain-column and --stress-column (strain_column= and "

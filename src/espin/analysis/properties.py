@@ -54,7 +54,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -399,7 +399,7 @@ def _bilinear_fit(x: np.ndarray, y: np.ndarray, scale: float, elastic_fraction: 
 
 
 def _with_r_squared(props: CurveProperties, x: np.ndarray, y: np.ndarray) -> CurveProperties:
-    fields = props.as_dict() | {"r_squared": _r_squared(y, bilinear_stress(props, x))}
+    fields: dict[str, Any] = props.as_dict() | {"r_squared": _r_squared(y, bilinear_stress(props, x))}
     return CurveProperties(**fields)
 
 
@@ -501,9 +501,9 @@ def plot_bilinear_fits(
     fig = Figure(figsize=(7.0, 5.2 + 0.2 * len(curves)), layout="constrained")
     ax = fig.subplots()
     if band is not None:
-        strain, mean, sd = (np.asarray(v, dtype=float) for v in band)
+        band_strain, mean, sd = (np.asarray(v, dtype=float) for v in band)
         n = "" if band_n is None else f", n = {band_n}"
-        ax.fill_between(100 * strain, mean - sd, mean + sd, color="0.85", label=f"mean ± sd{n}")
+        ax.fill_between(100 * band_strain, mean - sd, mean + sd, color="0.85", label=f"mean ± sd{n}")
     for k, (label, strain, stress, props) in enumerate(curves):
         colour = f"C{k % 10}"
         strain = np.asarray(strain, dtype=float)

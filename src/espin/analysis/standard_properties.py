@@ -153,9 +153,12 @@ def standard_properties(
     modulus = zero = math.nan
     span = f"{100 * chord_range[0]:g} % to {100 * chord_range[1]:g} % strain"
     if chord is None:
-        message = (f"the chord range {span} holds {int(np.count_nonzero((x >= chord_range[0]) & (x <= chord_range[1])))} "
+        inside = int(np.count_nonzero((x >= chord_range[0]) & (x <= chord_range[1])))
+        message = (f"the chord range {span} holds {inside} "
                    f"point(s) of the curve (its strains: {100 * x[0]:.3g} % to {100 * x[-1]:.3g} %, "
-                   f"{x.size} points); give a chord range over the curve's linear part with at least two points")
+                   f"{x.size} points); give a chord range (chord_range, --chord-range LO:HI) over the curve's "
+                   "linear part that holds two points or more, e.g. 0:0.02 on a curve in 1 % steps such as "
+                   "espin's own (not the ISO range, so not an ISO 527 value)")
         if require_chord:
             raise CurveError(message)
         notes.append(f"no chord modulus: {message}")

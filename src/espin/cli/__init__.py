@@ -70,7 +70,7 @@ def _configure_logging(verbose: bool, log_file: Path | None) -> None:
         old.close()
     handlers: list[logging.Handler] = []
     if verbose:
-        handler = logging.StreamHandler()
+        handler: logging.Handler = logging.StreamHandler()
         handler.setLevel(logging.INFO)
         handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
         handlers.append(handler)
@@ -84,7 +84,7 @@ def _configure_logging(verbose: bool, log_file: Path | None) -> None:
         file_handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
         handlers.append(file_handler)
     for handler in handlers:
-        handler.espin_cli = True  # type: ignore[attr-defined]
+        handler.espin_cli = True  # type: ignore[attr-defined]  # our mark, to find our handlers again
         logger.addHandler(handler)
     if handlers:
         logger.setLevel(logging.DEBUG if log_file is not None else logging.INFO)

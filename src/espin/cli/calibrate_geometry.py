@@ -7,14 +7,15 @@ inside the command, so ``espin --help`` stays fast.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Optional
+from typing import TYPE_CHECKING, Annotated, Any, Optional, cast
 
 import typer
 
-from espin.cli.common import fail
+from espin.cli.common import fail, off_terminal_lines
 
 if TYPE_CHECKING:  # pragma: no cover
     from espin.core.config import Config
+    from espin.imaging.geometry_calibration import Fit, Walk  # checked by check_options
 
 __all__ = ["register"]
 
@@ -139,7 +140,7 @@ def calibrate_geometry_command(
                 f"--orientation must be uniform (or give --orientation-mean-deg and "
                 f"--orientation-kappa), got {orientation!r}"
             )
-        typed = {
+        typed: dict[str, Any] = {
             "diameter_mean_um": diameter_um, "diameter_sd_um": diameter_sd_um,
             "tortuosity_scale": tortuosity_scale, "orientation_uniform": orientation == "uniform",
             "orientation_mean_deg": orientation_mean_deg, "orientation_kappa": orientation_kappa,
@@ -155,16 +156,22 @@ def calibrate_geometry_command(
                    rendered_check, seeds]
         digest = _inputs_digest(base_config, measured, options)
         with claim_output(out, digest, overwrite=overwrite), \
-                console.status("calibrating the deposition") as status:
+                console.status("calibrating the deposition") as status, \
+                off_terminal_lines(console, "calibrating the deposition") as say:
+
+            def progress(message: str) -> None:
+                status.update(f"calibrating: {message}")
+                say(f"calibrating: {message}")
+
             result = calibrate_geometry(
-                targets, base_config, fit=fit, walk=walk, segment_ratio=segment_ratio,
+                targets, base_config, fit=cast("Fit", fit), walk=cast("Walk", walk), segment_ratio=segment_ratio,
                 max_deviation_deg=max_deviation_deg, window_um=window_um,
-                correct_orientation=correct_orientation, seeds=seeds,
-                progress=lambda message: status.update(f"calibrating: {message}"),
+                correct_orientation=correct_orientation, seeds=seeds, progress=progress,
                 image=measured_image(measured) if measured is not None else None,
                 rendered_check=rendered_check,
             )
             status.update("writing the config and comparison.png")
+            say("writing the config and comparison.png")
             files = result.write_files(out)
     except EspinError as err:
         fail(err)

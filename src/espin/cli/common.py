@@ -14,7 +14,7 @@ import typer
 
 __all__ = ["SourceArg", "SetOpt", "OverwriteOpt", "AllowLargeOpt", "PlanOpt", "parse_set", "fail", "StrainColumnOpt",
            "StressColumnOpt", "PercentStrainOpt", "DelimiterOpt", "DecimalOpt", "SkipRowsOpt", "read_options",
-           "curve_warnings", "print_plan", "LONG_WORK_S"]
+           "curve_warnings", "print_plan", "LONG_WORK_S", "off_terminal_lines", "HEARTBEAT_S"]
 
 SourceArg = Annotated[
     Optional[str],
@@ -88,6 +88,56 @@ def print_plan(make_text: Callable[[Any], str], console: Any, plan: bool | None,
         logging.getLogger("espin.cli").debug("no plan: %s", exc)
         return
     console.print(text, highlight=False, soft_wrap=True)
+
+
+HEARTBEAT_S = 20.0
+"""Off a terminal, a long phase's last line is printed again after this long without a line [s]:
+no phase of a command is silent for 30 s in a log file or a batch job's output."""
+
+
+@contextmanager
+def off_terminal_lines(console: Any, first: str) -> Iterator[Callable[[str], None]]:
+    """A long phase's progress off a terminal (a log file, a batch job), where rich draws no
+    live bar or spinner: yields ``say(text)``, which prints ``text`` as one plain line with the
+    time elapsed since the phase began; the last line is printed again (``still ...``) after
+    :data:`HEARTBEAT_S` seconds without one. ``first`` is printed at once.
+
+    On a terminal (its live display shows the progress) and with a quiet console, ``say`` does
+    nothing.
+    """
+    import threading
+    import time
+
+    from espin.core.progress import clock
+
+    if console.is_terminal or getattr(console, "quiet", False):
+        yield lambda text: None
+        return
+    start = time.monotonic()
+    lock = threading.Lock()
+    last_text, last_at = first, start
+
+    def say(text: str, again: bool = False) -> None:
+        nonlocal last_text, last_at
+        with lock:
+            last_text, last_at = text, time.monotonic()
+            console.print(f"{'still: ' if again else ''}{text}  [{clock(last_at - start)} elapsed]",
+                          highlight=False, soft_wrap=True)
+
+    def beat() -> None:
+        while not stop.wait(min(1.0, HEARTBEAT_S / 4)):
+            if time.monotonic() - last_at >= HEARTBEAT_S:
+                say(last_text, again=True)
+
+    stop = threading.Event()
+    say(first)
+    thread = threading.Thread(target=beat, name="espin-heartbeat", daemon=True)
+    thread.start()
+    try:
+        yield say
+    finally:
+        stop.set()
+        thread.join()
 
 
 def parse_set(items: list[str] | None) -> dict[str, Any]:

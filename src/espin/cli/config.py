@@ -19,7 +19,7 @@ def show_config(source: SourceArg = None, set_: SetOpt = None) -> None:
 
     try:
         overrides = parse_set(set_)
-        config = resolve_config(source, **{k.replace(".", "__"): v for k, v in overrides.items()})
+        config = resolve_config(source, **overrides)
     except EspinError as err:
         fail(err)
     sys.stdout.write(config_to_toml(config))

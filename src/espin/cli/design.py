@@ -7,7 +7,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from espin.cli.common import OverwriteOpt, PlanOpt, SetOpt, fail, parse_set, print_plan
+from espin.cli.common import OverwriteOpt, PlanOpt, SetOpt, fail, off_terminal_lines, parse_set, print_plan
 
 __all__ = ["register"]
 
@@ -93,23 +93,27 @@ def design_command(
                               "give one, or leave them out")
         targets = parse_targets([*(target or []), *_curves(target_curve or [], curve_range, curve_points,
                                                             curve_tolerance)])
-        config = resolve_config(base, **{k.replace(".", "__"): v for k, v in parse_set(set_).items()})
+        config = resolve_config(base, **parse_set(set_))
         space = DesignSpace.build(config, var or [], constraint or [])
         n_workers = None if scheduler is not None else (workers or default_workers())
         replicated = budget + (replicates - 1) * len(targets.directions)
         print_plan(lambda calibration: _plan_text(space, targets, budget, replicates, verify, n_workers, calibration),
                    console, plan, lambda: _plan_seconds(space, targets, replicated, verify, REFERENCE_CALIBRATION))
 
-        def on_batch(evaluations: list, best: Any) -> None:
-            ids = f"{evaluations[0].id}-{evaluations[-1].id}" if len(evaluations) > 1 else str(evaluations[0].id)
-            shown = ", ".join(f"{key.removeprefix('rve.')} {value:.4g}" for key, value in best.values.items())
-            console.print(f"designs {ids} ({evaluations[0].stage}) done; best so far #{best.id}: {shown}",
-                          highlight=False, soft_wrap=True)
+        with off_terminal_lines(console, "designing: the first batch of tensile tests") as say:
 
-        result = design(targets, var or [], base=config, constraints=constraint or [], budget=budget, batch=batch,
-                        initial=initial, replicates=replicates, verify=verify, seed=seed, realizations=realizations,
-                        folder=out,
-                        workers=workers, scheduler=scheduler, overwrite=overwrite, on_batch=on_batch)
+            def on_batch(evaluations: list, best: Any) -> None:
+                ids = f"{evaluations[0].id}-{evaluations[-1].id}" if len(evaluations) > 1 else str(evaluations[0].id)
+                shown = ", ".join(f"{key.removeprefix('rve.')} {value:.4g}" for key, value in best.values.items())
+                line = f"designs {ids} ({evaluations[0].stage}) done; best so far #{best.id}: {shown}"
+                if console.is_terminal:
+                    console.print(line, highlight=False, soft_wrap=True)
+                say(line)  # off a terminal: with the time elapsed, repeated while the next batch runs
+
+            result = design(targets, var or [], base=config, constraints=constraint or [], budget=budget,
+                            batch=batch, initial=initial, replicates=replicates, verify=verify, seed=seed,
+                            realizations=realizations, folder=out, workers=workers, scheduler=scheduler,
+                            overwrite=overwrite, on_batch=on_batch)
     except EspinError as err:
         fail(err)
     console.print(result.format_table(), highlight=False, soft_wrap=True)

@@ -25,6 +25,7 @@ from espin.cli.common import (
     StressColumnOpt,
     curve_warnings,
     fail,
+    off_terminal_lines,
     parse_set,
     print_plan,
     read_options,
@@ -381,7 +382,7 @@ def register(app: typer.Typer) -> None:
         try:
             security = tls_security(tls_ca_file, tls_cert, tls_key)
             overrides = parse_set(set_)
-            config = resolve_config(base, **{k.replace(".", "__"): v for k, v in overrides.items()})
+            config = resolve_config(base, **overrides)
             curve, strain_rate = _curves(curves, rate, _parse_rates(curves_at_rate))
             seed_list = None if seeds is None else _parse_seeds(seeds)
             grid = _parse_grid(average_grid)
@@ -395,14 +396,14 @@ def register(app: typer.Typer) -> None:
                                eta_tolerance=eta_tolerance, read_options=csv_options)
             _print_fit_plan(curve, plan_inputs, workers, scheduler, console, plan)
             with OutputFolder.claim(out, "fit", digest, FIT_OUTPUTS, overwrite=overwrite, resume="same-inputs"), \
-                    curve_warnings(), console.status("fitting") as status:
+                    curve_warnings(), console.status("fitting") as status, \
+                    off_terminal_lines(console, "fitting: the first evaluation") as say:
 
                 def on_evaluation(record: dict) -> None:
                     line = (f"evaluation {record['evaluation']} ({record['stage']}): "
                             f"SSE {record['sse_MPa2']:.4g} MPa^2")
                     status.update(line)
-                    if not console.is_terminal:  # no live status off a terminal: one plain line each
-                        console.print(line, highlight=False)
+                    say(line)  # off a terminal: one plain line each, repeated while the next runs
 
                 result = fit(
                     curve, base=config, parameters=[p for p in params.split(",") if p.strip()],

@@ -61,11 +61,12 @@ def generate(
     }
     try:
         overrides = {k: v for k, v in options.items() if v is not None} | parse_set(set_)
-        config = resolve_config(source, **{k.replace(".", "__"): v for k, v in overrides.items()})
+        config = resolve_config(source, **overrides)
         name = Path(source).stem if source else "plla"
         folder = out if out is not None else Path(f"{name}_rve")
         check_size(config, allow_large=allow_large)  # before the folder is claimed
-        with OutputFolder.claim(folder, "generate", config_digest(config), RVE_OUTPUTS, overwrite=overwrite) as claimed, \
+        with OutputFolder.claim(folder, "generate", config_digest(config), RVE_OUTPUTS,
+                                overwrite=overwrite) as claimed, \
                 Progress(console=console, transient=True) as bar:
             task = bar.add_task("depositing layers", total=config.rve.layers)
 

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Optional
+from typing import TYPE_CHECKING, Annotated, Any, Optional, cast
 
 import typer
 
@@ -116,7 +116,7 @@ def _standard_options(chord_range: str | None, percent: bool, offset_percent: fl
         raise ConfigError(f"--break-drop-percent: in (0, 100) (got {break_drop_percent})")
     chord = ISO_CHORD_RANGE
     if chord_range is not None:
-        lo, hi = _strain_range(chord_range, percent)
+        lo, hi = cast(tuple[float | None, float | None], _strain_range(chord_range, percent))  # text given
         if lo is None or hi is None or lo < 0.0:
             raise ConfigError(f"--chord-range: LO:HI, both given, 0 <= LO < HI (got {chord_range!r})")
         chord = (lo, hi)
@@ -240,7 +240,7 @@ def _write_outputs(analysis: _Analysis, folder: Path) -> list[Path]:
     average = analysis.average
     if average is not None:
         written.append(average.to_csv(folder / "average_curve.csv"))
-        plotted.append(("average", average.strain, average.mean_MPa, analysis.average_props))
+        plotted.append(("average", average.strain, average.mean_MPa, cast("CurveProperties", analysis.average_props)))
         band = (average.strain, average.mean_MPa, average.sd_MPa)
     written.append(plot_bilinear_fits(plotted, folder / "properties.png", band=band,
                                       band_n=len(analysis.curves) if band is not None else None))

@@ -85,7 +85,9 @@ def simulate(
         program = load_program(config.loading)
         columns = (TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[info]}"),
                    TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn())
-        with Progress(*columns, console=console) as bar:
+        # Off a terminal no live bar (rich would print its last frame, cut at 80 columns): the
+        # plain line per step below.
+        with Progress(*columns, console=console, disable=not console.is_terminal) as bar:
             task = bar.add_task("generating", total=program.n_steps, info="")
 
             def on_step(record) -> None:
@@ -109,7 +111,7 @@ def simulate(
         f"{config.loading.test} test, {program.n_steps} steps: stress {stress[-1]:.4g} MPa at strain "
         f"{result.strain[-1]:.4g} ({config.output.stress_measure}); Newton iterations "
         f"{int(result.iterations.sum())}, factorizations {int(result.factorizations.sum())}",
-        highlight=False,
+        highlight=False, soft_wrap=True,  # one line in a log too (rich wraps at 80 columns there)
     )
     console.print(f"wrote {folder}/", highlight=False)
 

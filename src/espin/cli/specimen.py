@@ -89,10 +89,10 @@ def specimen_command(
                           modulus_MPa=modulus, poisson_ratio=poisson, surrogate_from=surrogate_from, out=out,
                           overwrite=overwrite,
                           workers=workers, scheduler=scheduler, on_step=on_step,
-                          **{k.replace(".", "__"): v for k, v in parse_set(set_).items()})
+                          **parse_set(set_))
     except EspinError as err:
         fail(err)
-    console.print(repr(result), highlight=False, soft_wrap=True)
+    console.print(result.format_summary(), highlight=False, soft_wrap=True)
     console.print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir())), highlight=False,
                   soft_wrap=True)
 

@@ -7,7 +7,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from espin.cli.common import AllowLargeOpt, OverwriteOpt, PlanOpt, fail, parse_set, print_plan
+from espin.cli.common import AllowLargeOpt, OverwriteOpt, PlanOpt, fail, off_terminal_lines, parse_set, print_plan
 from espin.core.errors import EXIT_SOLVER
 
 __all__ = ["register", "parse_grid"]
@@ -71,9 +71,9 @@ def parse_grid(items: list[str] | None) -> dict[str, list[Any]]:
                 raise ConfigError(f"--grid {item!r}: start:stop:count needs two numbers and an integer") from None
             if not 1 <= count <= 10_000:
                 raise ConfigError(f"--grid {key}: count must be in [1, 10000] (got {count})")
-            values = np.linspace(start, stop, count)
-            integral = all(float(v).is_integer() for v in values) and "." not in parts[0] + parts[1]
-            grid[key] = [int(v) if integral else float(v) for v in values]  # rve.layers=2:8:4 stays integer
+            spaced = np.linspace(start, stop, count)
+            integral = all(float(v).is_integer() for v in spaced) and "." not in parts[0] + parts[1]
+            grid[key] = [int(v) if integral else float(v) for v in spaced]  # rve.layers=2:8:4 stays integer
             continue
         values = []
         for word in text.split(","):
@@ -83,10 +83,6 @@ def parse_grid(items: list[str] | None) -> dict[str, list[Any]]:
                 values.append(word.strip())
         grid[key] = values
     return grid
-
-
-def _overrides(set_: list[str] | None) -> dict[str, Any]:
-    return {k.replace(".", "__"): v for k, v in parse_set(set_).items()}
 
 
 def _print_study_plan(base: str | None, set_: list[str] | None, points: list[dict[str, Any]], realizations: int,
@@ -108,10 +104,10 @@ def _print_study_plan(base: str | None, set_: list[str] | None, points: list[dic
 
     def tests() -> list[Any]:
         if not todo and not finished:
-            config = resolve_config(base, **_overrides(set_))
+            config = resolve_config(base, **parse_set(set_))
             seeds = realization_seeds(config, realizations, seed_start)
             tasks = plan_tasks(config, points, seeds, allow_large=True)
-            per_point = {}  # one config object per point: the cost does not depend on the seed
+            per_point: dict[int, Any] = {}  # one config object per point: the cost does not depend on the seed
             for i, task in enumerate(tasks):
                 if (out / "tasks" / f"{task.key}.json").is_file():
                     finished.append(i)
@@ -122,7 +118,8 @@ def _print_study_plan(base: str | None, set_: list[str] | None, points: list[dic
     def text(calibration: Any) -> str:
         line = make_plan(tests(), n_workers, calibration).text() if tests() else "plan: nothing to run"
         if finished:
-            line += f"; {len(finished)} tensile test{'s' * (len(finished) != 1)} already finished in {out}/ not run again"
+            line += (f"; {len(finished)} tensile test{'s' * (len(finished) != 1)} already finished in {out}/"
+                     " not run again")
         return line
 
     n_workers = None if scheduler is not None else (workers or default_workers())
@@ -145,17 +142,17 @@ def _run_with_progress(run, n_tasks: int, quiet: bool):
     console = Console(stderr=True, quiet=quiet)
     failed = 0
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  TextColumn("ETA"), TimeRemainingColumn(), console=console, transient=True) as bar:
+                  TextColumn("ETA"), TimeRemainingColumn(), console=console, transient=True) as bar, \
+            off_terminal_lines(console, f"tensile tests: 0/{n_tasks} done") as say:
         task_id = bar.add_task("tensile tests", total=n_tasks)
 
         def on_outcome(outcome, task) -> None:
             nonlocal failed
             failed += not outcome.ok
-            bar.update(task_id, advance=1, description=f"tensile tests ({failed} failed)" if failed else "tensile tests")
-            if not console.is_terminal:  # no live bar off a terminal: one plain line per task
-                done = int(bar.tasks[0].completed)
-                console.print(f"tensile tests: {done}/{n_tasks} done ({failed} failed), "
-                              f"{bar.tasks[0].elapsed:.0f} s", highlight=False)
+            bar.update(task_id, advance=1,
+                       description=f"tensile tests ({failed} failed)" if failed else "tensile tests")
+            # off a terminal (no live bar): one plain line per task, repeated while the next runs
+            say(f"tensile tests: {int(bar.tasks[0].completed)}/{n_tasks} done ({failed} failed)")
 
         return run(on_outcome)
 
@@ -210,7 +207,8 @@ _RSDS = [f"{p}_rsd" for p in ("modulus_MPa", "yield_stress_MPa", "post_yield_mod
 @study_app.command("rve-size")
 def rve_size(
     base: BaseArg = None,
-    size_ratios: Annotated[str, typer.Option(help="L/D values at --layers-for-sizes layers, comma-separated.")] = "50,100,150,200",
+    size_ratios: Annotated[
+        str, typer.Option(help="L/D values at --layers-for-sizes layers, comma-separated.")] = "50,100,150,200",
     layer_counts: Annotated[str, typer.Option(help="N_l values at --size-for-layers, comma-separated.")] = "5,10,15,20",
     layers_for_sizes: Annotated[int, typer.Option(help="N_l of the L/D series.")] = 5,
     size_for_layers: Annotated[float, typer.Option(help="L/D of the N_l series.")] = 200,
@@ -249,7 +247,8 @@ def rve_size(
             base, size_ratios=sizes, layer_counts=layers, layers_for_sizes=layers_for_sizes,
             size_for_layers=size_for_layers, realizations=realizations, seed_start=seed_start,
             folder=out, workers=workers, scheduler=scheduler, blas_threads=blas_threads, security=security,
-            on_outcome=on_outcome, overwrite=overwrite, allow_large=allow_large, **_overrides(set_))), n_points * realizations
+            on_outcome=on_outcome, overwrite=overwrite, allow_large=allow_large,
+            **parse_set(set_))), n_points * realizations
 
     _run_study(prepare, out, _MEANS + _RSDS, quiet)
 
@@ -299,7 +298,8 @@ def sweep(
         return (lambda on_outcome: run_sweep(
             base, parsed, realizations=realizations, seed_start=seed_start, folder=out,
             table_format=table_format, workers=workers, scheduler=scheduler, blas_threads=blas_threads,
-            security=security, on_outcome=on_outcome, overwrite=overwrite, allow_large=allow_large, **_overrides(set_))), n_points * realizations
+            security=security, on_outcome=on_outcome, overwrite=overwrite, allow_large=allow_large,
+            **parse_set(set_))), n_points * realizations
 
     _run_study(prepare, out, _MEANS + _SDS, quiet)
 
@@ -336,7 +336,7 @@ def dof(
     try:
         sizes = _numbers("--size-ratios", size_ratios, float)
         layer_list = _numbers("--layers", layers, int)
-        config = resolve_config(base, **_overrides(set_))
+        config = resolve_config(base, **parse_set(set_))
         seeds = realization_seeds(config, realizations, seed_start)
         with OutputFolder.claim(out, "dof", config_digest(config), ("dof.csv", "dof.png", "dof_fit.csv"),
                                 overwrite=overwrite):
@@ -360,7 +360,8 @@ def _numbers(option: str, text: str, kind: type) -> list:
     try:
         values = [kind(v) for v in text.split(",") if v.strip()]
     except ValueError:
-        raise ConfigError(f"{option}: comma-separated {'integers' if kind is int else 'numbers'} (got {text!r})") from None
+        raise ConfigError(
+            f"{option}: comma-separated {'integers' if kind is int else 'numbers'} (got {text!r})") from None
     if not values:
         raise ConfigError(f"{option}: give at least one value")
     return values

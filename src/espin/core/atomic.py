@@ -12,7 +12,7 @@ from espin.core.errors import RVEFileError
 __all__ = ["atomic_write_bytes", "atomic_write"]
 
 
-def atomic_write(path: str | Path, write: Callable[[Path], None]) -> Path:
+def atomic_write(path: str | Path, write: Callable[[Path], object]) -> Path:
     """Call ``write(tmp_path)`` and move the finished file onto ``path``.
 
     The target either keeps its old content or receives the complete new file; a failure

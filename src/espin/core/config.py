@@ -17,10 +17,10 @@ import hashlib
 import math
 import re
 import tomllib
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from importlib import resources
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, cast
 
 import tomli_w
 from pydantic import (
@@ -37,6 +37,7 @@ from pydantic import (
 from espin.core.errors import ConfigError, InputError
 
 __all__ = [
+    "dotted_overrides",
     "Config",
     "RVEConfig",
     "FiberConfig",
@@ -266,7 +267,7 @@ class RVEConfig(_Section):
                 f"rve.diameter_sd_um must be in [0, rve.diameter_um = {self.diameter_um:g}] "
                 "(a coefficient of variation up to 1)"
             )
-        if self.diameter_min_um >= self.diameter_um:
+        if cast(float, self.diameter_min_um) >= self.diameter_um:  # set above when not given
             raise ValueError(
                 f"rve.diameter_min_um must be > 0 and < rve.diameter_um = {self.diameter_um}"
             )
@@ -281,14 +282,15 @@ class RVEConfig(_Section):
     @property
     def side_um(self) -> float:
         """Layer side L [um]."""
-        return self.size_um if self.size_um is not None else self.size_ratio * self.diameter_um
+        # The validator gives size_ratio its default when neither is given.
+        return self.size_um if self.size_um is not None else cast(float, self.size_ratio) * self.diameter_um
 
     @property
     def segment_length_um(self) -> float:
         """Segment length l_s [um]."""
         if self.segment_um is not None:
             return self.segment_um
-        return self.segment_ratio * self.diameter_um
+        return cast(float, self.segment_ratio) * self.diameter_um  # its default when neither is given
 
     @property
     def merge_tolerance_um(self) -> float:
@@ -539,7 +541,8 @@ class TargetsConfig(_Section):
         if self.contour_length_um is not None and self.tortuosity is None:
             raise ValueError("targets.contour_length_um needs targets.tortuosity (the contour "
                              "lengths are those of the measured pieces)")
-        if self.contour_length_um is not None and len(self.contour_length_um) != len(self.tortuosity):
+        if (self.contour_length_um is not None and self.tortuosity is not None
+                and len(self.contour_length_um) != len(self.tortuosity)):
             raise ValueError(
                 "targets.contour_length_um must hold one contour length per targets.tortuosity "
                 f"value (the lengths of those pieces): got {len(self.contour_length_um):,} "
@@ -854,6 +857,12 @@ def load_config(source: str | Path | None = None, overrides: dict[str, Any] | No
     if overrides:
         data = _apply_dotted(data, overrides)
     return config_from_dict(data, label)
+
+
+def dotted_overrides(keywords: Mapping[str, Any]) -> dict[str, Any]:
+    """Overrides given as Python keywords, ``section__key=value`` (or ``**{"section.key": value}``),
+    as the dotted keys ``section.key`` every other function of the package takes."""
+    return {key.replace("__", "."): value for key, value in keywords.items()}
 
 
 def apply_overrides(config: Config, overrides: dict[str, Any]) -> Config:

@@ -21,7 +21,7 @@ import datetime as _dt
 import platform
 import tomllib
 from pathlib import Path
-from typing import Literal
+from typing import Literal, TypeGuard, overload
 
 import h5py
 import numpy as np
@@ -54,7 +54,7 @@ def provenance() -> dict[str, str]:
         "h5py_version": h5py.__version__,
         "python_version": platform.python_version(),
         "units": UNITS,
-        "created_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "created_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
     }
 
 
@@ -166,7 +166,7 @@ def _root_attr(f: h5py.File, path: Path, name: str) -> object:
                          "an espin file header") from None
 
 
-def _is_integer(value: object) -> bool:
+def _is_integer(value: object) -> TypeGuard[int | np.integer]:
     return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
 
 
@@ -280,6 +280,17 @@ def read_dataset(
                          expected) from None
     _check_values(raw, path, f"dataset {name}", expected, kind, low, high, positive, finite)
     return raw.astype(_CAST[kind])
+
+
+@overload
+def read_attr(f: h5py.File, group: str, name: str, *, kind: Literal["int"], meaning: str, low: float | None = None,
+              high: float | None = None, positive: bool = False, finite: bool = True) -> int: ...
+@overload
+def read_attr(f: h5py.File, group: str, name: str, *, kind: Literal["float"], meaning: str, low: float | None = None,
+              high: float | None = None, positive: bool = False, finite: bool = True) -> float: ...
+@overload
+def read_attr(f: h5py.File, group: str, name: str, *, kind: Kind, meaning: str, low: float | None = None,
+              high: float | None = None, positive: bool = False, finite: bool = True) -> float | int | bool: ...
 
 
 def read_attr(

@@ -67,7 +67,9 @@ class RunManifest:
         ISO 8601 times; ``finished_utc`` is None while running.
     outputs : list of str
         Glob patterns (relative to the folder) of the files the run writes: what an
-        ``--overwrite`` by a later run removes.
+        ``--overwrite`` by a later run removes. While it runs (and if it fails), every file it
+        may write; once complete, those it wrote (a converged simulation writes no
+        ``solver.log``).
     """
 
     run_id: str
@@ -242,7 +244,10 @@ class OutputFolder:
             (self.path / MANIFEST).unlink()
             self.path.rmdir()
             return
-        self.manifest = replace(self.manifest, status=status, finished_utc=_utc_now())
+        outputs = self.manifest.outputs
+        if status == "complete":
+            outputs = [p for p in dict.fromkeys(outputs) if _existing(self.path, [p])]
+        self.manifest = replace(self.manifest, status=status, finished_utc=_utc_now(), outputs=outputs)
         self._write()
 
     def _write(self) -> None:
@@ -266,4 +271,4 @@ def _existing(path: Path, outputs: Sequence[str]) -> list[str]:
 
 
 def _utc_now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")

@@ -37,7 +37,7 @@ from espin.core.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["TaskOutcome", "TaskPool", "parallel_map", "default_workers", "check_pool", "check_scheduler"]
+__all__ = ["TaskOutcome", "TaskPlace", "TaskPool", "parallel_map", "default_workers", "check_pool", "check_scheduler"]
 
 
 @dataclass(frozen=True)
@@ -235,6 +235,42 @@ def _check_security(security: Any, scheme: str | None) -> None:
                           "brings its own security; local processes and 'local' need none)")
 
 
+@dataclass(frozen=True)
+class TaskPlace:
+    """Where tasks run, checked when made (connects to nothing): the options of :class:`TaskPool`.
+
+    Attributes
+    ----------
+    workers : int or None
+        Local worker processes (None: all cores; 1: in this process), or the Dask workers of
+        ``scheduler="local"``.
+    scheduler
+        None (local processes), ``"local"``, ``"tcp://host:port"``, ``"tls://host:port"`` or a
+        ``distributed.Client``.
+    blas_threads : int or None
+        BLAS / MKL threads per task (None: the library's own choice).
+    security
+        The TLS files of a ``tls://`` scheduler.
+
+    Raises
+    ------
+    ConfigError
+        For an invalid option (:func:`check_pool`).
+    """
+
+    workers: int | None = None
+    scheduler: Any = None
+    blas_threads: int | None = 1
+    security: Any = None
+
+    def __post_init__(self) -> None:
+        check_pool(self.workers, self.scheduler, self.blas_threads, self.security)
+
+    def pool(self) -> TaskPool:
+        """A new task pool here (start it with ``with``)."""
+        return TaskPool(self.workers, self.scheduler, self.blas_threads, self.security)
+
+
 def _is_loopback(host: str) -> bool:
     """True for ``localhost`` and loopback addresses (127.0.0.0/8, ::1)."""
     if host.lower() == "localhost":
@@ -289,7 +325,7 @@ class TaskPool:
         self.blas_threads = blas_threads
         self.security = security
         self._executor: Executor | None = None
-        self._closers: list[Callable[[], None]] = []
+        self._closers: list[Callable[[], object]] = []
 
     @property
     def serial(self) -> bool:

@@ -15,7 +15,7 @@ from typing import Any, TypeVar
 
 Step = TypeVar("Step")
 
-__all__ = ["in_notebook", "NotebookProgress", "with_progress"]
+__all__ = ["in_notebook", "NotebookProgress", "with_progress", "clock"]
 
 
 def in_notebook() -> bool:
@@ -27,7 +27,8 @@ def in_notebook() -> bool:
     return ipython is not None and type(ipython).__name__ == "ZMQInteractiveShell"
 
 
-def _duration(seconds: float) -> str:
+def clock(seconds: float) -> str:
+    """A duration [s] as a clock: ``0:07``, ``12:34``, ``1:02:03``."""
     minutes, secs = divmod(int(round(seconds)), 60)
     hours, minutes = divmod(minutes, 60)
     return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
@@ -57,11 +58,11 @@ class NotebookProgress:
     def _render(self, done: int, info: str) -> str:
         elapsed = time.perf_counter() - self._start
         if self.total is None:
-            return f"<code>{escape(self.what)} {done}  {escape(info)}  {_duration(elapsed)} elapsed</code>"
-        left = f", about {_duration(elapsed / done * (self.total - done))} left" if 0 < done < self.total else ""
+            return f"<code>{escape(self.what)} {done}  {escape(info)}  {clock(elapsed)} elapsed</code>"
+        left = f", about {clock(elapsed / done * (self.total - done))} left" if 0 < done < self.total else ""
         return (f'<progress value="{done}" max="{self.total}" style="width:40%"></progress> '
                 f"<code>{escape(self.what)} {done}/{self.total}  {escape(info)}  "
-                f"{_duration(elapsed)} elapsed{left}</code>")
+                f"{clock(elapsed)} elapsed{left}</code>")
 
     def update(self, done: int, info: str = "") -> None:
         """Show ``done`` units finished, with a short text (e.g. the strain reached)."""

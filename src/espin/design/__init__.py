@@ -108,16 +108,15 @@ def design(
     """
     from espin.core.config import config_digest
     from espin.core.output_folder import OutputFolder, inputs_digest
-    from espin.core.parallel import check_pool
+    from espin.core.parallel import TaskPlace
 
-    check_pool(workers, scheduler, blas_threads, security)
-    counts = dict(budget=budget, batch=batch, initial=initial, replicates=replicates, verify=verify, seed=seed,
-                  realizations=realizations)
+    place = TaskPlace(workers, scheduler, blas_threads, security)
+    counts: dict[str, Any] = dict(budget=budget, batch=batch, initial=initial, replicates=replicates, verify=verify,
+                                  seed=seed, realizations=realizations)
     # every input is checked before the folder is claimed (a refused input never touches it)
     problem = prepare_design(targets, variables, base=base, constraints=constraints, **counts, **overrides)
     targets, space = problem.targets, problem.space
-    pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
-    options = dict(base=space.base, constraints=space.constraints, pool=pool, **counts,
+    options: dict[str, Any] = dict(base=space.base, constraints=space.constraints, place=place, **counts,
                    on_batch=on_batch or _notebook_bar(budget, len(targets.directions)))
     if folder is None:
         return design_result(run_design(targets, space.variables, folder=None, **options))

@@ -148,8 +148,8 @@ def plot_verification(run: DesignRun, path: str | Path) -> Path:
             if isinstance(t, CurveTarget):
                 ax.plot(100 * np.asarray(t.strain), t.stress_MPa, "ko", ms=4, label=f"target curve ({t.source})")
             elif t.name == "modulus_MPa":
-                strain = np.linspace(0.0, 0.02, 2)
-                ax.plot(100 * strain, t.value * strain, "C2--", lw=1.2, label=f"target $E$ = {t.value:.4g} MPa")
+                line = np.linspace(0.0, 0.02, 2)
+                ax.plot(100 * line, t.value * line, "C2--", lw=1.2, label=f"target $E$ = {t.value:.4g} MPa")
             elif t.name == "yield_stress_MPa":
                 ax.axhline(t.value, color="C3", ls=":", lw=1.2, label=rf"target $\sigma_y$ = {t.value:.4g} MPa")
         ax.set_xlabel("strain [%]")

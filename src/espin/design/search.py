@@ -37,8 +37,9 @@ import numpy as np
 
 from espin.core.config import Config
 from espin.core.errors import ConfigError, SolverError
+from espin.core.parallel import TaskPlace
 from espin.design.surrogate import PropertySurrogate, fit_surrogate
-from espin.design.targets import STRESS_AT, CurveTarget, DesignTargets, parse_targets
+from espin.design.targets import STRESS_AT, CurveTarget, DesignTargets, Target, parse_targets
 from espin.design.variables import Constraint, DesignSpace, DesignVariable
 from espin.geometry.rve import resolve_config
 from espin.studies.ensemble import TensileTask, plan_tasks, run_ensemble
@@ -154,19 +155,19 @@ def _tasks(space: DesignSpace, directions: Sequence[float], evaluation: Evaluati
                                    [evaluation.seed])]
 
 
-Evaluator = Callable[[DesignSpace, DesignTargets, Sequence[Evaluation], Path | None, Mapping[str, Any]], None]
-"""Fills the outputs of evaluations: (space, targets, evaluations, folder, pool) -> None."""
+Evaluator = Callable[[DesignSpace, DesignTargets, Sequence[Evaluation], Path | None, TaskPlace], None]
+"""Fills the outputs of evaluations: (space, targets, evaluations, folder, where tasks run) -> None."""
 
 
 def _evaluate(space: DesignSpace, targets: DesignTargets, evaluations: Sequence[Evaluation],
-              folder: Path | None, pool: Mapping[str, Any]) -> None:
+              folder: Path | None, place: TaskPlace) -> None:
     """Run the tensile tests of ``evaluations`` (every direction) together and fill their outputs."""
     directions = targets.directions
     planned = [(evaluation, direction, task) for evaluation in evaluations
                for direction, task in zip(directions, _tasks(space, directions, evaluation))]
     unique = list({task.key: task for _, _, task in planned}.values())
     # no bar per batch: the design shows its own progress (espin.design.design)
-    ensemble = run_ensemble(unique, None if folder is None else folder / "runs", **pool,
+    ensemble = run_ensemble(unique, None if folder is None else folder / "runs", place=place,
                             on_outcome=lambda outcome, task: None)
     records = {r["key"]: r for r in ensemble.records}
     failures = {f["key"]: f for f in ensemble.failures}
@@ -363,7 +364,7 @@ def _count(name: str, value: Any, low: int) -> int:
 
 
 def prepare_design(
-    targets: Iterable[str] | Mapping[str, float] | DesignTargets,
+    targets: Iterable[str | Target] | Mapping[str, float] | DesignTargets,
     variables: Iterable[str | tuple[str, float, float] | DesignVariable] | Mapping[str, tuple[float, float]],
     *,
     base: Config | str | Path | None = "plla",
@@ -420,7 +421,7 @@ def prepare_design(
 
 
 def run_design(
-    targets: Iterable[str] | Mapping[str, float] | DesignTargets,
+    targets: Iterable[str | Target] | Mapping[str, float] | DesignTargets,
     variables: Iterable[str | tuple[str, float, float] | DesignVariable] | Mapping[str, tuple[float, float]],
     *,
     base: Config | str | Path | None = "plla",
@@ -433,15 +434,15 @@ def run_design(
     seed: int = 0,
     realizations: int = 1,
     folder: str | Path | None = None,
-    pool: Mapping[str, Any] | None = None,
+    place: TaskPlace | None = None,
     on_batch: Callable[[list[Evaluation], Evaluation], None] | None = None,
     evaluator: Evaluator | None = None,
     **overrides: Any,
 ) -> DesignRun:
     """Run the design loop (module docstring); :func:`espin.design.design` is the public entry.
 
-    Parameters are those of :func:`espin.design.design`; ``pool`` holds ``workers``,
-    ``scheduler``, ``blas_threads`` and ``security`` of the task pool. ``evaluator`` replaces
+    Parameters are those of :func:`espin.design.design`; ``place`` is where the tensile tests
+    run (:class:`espin.core.parallel.TaskPlace`). ``evaluator`` replaces
     the tensile tests (it fills the outputs of the evaluations it is given; e.g. a known
     function to check the optimizer).
     """
@@ -452,7 +453,7 @@ def run_design(
     targets, space, base, first = problem.targets, problem.space, problem.space.base, problem.first
     n_dir = len(targets.directions)
     cost = n_dir * realizations  # tensile tests per proposed design
-    pool = dict(pool or {})
+    place = place or TaskPlace()
     folder = None if folder is None else Path(folder)
     evaluate = evaluator or _evaluate
     search_seed = base.rve.seed
@@ -467,7 +468,7 @@ def run_design(
     spare = search_seed + realizations - 1  # replicate seeds come after the search seeds
     batch_ = [new("initial", u, s) for u in first for s in seeds]
     batch_ += [new("replicate", first[0], spare + k) for k in range(1, replicates)]
-    evaluate(space, targets, batch_, folder, pool)
+    evaluate(space, targets, batch_, folder, place)
     tests = len(batch_) * n_dir
     surrogates = _fit(targets, evaluations, seed)
     best = _best(targets, evaluations, surrogates)
@@ -482,7 +483,7 @@ def run_design(
             log.info("design: no new candidate left to propose")
             break
         batch_ = [new("search", u, s) for u in proposals for s in seeds]
-        evaluate(space, targets, batch_, folder, pool)
+        evaluate(space, targets, batch_, folder, place)
         tests += len(batch_) * n_dir
         surrogates = _fit(targets, evaluations, seed)
         best = _best(targets, evaluations, surrogates)
@@ -493,11 +494,11 @@ def run_design(
     # (a sparse mat scatters more), and the prediction interval is for this design.
     # seeds the first design's replicates did not use: the best may be that design
     again = [new("replicate", best.unit, spare + replicates - 1 + k) for k in range(1, replicates)]
-    evaluate(space, targets, again, folder, pool)
+    evaluate(space, targets, again, folder, place)
     sd = _realization_sd(targets, evaluations)
     verification = [Evaluation(len(evaluations) + k, "verify", best.unit, dict(best.values),
                                search_seed + VERIFY_SEED_OFFSET + k) for k in range(verify)]
-    evaluate(space, targets, verification, folder, pool)
+    evaluate(space, targets, verification, folder, place)
     checks = (len(again) + len(verification)) * n_dir
     return DesignRun(targets, space, evaluations, surrogates, best, sd, verification, tests, budget, checks,
                      time.perf_counter() - start, _meets(targets, best), folder, realizations)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -38,7 +39,7 @@ class PropertySurrogate:
         Standard deviation of the fitted white noise, in the modelled scale (log: relative).
     """
 
-    model: object
+    model: Any  # a fitted GaussianProcessRegressor (scikit-learn is untyped)
     log: bool
     noise_sd: float
 

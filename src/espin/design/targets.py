@@ -24,6 +24,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from espin.core.errors import ConfigError
 
@@ -101,7 +102,7 @@ class PropertyTarget:
         """The (property, direction) it reads."""
         return ((self.name, self.direction_deg),)
 
-    def achieved(self, properties: Mapping[tuple[str, float], np.ndarray]) -> np.ndarray:
+    def achieved(self, properties: Mapping[tuple[str, float], ArrayLike]) -> np.ndarray:
         """The property achieved, from (name, direction) -> values (any shape)."""
         return np.asarray(properties[(self.name, self.direction_deg)], dtype=float)
 
@@ -157,13 +158,18 @@ class RatioTarget:
         """The (property, direction) pairs it reads."""
         return ((self.name, self.direction_deg), (self.name, self.over_direction_deg))
 
-    def achieved(self, properties: Mapping[tuple[str, float], np.ndarray]) -> np.ndarray:
+    def achieved(self, properties: Mapping[tuple[str, float], ArrayLike]) -> np.ndarray:
         """The ratio achieved, from (name, direction) -> values (any shape)."""
         return (np.asarray(properties[(self.name, self.direction_deg)], dtype=float)
                 / np.asarray(properties[(self.name, self.over_direction_deg)], dtype=float))
 
-    error = PropertyTarget.error
-    meets = PropertyTarget.meets
+    def error(self, properties: Mapping[tuple[str, float], np.ndarray]) -> np.ndarray:
+        """Normalized error (achieved - target) / (tolerance target)."""
+        return (self.achieved(properties) - self.value) / (self.tolerance * self.value)
+
+    def meets(self, achieved: float) -> bool:
+        """Whether an achieved value is within the tolerance."""
+        return bool(abs(achieved - self.value) <= self.tolerance * self.value)
 
 
 STRESS_AT = "stress_at_"
@@ -214,21 +220,21 @@ class CurveTarget:
         object.__setattr__(self, "direction_deg", _direction(self.direction_deg))
 
     @classmethod
-    def from_curve(cls, strain: Sequence[float], stress_MPa: Sequence[float], *, points: int = 12,
+    def from_curve(cls, strain: ArrayLike, stress_MPa: ArrayLike, *, points: int = 12,
                    strain_range: tuple[float, float] | None = None, tolerance: float = DEFAULT_TOLERANCE,
                    direction_deg: float = 0.0, source: str = "curve") -> CurveTarget:
         """A target from a measured or wanted curve, interpolated at ``points`` evenly spaced
         strains over ``strain_range`` (default: from a ``points``-th of the last strain to it)."""
-        strain, stress = np.asarray(strain, dtype=float), np.asarray(stress_MPa, dtype=float)
+        x, y = np.asarray(strain, dtype=float), np.asarray(stress_MPa, dtype=float)
         if int(points) != points or points < 3:
             raise ConfigError(f"curve target {source}: points must be an integer >= 3 (got {points})")
-        high = float(strain.max())
+        high = float(x.max())
         low, high = strain_range if strain_range is not None else (high / points, high)
-        if not (0.0 < low < high <= strain.max() + 1e-12):
+        if not (0.0 < low < high <= x.max() + 1e-12):
             raise ConfigError(f"curve target {source}: strain range {low:g}:{high:g} must lie in (0, "
-                              f"{strain.max():g}], the curve's strains")
+                              f"{x.max():g}], the curve's strains")
         grid = np.linspace(low, high, int(points))
-        return cls(tuple(grid), tuple(np.interp(grid, strain, stress)), tolerance, direction_deg, source)
+        return cls(tuple(grid), tuple(np.interp(grid, x, y)), tolerance, direction_deg, source)
 
     @property
     def name(self) -> str:
@@ -250,7 +256,7 @@ class CurveTarget:
         """One (stress at strain, direction) output per compared strain."""
         return tuple((f"{STRESS_AT}{e:.6g}", self.direction_deg) for e in self.strain)
 
-    def achieved(self, properties: Mapping[tuple[str, float], np.ndarray]) -> np.ndarray:
+    def achieved(self, properties: Mapping[tuple[str, float], ArrayLike]) -> np.ndarray:
         """RMS stress deviation over the largest target stress (relative, any shape)."""
         target = np.asarray(self.stress_MPa)
         model = np.stack([np.asarray(properties[o], dtype=float) for o in self.outputs], axis=-1)

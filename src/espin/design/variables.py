@@ -289,7 +289,7 @@ class DesignSpace:
             out[i] = all(c.holds(self.base, values) for c in self.constraints)
         return out
 
-    def at_bounds(self, unit: Sequence[float], margin: float = 0.02) -> list[str]:
+    def at_bounds(self, unit: Sequence[float] | np.ndarray, margin: float = 0.02) -> list[str]:
         """The variables within ``margin`` (a fraction of their range) of a bound at ``unit``:
         ``"rve.volume_fraction = 0.3 (upper bound)"``."""
         out = []

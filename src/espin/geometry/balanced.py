@@ -34,6 +34,7 @@ removes most of that noise
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.stats import qmc
 
 from espin.geometry.orientation import HistogramOrientation, OrientationDistribution
@@ -158,7 +159,7 @@ def axis_quantiles(dist: OrientationDistribution, u: np.ndarray, width_weighted:
     quantile is linear within a cell (exact for the uniform and histogram distributions of
     the border seeding).
     """
-    cuts = [np.linspace(0.0, np.pi, _AXIS_CELLS + 1), [np.pi / 2.0]]
+    cuts: list[ArrayLike] = [np.linspace(0.0, np.pi, _AXIS_CELLS + 1), [np.pi / 2.0]]
     if isinstance(dist, HistogramOrientation):
         cuts.append(np.clip(dist.edges, 0.0, np.pi))
     grid = np.unique(np.concatenate(cuts))

@@ -6,8 +6,8 @@ walks set the segment directions (``rve.walk``): the paper's turns each segment 
 previous one by a uniform random angle in [-theta_max, +theta_max] (the direction drifts
 without bound); the smooth walk keeps the drawn axis as the fiber's mean direction and adds a
 smooth stationary Gaussian deviation of rms ``waviness_deg`` and correlation length
-``waviness_length_ratio`` D (the fiber bends smoothly but keeps its course). Fibers are laid until the layer reaches its target volume fraction; the fiber that
-crosses the target is kept.
+``waviness_length_ratio`` D (the fiber bends smoothly but keeps its course). Fibers are laid
+until the layer reaches its target volume fraction; the fiber that crosses the target is kept.
 
 Two seedings choose the start point and the first axis:
 
@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Callable
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from scipy import special, stats
@@ -276,9 +276,10 @@ class _SmoothDeviation:
 def _walk_model(rve: RVEConfig) -> _PaperTurns | _SmoothDeviation:
     """The direction model of ``rve.walk`` (docs/model.md section 1)."""
     if rve.walk == "smooth":
-        return _SmoothDeviation(np.radians(rve.waviness_deg),
-                                rve.waviness_length_ratio * rve.diameter_um, rve.segment_length_um)
-    return _PaperTurns(np.radians(rve.max_deviation_deg))
+        # The config fills the keys of its walk (WALK_DEFAULTS).
+        return _SmoothDeviation(np.radians(cast(float, rve.waviness_deg)),
+                                cast(float, rve.waviness_length_ratio) * rve.diameter_um, rve.segment_length_um)
+    return _PaperTurns(np.radians(cast(float, rve.max_deviation_deg)))
 
 
 def _walk(
@@ -317,7 +318,7 @@ def _walk(
     active = np.arange(rows)
     pos = start[drawn_for]
     drawn = np.arange(n)  # fibers whose directions are still drawn (a variant is inside)
-    state = model.start(rng, start, theta, side)
+    state: Any = model.start(rng, start, theta, side)  # the model's own, passed back to it
     if len(signs) > 1:
         row_signs = np.where(model.mirrorable(start, state, side)[drawn_for, None],
                              np.repeat(signs, n, axis=0), 1.0)
@@ -341,7 +342,7 @@ def _walk(
         step += chunk
         steps = segment * np.stack([np.cos(angles), np.sin(angles)], axis=-1)
         path = pos[:, None, :] + np.cumsum(steps, axis=1)
-        outside = ((path < 0.0) | (path > side)).any(axis=2)
+        outside = cast(np.ndarray, ((path < 0.0) | (path > side)).any(axis=2))  # numpy types it bool | array
         exited = outside.any(axis=1)
         k = np.where(exited, outside.argmax(axis=1), chunk)  # index of the leaving vertex
         keep = np.arange(chunk)[None, :] < k[:, None]
@@ -377,7 +378,7 @@ def _diameters(rng: np.random.Generator, n: int, rve: RVEConfig) -> np.ndarray:
     # Unfrozen scipy calls and special functions: freezing a scipy distribution costs ~1 ms,
     # more than the draws of a layer (the geometry calibration deposits ~1e5 layers).
     if rve.diameter_distribution == "normal":
-        lower = (rve.diameter_min_um - rve.diameter_um) / rve.diameter_sd_um
+        lower = (cast(float, rve.diameter_min_um) - rve.diameter_um) / rve.diameter_sd_um
         return stats.truncnorm.rvs(lower, np.inf, loc=rve.diameter_um, scale=rve.diameter_sd_um,
                                    size=n, random_state=rng)
     return _diameter_quantiles(rve, rng.uniform(0.0, 1.0, n))
@@ -389,11 +390,11 @@ def _diameter_quantiles(rve: RVEConfig, u: np.ndarray) -> np.ndarray:
     if rve.diameter_sd_um == 0.0:
         return np.full(len(u), rve.diameter_um)
     if rve.diameter_distribution == "normal":
-        lower = (rve.diameter_min_um - rve.diameter_um) / rve.diameter_sd_um
+        lower = (cast(float, rve.diameter_min_um) - rve.diameter_um) / rve.diameter_sd_um
         return stats.truncnorm.ppf(u, lower, np.inf, loc=rve.diameter_um, scale=rve.diameter_sd_um)
     sigma, median = _lognormal_parameters(rve.diameter_um, rve.diameter_sd_um)
     # Inverse CDF over [low, 1): the truncated law exactly.
-    low = special.ndtr(np.log(rve.diameter_min_um / median) / sigma)
+    low = special.ndtr(np.log(cast(float, rve.diameter_min_um) / median) / sigma)
     return median * np.exp(sigma * special.ndtri(low + (1.0 - low) * u))
 
 

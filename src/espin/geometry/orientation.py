@@ -90,7 +90,7 @@ class VonMisesOrientation(OrientationDistribution):
         hi = 2.0 * (theta - self.mean)
         dist = stats.vonmises(self.kappa)
 
-        def wrapped(a: np.ndarray) -> np.ndarray:
+        def wrapped(a: np.ndarray | float) -> np.ndarray:
             # Cumulative mass of the circular variable from -pi up to a (any real a).
             turns = np.floor((a + np.pi) / (2.0 * np.pi))
             return turns + dist.cdf(a - 2.0 * np.pi * turns)

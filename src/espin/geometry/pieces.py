@@ -127,9 +127,9 @@ def sample_pieces(runs: WindowRuns, lengths_um: np.ndarray, min_chord_um: float,
         room = np.clip(span - ell[i], 0.0, None)
         if room.sum() <= 0.0:
             continue
-        r = int(rng.choice(len(span), p=room / room.sum()))
-        g[i] = run_start[r] + rng.uniform(0.0, room[r])
-        run_of[i] = r
+        chosen = int(rng.choice(len(span), p=room / room.sum()))
+        g[i] = run_start[chosen] + rng.uniform(0.0, room[chosen])
+        run_of[i] = chosen
     placed = np.isfinite(g)
     g, ell, run_of = g[placed], ell[placed], run_of[placed]
     a = _point_at(runs, run_of, g)

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from espin.core.config import Config, apply_overrides, load_config
+from espin.core.config import Config, apply_overrides, dotted_overrides, load_config
 from espin.core.errors import ConfigError
 from espin.core.html import html_table
 from espin.geometry.crosslinks import Crosslinks, find_crosslinks
@@ -92,9 +92,10 @@ class RVE:
 def resolve_config(config: Config | str | Path | None = None, **overrides: Any) -> Config:
     """A validated :class:`Config` from a Config, a preset name, a TOML path or None (plla).
 
-    Keyword overrides use ``section__key`` names, e.g. ``rve__layers=5``.
+    Keyword overrides use ``section__key`` names, e.g. ``rve__layers=5`` (or dotted keys
+    through ``**{"rve.layers": 5}``).
     """
-    flat = {key.replace("__", "."): value for key, value in overrides.items()}
+    flat = dotted_overrides(overrides)
     if isinstance(config, Config):
         return apply_overrides(config, flat) if flat else config
     return load_config("plla" if config is None else config, flat)

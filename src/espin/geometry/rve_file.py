@@ -19,6 +19,7 @@ The array meanings are those of :class:`~espin.geometry.mat.FiberMat`,
 from __future__ import annotations
 
 from pathlib import Path
+from typing import cast
 
 import h5py
 import numpy as np
@@ -298,8 +299,9 @@ def _check_config(path: Path, config: Config, mat: FiberMat, network: Network) -
         if not np.isclose(stored, found, rtol=_RTOL, atol=0.0):
             raise _config_error(path, key, stored, where, found)
     thinnest = float(mat.fiber_diameter.min(initial=np.inf))
-    if thinnest < rve.diameter_min_um * (1.0 - _RTOL):
-        raise _config_error(path, "rve.diameter_min_um", rve.diameter_min_um,
+    diameter_min = cast(float, rve.diameter_min_um)  # the config sets it when not given
+    if thinnest < diameter_min * (1.0 - _RTOL):
+        raise _config_error(path, "rve.diameter_min_um", diameter_min,
                             "the smallest of dataset mat/fiber_diameter", thinnest)
     layer = mat.layer_volume_fraction()
     for k in range(mat.n_layers):  # deposition stops at the fiber that reaches the target

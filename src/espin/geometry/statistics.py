@@ -48,7 +48,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -398,7 +398,7 @@ def diameter_target(targets: TargetsConfig | None) -> Target | None:
         return None
     if targets.diameter_um is not None:
         return _sample_target(targets.diameter_um)
-    mean, sd = targets.diameter_mean_um, targets.diameter_sd_um
+    mean, sd = targets.diameter_mean_um, cast(float, targets.diameter_sd_um)  # given with the mean
     if mean is None:
         return None
     if sd == 0.0:
@@ -581,7 +581,8 @@ def ks_two_sample(sample: ArrayLike, target: ArrayLike) -> float:
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class NetworkStatistics:
-    """Statistics of a mat and its network (docs/model.md section 2) and the fit to measured targets (docs/model.md section 7).
+    """Statistics of a mat and its network (docs/model.md section 2) and the fit to measured
+    targets (docs/model.md section 7).
 
     Cross-link conventions
     ----------------------
@@ -1055,7 +1056,7 @@ def _axial_order(theta: np.ndarray) -> tuple[float, float]:
     return float(abs(z)), float(np.degrees(np.mod(np.angle(z) / 2.0, np.pi)))
 
 
-def _finite(x: np.ndarray) -> np.ndarray:
+def _finite(x: ArrayLike) -> np.ndarray:
     x = np.asarray(x, dtype=float)
     return x[np.isfinite(x)]
 

@@ -374,19 +374,20 @@ class GeometryTargets:
         lengths = None
         if "contour_length_um" in values and ("tortuosity" in values or "orientation_deg" in values):
             # The observation lengths of the pieces whose tortuosity / orientation was measured.
-            measured = values.get("tortuosity", values.get("orientation_deg"))
+            measured = values["tortuosity"] if "tortuosity" in values else values["orientation_deg"]
             lengths = values["contour_length_um"][np.isfinite(measured)]
             lengths = lengths[np.isfinite(lengths)]
             if len(lengths) < MIN_SAMPLE_SIZE:
                 notes.append(f"only {len(lengths)} contour lengths: whole window portions measured")
                 lengths = None
-        samples = {k: values.get(k) for k in SAMPLE_COLUMNS}
+        samples: dict[str, Any] = {k: values.get(k) for k in SAMPLE_COLUMNS}
         return cls(**samples, contour_length_um=lengths, notes=tuple(notes), **extra)
 
     @classmethod
     def from_measurement(cls, measurement: Any, **extra: Any) -> GeometryTargets:
-        """Targets from an :class:`espin.imaging.measurement.SEMMeasurement` (``espin.imaging.measurement.measure(...)``):
-        its fibers table, field of view, shortest chord and edge-to-edge statistics."""
+        """Targets from an :class:`espin.imaging.measurement.SEMMeasurement`
+        (``espin.imaging.measurement.measure(...)``): its fibers table, field of view, shortest
+        chord and edge-to-edge statistics."""
         found = {"field_of_view_um": tuple(measurement.field_of_view_um),
                  "min_chord_um": float(measurement.min_chord_um),
                  "source": f"espin measure of {getattr(measurement, 'source', 'an image')}"}
@@ -415,7 +416,7 @@ class GeometryTargets:
                 or not um_per_px > 0):
             raise MeasurementError(f"{toml_path}: um_per_px must be a number > 0, got {um_per_px!r}")
         try:
-            found = {"field_of_view_um": _field_of_view(meta["field_of_view_um"])}
+            found: dict[str, Any] = {"field_of_view_um": _field_of_view(meta["field_of_view_um"])}
             if "min_chord_um" in meta:
                 found["min_chord_um"] = _number(meta["min_chord_um"], "min_chord_um")
             found |= _crossing_table(meta.get("crossing", {}))

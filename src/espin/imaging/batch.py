@@ -35,7 +35,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pandas as pd
@@ -162,8 +162,8 @@ def measure_batch(images: Sequence[str | Path], out: str | Path, *, overwrite: b
     Raises
     ------
     ConfigError
-        An option is out of range, an image has no scale, a folder holds no image, or ``out`` holds another run's results and ``overwrite`` is False; before any
-        image is measured.
+        An option is out of range, an image has no scale, a folder holds no image, or ``out``
+        holds another run's results and ``overwrite`` is False; before any image is measured.
     """
     options = _measure_options(options)
     files = image_files(images)
@@ -225,7 +225,8 @@ def _measure_one(path: Path, folder: Path, digest: str | None, error: str | None
     if error is not None:
         return row, None
     try:
-        with OutputFolder.claim(folder, "measure", digest, MEASURE_OUTPUTS):
+        # An image without an error has its digest.
+        with OutputFolder.claim(folder, "measure", cast(str, digest), MEASURE_OUTPUTS):
             m = measure(path, **options)
             m.write_files(folder, figures)
     except (SEMError, ConfigError) as err:

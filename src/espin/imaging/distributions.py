@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 from scipy import special, stats
@@ -129,7 +130,7 @@ class DiameterFits:
         """The fits by family, for ``measurement.toml`` (NaN for a family not fitted)."""
         mixture = self.mixture
         lognormal_mean = math.exp(self.lognormal_mu + self.lognormal_sigma**2 / 2)
-        out: dict[str, object] = {
+        out: dict[str, Any] = {
             "n": self.n, "mean_um": self.mean_um, "sd_um": self.sd_um, "median_um": self.median_um,
             "selection": "BIC", "distribution": self.chosen,
             "normal": {"mean_um": self.normal_mean_um, "sd_um": self.normal_sd_um},
@@ -142,7 +143,7 @@ class DiameterFits:
                          "sd_2_um": mixture.sd_2}),
         }
         for family in DIAMETER_FAMILIES:
-            out[family] |= {"log_likelihood": self.log_likelihood[family],  # type: ignore[operator]
+            out[family] |= {"log_likelihood": self.log_likelihood[family],
                             "aic": self.aic[family], "bic": self.bic[family]}
         return out
 
@@ -257,7 +258,7 @@ def fit_diameter_families(diameter_um: np.ndarray) -> DiameterFits:
     aic = {f: 2.0 * k[f] - 2.0 * log_l[f] for f in DIAMETER_FAMILIES}
     bic = {f: k[f] * math.log(n) - 2.0 * log_l[f] for f in DIAMETER_FAMILIES}
     eligible = [f for f in DIAMETER_FAMILIES if math.isfinite(bic[f])
-                and (f != "mixture" or mixture.smaller_share(n) >= MIN_COMPONENT)]
+                and (f != "mixture" or (mixture is not None and mixture.smaller_share(n) >= MIN_COMPONENT))]
     chosen = min(eligible, key=bic.__getitem__)
     return DiameterFits(n, mean, sd, float(np.median(d)), mean, sd, mu, sigma, mixture, log_l,
                         aic, bic, chosen)

@@ -4,10 +4,11 @@ orientation colour map.
 The diameter histogram shows the fully visible fibers (filled; their fitted family, chosen by
 BIC, as a curve) and the partly hidden ones (outlined) apart, over all local widths. The
 overlay draws every traced fiber (its centre line, amber for a fully visible fiber, blue for a
-partly hidden one; twice as thick for a fiber traced from edge to edge of the image) and, at every fourth width sample, a white
-tick across the fiber as long as the width measured there, on the analysed image: a user sees
-at a glance what was traced and measured. A legend below the image says so, and a scale bar
-(a round length, at most a fifth of the image width) sits in its lower right corner.
+partly hidden one; twice as thick for a fiber traced from edge to edge of the image) and, at every
+fourth width sample, a white tick across the fiber as long as the width measured there, on the
+analysed image: a user sees at a glance what was traced and measured. A legend below the image
+says so, and a scale bar (a round length, at most a fifth of the image width) sits in its lower
+right corner.
 
 The orientation map is OrientationJ's colour survey: hue = the local fiber direction of the
 structure tensor (:func:`espin.imaging.orientation.local_orientation`, window sigma w / 2),
@@ -140,7 +141,8 @@ def save_overlay(m: MeasuredImage, path: str | Path) -> Path:
     pick = np.arange(0, len(s.width_px), _TICK_EVERY)
     half = 0.5 * s.width_px[pick, None] * s.normal[pick]
     ticks = np.stack([s.point[pick] - half, s.point[pick] + half], axis=1)[:, :, ::-1]
-    ax.add_collection(LineCollection(ticks, colors="white", linewidths=0.6, alpha=0.8))
+    # matplotlib's stubs ask for a Sequence; an (n, 2, 2) array is what it documents and takes.
+    ax.add_collection(LineCollection(ticks, colors="white", linewidths=0.6, alpha=0.8))  # type: ignore[arg-type]
     if len(m.junctions_px):
         ax.plot(m.junctions_px[:, 1], m.junctions_px[:, 0], ".", color="C3", ms=4)
     ax.set(xlim=(-0.5, cols - 0.5), ylim=(rows - 0.5, -0.5))

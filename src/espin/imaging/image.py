@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -152,7 +153,7 @@ def _read_tiff(path: Path) -> np.ndarray:
     import tifffile
 
     with tifffile.TiffFile(path) as tif:
-        page = tif.pages[0]
+        page = cast(tifffile.TiffPage, tif.pages[0])  # the first page is a page, never a frame
         _check_size(path, page.imagewidth, page.imagelength * page.imagedepth)
         if page.dtype is None or page.dtype.kind not in "biuf":
             raise SEMError(f"image {str(path)!r}: TIFF of sample type {page.dtype}; expected "
@@ -183,7 +184,8 @@ def _read_pillow(path: Path) -> np.ndarray:
 def _decode_pillow(path: Path) -> np.ndarray:
     from PIL import Image
 
-    with Image.open(path) as img:
+    with Image.open(path) as opened:
+        img: Image.Image = opened
         _check_size(path, *img.size)
         img.seek(0)
         if img.mode in ("P", "PA"):
@@ -212,8 +214,8 @@ def parse_rows(value: str | tuple[int, int] | list[int], name: str) -> tuple[int
             raise ConfigError(f"{name} must be START:STOP (two integers), got {value!r}") from None
     else:
         try:
-            start, stop = value
-            pair = (int(start), int(stop))
+            first, last = value
+            pair = (int(first), int(last))
         except (TypeError, ValueError):
             raise ConfigError(
                 f"{name} must be a pair (start, stop) of rows, got {value!r}") from None

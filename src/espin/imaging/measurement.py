@@ -27,7 +27,7 @@ import hashlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pandas as pd
@@ -491,17 +491,17 @@ def measure(
 
     bar = detect_scale_bar(grey, bar_slice) if bar_slice is not None else None
     if bar is not None:
-        scale, scale_source = float(scale_bar_um) / bar.length_px, "scale_bar"
+        scale, scale_source = float(cast(float, scale_bar_um)) / bar.length_px, "scale_bar"  # given with its rows
     elif um_per_px is not None:
         scale, scale_source = float(um_per_px), "um_per_px"
     else:  # checked: the metadata holds a pixel size
-        scale, scale_source = metadata.um_per_px, "metadata"
+        scale, scale_source = cast(MetadataScale, metadata).um_per_px, "metadata"
     analysed = grey[crop_rows_slice]
     if width_px is not None and width_px > min(analysed.shape) / 4:
         raise ConfigError(f"width_px = {width_px:g} is more than a quarter of the analysed image "
                           f"({analysed.shape[1]} x {analysed.shape[0]} px): fibers that wide cannot be "
                           "traced; give the typical fiber width in pixels, or leave it out to estimate it")
-    scale_fields = {"scale_bar": bar, "scale_bar_um": None if bar is None else float(scale_bar_um),
+    scale_fields = {"scale_bar": bar, "scale_bar_um": None if bar is None else float(cast(float, scale_bar_um)),
                     "scale_source": scale_source, "metadata": metadata,
                     "scale_note": note or _scale_note(scale, scale_source, metadata),
                     "data_bar": data_bar}
@@ -574,16 +574,17 @@ def _image_metadata(image: str | Path | np.ndarray,
     is_file = isinstance(image, (str, Path)) and Path(image).is_file()
     if given:
         try:
-            return (read_pixel_size(image) if is_file else None), ""
+            return (read_pixel_size(cast(Path, image)) if is_file else None), ""
         except SEMError as err:
             return None, f"the image's metadata is not used: {err}"
-    metadata = read_pixel_size(image) if is_file else None
+    metadata = read_pixel_size(cast(Path, image)) if is_file else None  # a file is named by a path
     if metadata is None:
         where = ("no pixel size in the image's metadata (FEI or Zeiss microscope tags, an "
                  "ImageJ description with a length unit; the dpi of a TIFF is not one)"
                  if isinstance(image, (str, Path)) else "an image array has no metadata")
-        raise ConfigError("no scale: give um_per_px, or scale_bar_um (the bar's length in um) "
-                          f"with scale_bar_rows (START:STOP, the image rows that hold it); {where}")
+        raise ConfigError("no scale: give um_per_px (--um-per-px), or scale_bar_um (--scale-bar-um, "
+                          "the bar's length in um) with scale_bar_rows (--scale-bar-rows START:STOP, "
+                          f"the image rows that hold it); {where}")
     return metadata, ""
 
 

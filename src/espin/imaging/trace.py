@@ -206,8 +206,8 @@ def _ordered_chains(chain_px: np.ndarray) -> list[np.ndarray]:
         j[ok] = index[r[ok], c[ok]]
         src.append(np.flatnonzero(j >= 0))
         dst.append(j[j >= 0])
-    src, dst = np.concatenate(src), np.concatenate(dst)
-    adjacency = sparse.coo_matrix((np.ones(len(src)), (src, dst)), shape=(n, n)).tocsr()
+    head, tail = np.concatenate(src), np.concatenate(dst)
+    adjacency = sparse.coo_matrix((np.ones(len(head)), (head, tail)), shape=(n, n)).tocsr()
     adjacency = adjacency + adjacency.T
     degree = np.asarray(adjacency.sum(axis=1)).ravel()
     n_comp, comp = csgraph.connected_components(adjacency, directed=False)
@@ -300,7 +300,7 @@ def _pair_shallow_crossings(graph: _Graph, w: float,
     """
     partner = np.full(graph.ends.shape, -1, dtype=np.int64)
     bridges = np.zeros(len(graph.branches), dtype=bool)
-    at = {}  # junction -> its branch ends (2 b + side)
+    at: dict[int, list[int]] = {}  # junction -> its branch ends (2 b + side)
     for b in range(len(graph.branches)):
         for side in (0, 1):
             if graph.ends[b, side] >= 0:
@@ -327,7 +327,7 @@ def _pair_shallow_crossings(graph: _Graph, w: float,
         if min(-(u[e] @ axis) for e in outer1) <= 0 or min(u[e] @ axis for e in outer2) <= 0:
             continue
 
-        def deviation(a: int, c: int) -> float:
+        def deviation(a: int, c: int, u: dict[int, np.ndarray] = u, anchor: dict[int, np.ndarray] = anchor) -> float:
             """Bend from a (at j1) to c (at j2), or twice the larger angle between their
             directions and the line joining them (on one straight line they are all 0)."""
             line = anchor[c] - anchor[a]
@@ -498,7 +498,7 @@ def _best_matching(cost: np.ndarray, allowed: np.ndarray,
 
 
 def _chain_fibers(graph: _Graph, partner: np.ndarray, w: float,
-                  bridges: np.ndarray) -> list[np.ndarray]:
+                  bridges: np.ndarray) -> list[tuple[np.ndarray, bool]]:
     """Follow branches through their paired ends: (pixel chain, open?) of each fiber.
 
     The ends of an open chain are trimmed (:func:`_trim_open_ends`); a closed loop is not.
@@ -567,13 +567,13 @@ def _join_gaps(chains: list, w: float, max_bend: float, shape: tuple) -> list[np
     between chords of 2 w and _GUARD w around the gap (no U-turn through a gap).
     """
     open_ids = [i for i, (c, o) in enumerate(chains) if o and len(c) >= 2]
-    shape = np.array(shape)
+    size = np.array(shape)
     ends = []  # (chain, side, point, outgoing direction)
     for i in open_ids:
         c = chains[i][0]
         for side, oriented in ((0, c[::-1]), (1, c)):
             p = oriented[-1]
-            if np.any(p <= 1) or np.any(p >= shape - 2):
+            if np.any(p <= 1) or np.any(p >= size - 2):
                 continue
             ends.append((i, side, p, _end_direction(oriented, w)))
     candidates = []
@@ -602,7 +602,7 @@ def _join_gaps(chains: list, w: float, max_bend: float, shape: tuple) -> list[np
     def assemble(pieces):
         return np.concatenate([chains[i][0][::-1] if r else chains[i][0] for i, r in pieces])
 
-    for turn, gap, a, b in sorted(candidates):
+    for _turn, gap, a, b in sorted(candidates):
         ia, sa = ends[a][:2]
         ib, sb = ends[b][:2]
         if (ia, sa) not in free or (ib, sb) not in free:
@@ -723,7 +723,7 @@ def _split_at_turns(path: np.ndarray, w: float, max_bend: float) -> list[np.ndar
     cos = np.einsum("ij,ij->i", before, after) / np.maximum(
         np.hypot(*before.T) * np.hypot(*after.T), 1e-12)
     turn = np.arccos(np.clip(cos, -1.0, 1.0))
-    cuts = []
+    cuts: list[int] = []
     for i in np.argsort(-turn):
         if turn[i] <= max_bend:
             break

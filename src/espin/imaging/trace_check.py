@@ -241,7 +241,8 @@ def _true_lines(image: SyntheticSEM, mat: FiberMat) -> _TrueLines:
     """The window portions of the drawn layers' fibers, in pixels, sampled every STEP_PX."""
     runs = window_runs(mat.vertices, mat.fiber_offsets, image.origin, image.side)
     drawn = np.isin(mat.fiber_layer[runs.fiber], image.layers)
-    points, fiber, portion, polylines = [], [], [], []
+    points, fiber, portion = [], [], []
+    polylines: list[np.ndarray] = []
     for r in np.flatnonzero(drawn):
         xy = runs.points[runs.first[r]:runs.last[r] + 1]
         px = _to_px(xy, image)
@@ -314,7 +315,7 @@ def _fiber_runs(follow: np.ndarray, w: float) -> list[tuple[int, int, int]]:
         return []
     values = follow[assigned]
     cut = np.flatnonzero(np.diff(values) != 0) + 1
-    runs = []
+    runs: list[tuple[int, int, int]] = []
     for idx in np.split(assigned, cut):
         if len(idx) >= _MIN_RUN * w:
             f = int(follow[idx[0]])

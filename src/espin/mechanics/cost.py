@@ -12,8 +12,9 @@ into a process, more than the calibration may take; the main process of a study 
 not need it). Its seconds per Newton iteration after the first solve, divided by those of the
 development machine, quiet (``REFERENCE_SECONDS_PER_ITERATION``), is this machine's
 *slowness* now, other jobs on it included (it takes 0.4 s there). The test stops after the
-step past which the next might exceed the budget, and is timed on the iterations done. The modules it imports (generation, solver),
-which every command that plans needs anyway, are not counted in its time.
+step past which the next might exceed the budget, and is timed on the iterations done. The
+modules it imports (generation, solver), which every command that plans needs anyway, are not
+counted in its time.
 
 **Cost of one tensile test** (:func:`predict_test`), in *calibration iterations* (the time of
 one Newton iteration of the calibration test, measured), so that the model's constants do not
@@ -41,8 +42,9 @@ depend on the machine:
 The constants were fitted to ``benchmarks/bench_cost_model.py`` (``plla`` at L/D 60-200 with
 3-15 layers, a wavy, an aligned and an equibiaxial mat, a fit-like program of 300 uniform
 steps); its table in docs/performance.md ("Planning long runs") shows predictions within
-0.90-1.22 of the measured time on a quiet machine, three cases not used in the fit included. Newton's iteration count is the model's weakest part: a mat that
-stalls near yield (a free lateral stress, shear, unloading) can take longer than predicted.
+0.90-1.22 of the measured time on a quiet machine, three cases not used in the fit included.
+Newton's iteration count is the model's weakest part: a mat that stalls near yield (a free
+lateral stress, shear, unloading) can take longer than predicted.
 
 **Plan** (:class:`Plan`): n tests on w workers take about sum(t) / (w e) with the parallel
 efficiency e = ``PARALLEL_EFFICIENCY`` (two workers on two cores ran ten ``plla`` tests 1.69
@@ -177,12 +179,12 @@ def calibrate(*, budget_s: float = CALIBRATION_BUDGET_S, refresh: bool = False) 
         return _CACHE["speed"]
     from threadpoolctl import threadpool_limits
 
-    from espin.geometry.rve import generate
+    from espin.geometry.rve import generate, resolve_config
     from espin.mechanics.driver import run_program
     from espin.mechanics.linear_solvers import SuperLUSolver
 
     start = time.perf_counter()  # the modules above are the commands' own: not counted
-    rve = generate("plla", **{k.replace(".", "__"): v for k, v in CALIBRATION_MAT.items()})
+    rve = generate(resolve_config("plla", **CALIBRATION_MAT))
     counted: list[tuple[float, float, int]] = []  # (time, CPU time, iterations so far) after each step
 
     def on_step(record) -> None:

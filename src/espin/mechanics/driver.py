@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -478,7 +479,7 @@ class SimulationFailed(SolverError):
         self.iterations = failure.iterations
         self.advice = _TRY_MIXED if mixed and failure.kind != StepFailureKind.SINGULAR else _TRY[failure.kind]
         self.partial = partial
-        self.log_path = None
+        self.log_path: Path | None = None
         super().__init__(self.summary())
 
     def summary(self) -> str:

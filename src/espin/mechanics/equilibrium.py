@@ -18,8 +18,9 @@ V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
   use the clipped one directly;
 * a chord step: an iteration that cut the residual 10-fold or more lends its factorization
   to the next one (no new factorization), as long as that gives a descent direction;
-* a line search on Phi along the Newton direction through its exact derivative (the residual
-  projected on the direction, one residual evaluation per trial); where the residual grew,
+* a line search on Phi along the Newton direction (:mod:`espin.mechanics.line_search`)
+  through its exact derivative (the residual projected on the direction, one residual
+  evaluation per trial); where the residual grew,
   the increment of Phi from the current iterate to the trial is checked, by Simpson's rule
   on that derivative along the line (never as a difference of two large totals);
 * convergence when max |g_I| <= rtol max_e |T_e| + atol E_t mean(A_e) and, under mixed
@@ -52,11 +53,12 @@ import scipy.sparse as sp
 from threadpoolctl import ThreadpoolController, threadpool_info
 
 from espin.core.config import Config, SolverConfig
-from espin.core.errors import InadmissibleState, StepFailureKind, StepNotConverged
+from espin.core.errors import InadmissibleState, StepNotConverged
 from espin.geometry.network import Network
 from espin.mechanics.assembly import Kinematics, NetworkAssembler
 from espin.mechanics.bending import FiberJoints, fiber_joints
 from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
+from espin.mechanics.line_search import line_search
 from espin.mechanics.linear_solvers import Factorization, LinearSolver
 from espin.mechanics.loading import LateralStress
 from espin.mechanics.time_steps import local_error
@@ -65,9 +67,6 @@ __all__ = ["StepState", "StepResult", "EquilibriumSolver"]
 
 _MAX_ITERATIONS = 200  # default per step: plla seed 6 needs 75 at its first step (kink cycling)
 _MAX_ITERATIONS_MIXED = 500  # under mixed control: buckling chains need hundreds
-_SLOPE_RATIO = 0.5
-_MAX_SEARCH = 10
-_MIN_STEP = 1e-6
 _CLIPPED_AFTER_INDEFINITE = 3
 _CHORD_RATIO = 0.1  # an iteration that cut the residual this much lends its factorization to the next
 _SLACK_CONTINUATION = (100.0, 10.0, 1.0)  # E_b factors of the fallback, ending at the true law
@@ -439,69 +438,10 @@ class EquilibriumSolver:
                     break
                 direction, used, fact = self._direction(p, step, chord, choice)
                 factorizations += used
-                p = self._line_search(p, direction, step)
+                p = line_search(p, direction, lambda z, near: self._evaluate(z, step, near), step.weight)
         except StepNotConverged as failure:
             raise type(failure)(failure.reason, failure.kind, history=history, factorizations=factorizations) from None
         raise StepNotConverged(f"no convergence in {limit} iterations", history=history, factorizations=factorizations)
-
-    def _line_search(self, p: _Point, direction: np.ndarray, step: _Step) -> _Point:
-        """Step length along the Newton direction on the incremental potential Phi.
-
-        Phi's derivative along the line, s(alpha) = r(z + alpha dz) . dz, costs one residual
-        evaluation; the step is accepted when the full step still descends (s(1) <= 0) or
-        when |s(alpha)| <= 0.5 |s(0)| (Phi near its minimum along the line); otherwise the
-        zero of s is bracketed and found by safeguarded regula falsi. Where the residual
-        grew, the decrease of Phi itself is checked: its increment from the current iterate
-        to the trial, by a 1-D quadrature of s along the line.
-        """
-        s0 = float(np.dot(p.residual, direction))
-        lo, s_lo = 0.0, s0
-        hi, s_hi = None, None
-        best = None  # the trial at ``lo``: Phi still falls there
-        alpha = 1.0
-        for _ in range(_MAX_SEARCH):
-            try:
-                trial = self._evaluate(p.z + alpha * direction, step, p)
-            except InadmissibleState:  # overshot into inadmissible states: shorten
-                hi, s_hi = alpha, None
-                alpha = lo + 0.1 * (alpha - lo)
-                continue
-            s = float(np.dot(trial.residual, direction))
-            if (s <= 0.0 and alpha == 1.0) or abs(s) <= _SLOPE_RATIO * abs(s0):
-                if self._decreases(p, trial, direction, alpha, s0, s, step):
-                    return trial
-                hi, s_hi = alpha, None
-            elif s > 0.0:
-                hi, s_hi = alpha, s
-            else:
-                lo, s_lo, best = alpha, s, trial
-            if hi is None:
-                alpha = min(2.0 * alpha, 1.0)
-            elif s_hi is None:
-                alpha = lo + 0.5 * (hi - lo)
-            else:
-                guess = lo - s_lo * (hi - lo) / (s_hi - s_lo)
-                width = hi - lo
-                alpha = float(np.clip(guess, lo + 0.1 * width, hi - 0.1 * width))
-            if hi is not None and hi - lo < _MIN_STEP:
-                break
-        if best is not None and self._decreases(p, best, direction, lo, s0, s_lo, step):
-            return best  # no better point found, but Phi falls up to it
-        raise StepNotConverged("line search could not lower the incremental potential", StepFailureKind.UPHILL)
-
-    def _decreases(self, p: _Point, trial: _Point, direction: np.ndarray, alpha: float, s0: float,
-                   s_trial: float, step: _Step) -> bool:
-        """Whether Phi(trial) < Phi(p); checked only when the residual grew.
-
-        The increment of Phi along the line is the integral of its derivative s, continuous
-        because the stress is: Simpson's rule with s at 0, alpha / 2 and alpha (one more
-        residual evaluation).
-        """
-        if np.linalg.norm(step.weight * trial.residual) <= np.linalg.norm(step.weight * p.residual):
-            return True
-        middle = self._evaluate(p.z + 0.5 * alpha * direction, step, p)
-        s_middle = float(np.dot(middle.residual, direction))
-        return alpha / 6.0 * (s0 + 4.0 * s_middle + s_trial) < 0.0
 
     def time_error(self, start: StepState, result: StepResult) -> float:
         """Relative local time error of the step from ``start`` to ``result``

@@ -296,7 +296,7 @@ def _flow_residual(
     sign: np.ndarray,
     stretch: np.ndarray,
     lr: np.ndarray,
-) -> tuple[np.ndarray, ...]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Return-mapping residual asinh(expm1(w)) - sign g(lambda, lambda_p) for :func:`_newton`."""
     flow = _flow_magnitude(w, adt)
     _, g, _, dg_dplastic = _flow_terms(law, stretch, plastic_old + sign * flow, lr)
@@ -344,7 +344,7 @@ def _solve_flow(
 
 def _recruitment_residual(
     law: FiberLaw, w: np.ndarray, adt: np.ndarray, plastic_old: np.ndarray, g_r: np.ndarray
-) -> tuple[np.ndarray, ...]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Residual asinh(expm1(w)) - g_r / lambda_p^c_p of :func:`_recruitment_flow`."""
     flow = _flow_magnitude(w, adt)
     plastic = plastic_old + flow

@@ -19,6 +19,8 @@ counts the fibers' axial stresses only.
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from espin.geometry.network import Network
@@ -34,7 +36,7 @@ def nominal_stress(network: Network, force: np.ndarray, kin: Kinematics,
     plus the fiber joints' part at node positions ``x`` [um] with bending on."""
     virial = np.einsum("e,ei,eJ->iJ", force, kin.unit, network.element_vector)
     if joints is not None:
-        virial = virial + joints.virial(x, network.node_position)
+        virial = virial + joints.virial(cast(np.ndarray, x), network.node_position)  # x comes with joints
     return virial / network.reference_volume
 
 
@@ -61,5 +63,6 @@ def cauchy_stress(network: Network, force: np.ndarray, kin: Kinematics, F: np.nd
     weight = force * kin.length
     virial = np.einsum("e,ei,ej->ij", weight, kin.unit, kin.unit)
     if joints is not None:
+        x = cast(np.ndarray, x)  # given with joints
         virial = virial + joints.virial(x, x)
     return virial / (np.linalg.det(F) * network.reference_volume)

@@ -183,6 +183,7 @@ class Factorization(_Releasable, ABC):
     @cached_property
     def _norm_inf(self) -> float:
         """Max norm of K (its largest absolute row sum)."""
+        assert self._matrix is not None, "released"
         return float(abs(self._matrix).sum(axis=1).max())
 
     def _residual(self, b: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, float]:
@@ -254,7 +255,7 @@ class LinearSolver(_Releasable, ABC):
             previous.release()
         pattern = self._pattern
         new_pattern = pattern is None or not pattern.matches(K)
-        if new_pattern:
+        if pattern is None or new_pattern:
             self._pattern = None
             pattern = _Pattern.of(K)
         factorization = self._factorize(pattern.matrix(K.data), new_pattern)
@@ -327,8 +328,10 @@ class SuperLUSolver(LinearSolver):
                 self._ordering = _SymmetricPermutation.of(K, np.argsort(lu.perm_c))
                 return _SuperLUFactorization(lu, K, perm=None)
             self._ordering = _SymmetricPermutation.of(K, perm)
-        lu = _splu(self._ordering.apply(K), "NATURAL")
-        return _SuperLUFactorization(lu, K, self._ordering.perm)
+        ordering = self._ordering
+        assert ordering is not None, "an ordering is made with the pattern"
+        lu = _splu(ordering.apply(K), "NATURAL")
+        return _SuperLUFactorization(lu, K, ordering.perm)
 
     def _release_pattern_data(self) -> None:
         self._ordering = None
@@ -452,13 +455,16 @@ class _SuperLUFactorization(Factorization):
         if not self._symmetric_pivots:
             return None
         self._check_valid()
+        assert self._lu is not None
         return int(np.count_nonzero(self._lu.U.diagonal() < 0.0))
 
     def _solve(self, b: np.ndarray) -> np.ndarray:
+        lu = self._lu
+        assert lu is not None, "released"
         if self._perm is None:
-            return self._lu.solve(b)
+            return lu.solve(b)
         x = np.empty_like(b)
-        x[self._perm] = self._lu.solve(b[self._perm])
+        x[self._perm] = lu.solve(b[self._perm])
         return x
 
     def _free(self) -> None:
@@ -558,6 +564,7 @@ class PardisoSolver(LinearSolver):
             self._handle.free()
             self._upper = _UpperTriangle.of(K)
         upper = self._upper
+        assert upper is not None, "made with the pattern"
         values = upper.values(K)
         threads = self._handle.max_threads()
         if self._handle.threads != threads:
@@ -616,7 +623,7 @@ class _PardisoHandle:
              b: np.ndarray | None = None) -> np.ndarray | None:
         """Run a PARDISO phase; return x for phase 33 (b: F-ordered float64), else None."""
         c_int = ctypes.c_int32
-        if upper is None:  # releasing memory: PARDISO reads no matrix, give it a valid one
+        if upper is None or values is None:  # releasing memory: PARDISO reads no matrix, give it a valid one
             upper, values = _UpperTriangle.empty(), np.zeros(1)
         n = len(upper.indptr) - 1
         x = None if b is None else np.zeros_like(b, order="F")
@@ -674,8 +681,9 @@ class _PardisoFactorization(Factorization):
         return self._n_negative
 
     def _solve(self, b: np.ndarray) -> np.ndarray:
-        return self._solver._handle.call(33, self._solver._upper, self._values,
-                                         np.asfortranarray(b))
+        x = self._solver._handle.call(33, self._solver._upper, self._values, np.asfortranarray(b))
+        assert x is not None, "phase 33 returns the solution"
+        return x
 
     def _free(self) -> None:
         if self._solver._current is self:  # phase 0: free the numerical factors only

@@ -41,6 +41,7 @@ import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -317,7 +318,7 @@ class LoadProgram:
     def prescribed_F(self, t: float) -> np.ndarray:
         """(2, 2) prescribed part of F at time ``t`` [s] (free components at their base)."""
         if self.test == "path":
-            table = self._table
+            table = cast(np.ndarray, self._table)  # set for every path program
             return np.array([np.interp(t, table[:, 0], table[:, k]) for k in (1, 2, 3, 4)]).reshape(2, 2)
         s = self.strain_at(t)
         if self.test == "uniaxial":
@@ -325,7 +326,8 @@ class LoadProgram:
             if kind == "poisson":
                 lateral = 1.0 - value * s
             elif kind == "csv":
-                lateral = 1.0 + float(np.interp(s, value[:, 0], value[:, 1]))
+                curve = cast(np.ndarray, value)  # the transverse table
+                lateral = 1.0 + float(np.interp(s, curve[:, 0], curve[:, 1]))
             else:  # fixed, free or a stress target (the unknown f_k add to F'22 = 1)
                 lateral = 1.0
             local = np.array([[1.0 + s, 0.0], [0.0, lateral]])
@@ -383,11 +385,12 @@ def load_program(loading: LoadingConfig) -> LoadProgram:
     """
     R = _rotation(loading.direction_deg)
     if loading.test == "path":
-        table, lines = read_table(loading.path_csv, _PATH_COLUMNS, "loading.path_csv")
-        _check_path_determinants(loading.path_csv, table[:, 1:].reshape(-1, 2, 2), lines)
+        path_csv = cast(Path, loading.path_csv)  # required by a "path" test
+        table, lines = read_table(path_csv, _PATH_COLUMNS, "loading.path_csv")
+        _check_path_determinants(path_csv, table[:, 1:].reshape(-1, 2, 2), lines)
         if np.abs(table[0, 1:] - np.eye(2).ravel()).max() > _START_TOLERANCE:
             fmt = _table_format("loading.path_csv", _PATH_COLUMNS)
-            raise fmt.fail(loading.path_csv, "the first F is not the identity: a path starts from the "
+            raise fmt.fail(path_csv, "the first F is not the identity: a path starts from the "
                            "undeformed RVE (F11 = F22 = 1, F12 = F21 = 0)", int(lines[0]))
         return path_program(table[:, 0], table[:, 1:].reshape(-1, 2, 2))
     times, strains, segments = [0.0], [0.0], []

@@ -182,7 +182,7 @@ def error_step(dt: float, error: float, tolerance: float) -> float:
     return dt * float(np.clip(_SAFETY * np.sqrt(tolerance / error), _SHRINK_MIN, _GROW_MAX))
 
 
-def march(problem: StepProblem[T], reports: Sequence[float], policy: StepPolicy, *,
+def march(problem: StepProblem[T], reports: Sequence[float] | np.ndarray, policy: StepPolicy, *,
           start: float = 0.0, on_report: Callable[[ReportTally[T]], None] | None = None) -> None:
     """March ``problem`` from ``start`` through every reported time (module docstring).
 

@@ -41,7 +41,7 @@ import numpy as np
 from espin.core.atomic import atomic_write, atomic_write_bytes
 from espin.core.config import Config
 from espin.core.errors import RVEFileError
-from espin.core.header import open_checked, read_config, write_header
+from espin.core.header import Kind, open_checked, read_config, write_header
 from espin.core.html import html_table
 from espin.geometry.network import Network
 from espin.geometry.vtk import write_collection, write_network_vtu
@@ -308,7 +308,7 @@ class PartialResultWarning(UserWarning):
 
 _TENSOR = (None, 2, 2)
 # /steps dataset -> (kind, shape, meaning, checks)
-_STEP_CHECKS: dict[str, tuple[str, tuple, str, dict]] = {
+_STEP_CHECKS: dict[str, tuple[Kind, tuple, str, dict]] = {
     "strain": ("float", (None,), "the load parameter of each step", {}),
     "F": ("float", _TENSOR, "the deformation gradient of each step", {}),
     "P_MPa": ("float", _TENSOR, "the nominal stress of each step [MPa]", {}),

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 from threadpoolctl import threadpool_limits
 
-from espin.core.config import Config, apply_overrides, config_digest, write_config
+from espin.core.config import Config, apply_overrides, config_digest, dotted_overrides, write_config
 from espin.core.errors import ConfigError
 from espin.core.output_folder import OutputFolder
 from espin.core.progress import with_progress
@@ -63,10 +63,10 @@ def resolve_source(source: RVE | Network | Config | str | Path | None, overrides
                 "new RVE instead (only fiber, loading, solver and output keys apply)"
             )
         if isinstance(source, Network):
-            return resolve_config(config, **{k.replace(".", "__"): v for k, v in overrides.items()}), source
+            return resolve_config(config, **overrides), source
         config = apply_overrides(source.config, overrides) if overrides else source.config
         return config, RVE(config, source.mat, source.crosslinks, source.network, source.path)
-    return resolve_config(source, **{k.replace(".", "__"): v for k, v in overrides.items()}), None
+    return resolve_config(source, **overrides), None
 
 
 def simulate(
@@ -133,8 +133,7 @@ def simulate(
         results folder then holds the curve and results of the steps that converged and
         ``solver.log``, the residual history of the last attempt.
     """
-    flat = {key.replace("__", "."): value for key, value in overrides.items()}
-    config, rve = resolve_source(source, flat, config)
+    config, rve = resolve_source(source, dotted_overrides(overrides), config)
     program = load_program(config.loading)  # its tables are read and checked before any work
     if rve is None:
         check_size(config, allow_large=allow_large)  # before the folder is claimed

@@ -17,19 +17,26 @@ docs/specimen.md.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 import time
 import types
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from espin.core.errors import ConfigError
 from espin.specimen.result import SPECIMEN_OUTPUTS, SpecimenResult, reopen_point
 from espin.specimen.shapes import SHAPES, Specimen, read_specimen
 from espin.specimen.solver import GRIPS, LATERAL, GripProgram, SpecimenFailed, SpecimenStep
 
-__all__ = ["specimen", "SpecimenResult", "SpecimenStep", "SpecimenFailed", "Specimen", "SHAPES", "MODELS",
+if TYPE_CHECKING:
+    from espin.core.parallel import TaskPlace
+    from espin.specimen.surrogate import Surrogate
+
+__all__ = ["specimen", "SpecimenSettings", "SpecimenResult", "SpecimenStep", "SpecimenFailed", "Specimen", "SHAPES",
+           "MODELS",
            "SPECIMEN_OUTPUTS", "reopen_point", "make_specimen"]
 
 MODELS = ("fe2", "surrogate", "neo_hookean")
@@ -61,29 +68,49 @@ def make_specimen(shape: str | Path | Specimen, elements_across: int = 4, **opti
     return read_specimen(path)
 
 
-def _check(model: str, thickness_mm: float, grips: str, lateral: str, rve_seeds: str, rtol: float,
-           surrogate_reach: float, modulus_MPa: float | None, poisson_ratio: float | None) -> None:
-    if model not in MODELS:
-        raise ConfigError(f"model = {model!r}: must be one of {', '.join(MODELS)}")
-    if not thickness_mm > 0.0:
-        raise ConfigError(f"thickness_mm = {thickness_mm}: must be > 0 mm")
-    if grips not in GRIPS:
-        raise ConfigError(f"grips = {grips!r}: must be one of {', '.join(GRIPS)}")
-    if lateral not in LATERAL:
-        raise ConfigError(f"lateral = {lateral!r}: must be one of {', '.join(LATERAL)}")
-    if rve_seeds not in ("shared", "per_point"):
-        raise ConfigError(f"rve_seeds = {rve_seeds!r}: must be 'shared' or 'per_point'")
-    if not 0.0 < rtol < 1.0:
-        raise ConfigError(f"rtol = {rtol}: must be in (0, 1)")
-    if not surrogate_reach >= 1.0:
-        raise ConfigError(f"surrogate_reach = {surrogate_reach}: must be >= 1")
-    if model == "neo_hookean":
-        if modulus_MPa is None or poisson_ratio is None:
-            raise ConfigError("model = 'neo_hookean' needs modulus_MPa and poisson_ratio")
-        if not modulus_MPa > 0.0:
-            raise ConfigError(f"modulus_MPa = {modulus_MPa}: must be > 0 MPa")
-        if not 0.0 <= poisson_ratio < 1.0:
-            raise ConfigError(f"poisson_ratio = {poisson_ratio}: must be in [0, 1)")
+@dataclass(frozen=True)
+class SpecimenSettings:
+    """How the specimen is tested (the options of :func:`specimen` of the same names), checked
+    when made.
+
+    Raises
+    ------
+    ConfigError
+        Naming the option and what it allows.
+    """
+
+    model: str = "fe2"
+    thickness_mm: float = 0.1
+    grips: str = "clamped"
+    lateral: str = "fixed"
+    rve_seeds: str = "shared"
+    rtol: float = 1e-6
+    modulus_MPa: float | None = None
+    poisson_ratio: float | None = None
+    surrogate_reach: float = 3.0
+
+    def __post_init__(self) -> None:
+        if self.model not in MODELS:
+            raise ConfigError(f"model = {self.model!r}: must be one of {', '.join(MODELS)}")
+        if not self.thickness_mm > 0.0:
+            raise ConfigError(f"thickness_mm = {self.thickness_mm}: must be > 0 mm")
+        if self.grips not in GRIPS:
+            raise ConfigError(f"grips = {self.grips!r}: must be one of {', '.join(GRIPS)}")
+        if self.lateral not in LATERAL:
+            raise ConfigError(f"lateral = {self.lateral!r}: must be one of {', '.join(LATERAL)}")
+        if self.rve_seeds not in ("shared", "per_point"):
+            raise ConfigError(f"rve_seeds = {self.rve_seeds!r}: must be 'shared' or 'per_point'")
+        if not 0.0 < self.rtol < 1.0:
+            raise ConfigError(f"rtol = {self.rtol}: must be in (0, 1)")
+        if not self.surrogate_reach >= 1.0:
+            raise ConfigError(f"surrogate_reach = {self.surrogate_reach}: must be >= 1")
+        if self.model == "neo_hookean":
+            if self.modulus_MPa is None or self.poisson_ratio is None:
+                raise ConfigError("model = 'neo_hookean' needs modulus_MPa and poisson_ratio")
+            if not self.modulus_MPa > 0.0:
+                raise ConfigError(f"modulus_MPa = {self.modulus_MPa}: must be > 0 MPa")
+            if not 0.0 <= self.poisson_ratio < 1.0:
+                raise ConfigError(f"poisson_ratio = {self.poisson_ratio}: must be in [0, 1)")
 
 
 def specimen(
@@ -187,18 +214,19 @@ def specimen(
     """
     from espin.core.config import config_digest
     from espin.core.output_folder import OutputFolder, inputs_digest
-    from espin.core.parallel import check_pool
-
-    _check(model, thickness_mm, grips, lateral, rve_seeds, rtol, surrogate_reach, modulus_MPa, poisson_ratio)
+    from espin.core.parallel import TaskPlace
     from espin.core.progress import with_progress
 
+    settings = SpecimenSettings(model, thickness_mm, grips, lateral, rve_seeds, rtol, modulus_MPa, poisson_ratio,
+                                surrogate_reach)
     on_step = with_progress(on_step, steps, progress, lambda step: (
         step.index, f"grip strain {step.grip_strain:.4g}, force {step.force_N:.4g} N"))
-    check_pool(workers, scheduler, blas_threads, security)
+    place = TaskPlace(workers, scheduler, blas_threads, security)
     program = GripProgram(max_strain, steps, 1.0)  # the rate is checked with the config below
     geometry = make_specimen(shape, elements_across, **dict(shape_options or {}))
     if model == "neo_hookean":
-        config, rve = None, None
+        config: Any = None  # else the mat's Config
+        rve = None
     else:
         config, rve = _resolve_rve(source, overrides)
         if rve is not None and rve_seeds == "per_point":
@@ -212,24 +240,22 @@ def specimen(
         from espin.specimen.surrogate import read_surrogate
 
         samples = read_surrogate(surrogate_from, config.loading.strain_rate_per_s)
-    settings = dict(model=model, thickness_mm=thickness_mm, grips=grips, lateral=lateral, rtol=rtol,
-                    rve_seeds=rve_seeds, modulus_MPa=modulus_MPa, poisson_ratio=poisson_ratio,
-                    surrogate_reach=surrogate_reach, samples=samples, workers=workers, scheduler=scheduler,
-                    blas_threads=blas_threads, security=security)
     if out is None:
-        return _run(geometry, program, config, rve, settings, None, figures, on_step)
+        return _run(geometry, program, config, rve, settings, place, samples, None, figures, on_step)
     digest = inputs_digest([surrogate_from] if surrogate_from is not None else [],
                            config_digest(config) if config is not None else "", repr(geometry), program,
-                           {k: v for k, v in settings.items() if k not in ("security", "samples")})
+                           dataclasses.asdict(settings) | {"workers": workers, "scheduler": scheduler,
+                                                           "blas_threads": blas_threads})
     with OutputFolder.claim(out, "specimen", digest, SPECIMEN_OUTPUTS, overwrite=overwrite):
-        return _run(geometry, program, config, rve, settings, Path(out), figures, on_step)
+        return _run(geometry, program, config, rve, settings, place, samples, Path(out), figures, on_step)
 
 
 def _resolve_rve(source: Any, overrides: dict[str, Any]):
     """(config, RVE or None) of the mat; a generated one small unless its size is given."""
+    from espin.core.config import dotted_overrides
     from espin.mechanics.run import resolve_source
 
-    flat = {key.replace("__", "."): value for key, value in overrides.items()}
+    flat = dotted_overrides(overrides)
     config, rve = resolve_source(source, flat)
     if rve is None:
         small = {k: v for k, v in _SMALL_RVE.items() if k not in flat}
@@ -238,12 +264,12 @@ def _resolve_rve(source: Any, overrides: dict[str, Any]):
     return config, rve
 
 
-def _run(geometry: Specimen, program: GripProgram, config, rve, settings: dict[str, Any], folder: Path | None,
-         figures: bool, on_step: Callable[[SpecimenStep], None] | None) -> SpecimenResult:
-    from espin.core.parallel import TaskPool
+def _run(geometry: Specimen, program: GripProgram, config: Any, rve: Any, settings: SpecimenSettings,
+         place: TaskPlace, samples: Surrogate | None, folder: Path | None, figures: bool,
+         on_step: Callable[[SpecimenStep], None] | None) -> SpecimenResult:
     from espin.geometry.rve import generate
     from espin.geometry.rve_file import save_rve
-    from espin.specimen.materials import NeoHookean
+    from espin.specimen.materials import NeoHookean, PointMaterial
     from espin.specimen.membrane import Membrane
     from espin.specimen.result import SpecimenWriter, points_history
     from espin.specimen.rve_points import RVEPoints, rve_tolerance
@@ -251,22 +277,22 @@ def _run(geometry: Specimen, program: GripProgram, config, rve, settings: dict[s
     from espin.specimen.surrogate import build_surrogate
 
     start = time.perf_counter()
-    membrane = Membrane(geometry.mesh, settings["thickness_mm"])
+    membrane = Membrane(geometry.mesh, settings.thickness_mm)
     n = membrane.n_points
-    model = settings["model"]
+    model = settings.model
     callbacks = [c for c in (on_step,) if c is not None]
     if folder is not None:
         callbacks.append(SpecimenWriter(folder, membrane))
-    result = SpecimenResult(geometry, model, settings["thickness_mm"], settings["grips"], settings["lateral"], [],
+    result = SpecimenResult(geometry, model, settings.thickness_mm, settings.grips, settings.lateral, [],
                             membrane, config=config)
-    pool = TaskPool(workers=settings["workers"], scheduler=settings["scheduler"],
-                    blas_threads=settings["blas_threads"], security=settings["security"])
-    with pool:
+    with place.pool() as pool:
         time_rtol = None
+        material: PointMaterial
         if model == "neo_hookean":
-            material = NeoHookean.from_uniaxial(n, settings["modulus_MPa"], settings["poisson_ratio"])
-        elif settings["samples"] is not None:  # an earlier run's surrogate: no RVE needed
-            result.surrogate = settings["samples"]
+            assert settings.modulus_MPa is not None and settings.poisson_ratio is not None  # checked
+            material = NeoHookean.from_uniaxial(n, settings.modulus_MPa, settings.poisson_ratio)
+        elif samples is not None:  # an earlier run's surrogate: no RVE needed
+            result.surrogate = samples
             material = result.surrogate.material(n)
         else:
             if rve is None:
@@ -275,12 +301,12 @@ def _run(geometry: Specimen, program: GripProgram, config, rve, settings: dict[s
                 save_rve(rve, folder / "rve.h5")
             if model == "surrogate":
                 result.surrogate = build_surrogate(rve.network, config, program.max_strain,
-                                                   reach=settings["surrogate_reach"], pool=pool)
+                                                   reach=settings.surrogate_reach, pool=pool)
                 material = result.surrogate.material(n)
             else:
-                config = rve_tolerance(config, settings["rtol"])
+                config = rve_tolerance(config, settings.rtol)
                 result.config = config
-                networks = (rve.network if settings["rve_seeds"] == "shared" else
+                networks = (rve.network if settings.rve_seeds == "shared" else
                             [generate(config.model_copy(update={"rve": config.rve.model_copy(
                                 update={"seed": config.rve.seed + i})})).network for i in range(n)])
                 material = RVEPoints(networks, config, n, pool=pool)
@@ -293,8 +319,8 @@ def _run(geometry: Specimen, program: GripProgram, config, rve, settings: dict[s
                 callback(step)
 
         try:
-            run_specimen(geometry, material, program, thickness_mm=settings["thickness_mm"], grips=settings["grips"],
-                         lateral=settings["lateral"], rtol=settings["rtol"], time_rtol=time_rtol,
+            run_specimen(geometry, material, program, thickness_mm=settings.thickness_mm, grips=settings.grips,
+                         lateral=settings.lateral, rtol=settings.rtol, time_rtol=time_rtol,
                          on_step=step_done, membrane=membrane)
         except SpecimenFailed as failure:
             if result.surrogate is None:

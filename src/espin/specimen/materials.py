@@ -32,6 +32,9 @@ class PointMaterial(Protocol):
     """The interface of a material at ``n_points`` quadrature points."""
 
     n_points: int
+    symmetric_tangent: bool
+    """True when A has the major symmetry A_iJkL = A_kLiJ (a hyperelastic material, or RVEs whose
+    step minimizes a potential): the macro tangent is then solved by espin's symmetric solvers."""
 
     def evaluate(self, F: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray]:
         """Trial P (n, 2, 2) [MPa] and A (n, 2, 2, 2, 2) [MPa] at F (n, 2, 2) and ``time`` [s].
@@ -73,6 +76,7 @@ class NeoHookean:
         if not lame_MPa >= 0.0:
             raise ConfigError(f"lame_MPa = {lame_MPa}: must be >= 0 MPa")
         self.n_points = n_points
+        self.symmetric_tangent = True
         self.mu = float(shear_modulus_MPa)
         self.lam = float(lame_MPa)
 

@@ -27,7 +27,7 @@ import os
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import h5py
 import meshio
@@ -181,7 +181,7 @@ class SpecimenResult:
     def point_result(self, point: int) -> SimulationResult:
         """FE^2: the RVE of quadrature ``point`` driven again through its F history (the same
         time steps), as a single RVE's :class:`espin.mechanics.driver.SimulationResult`."""
-        if self.point_F is None or self.config is None:
+        if self.point_F is None or self.config is None or self.point_time is None:
             raise ValueError(f"a {self.model} run has no RVEs at its points")
         if not 0 <= point < self.membrane.n_points:
             raise ValueError(f"point = {point}: must be in [0, {self.membrane.n_points - 1}]")
@@ -200,6 +200,12 @@ class SpecimenResult:
 
     def __repr__(self) -> str:
         return "SpecimenResult(" + ", ".join(f"{k}: {v}" for k, v in self._summary().items()) + ")"
+
+    def format_summary(self) -> str:
+        """The result in plain lines, one ``name  value`` each (what ``espin specimen`` prints)."""
+        rows = self._summary()
+        width = max(map(len, rows))
+        return "\n".join(f"{name:<{width}}  {value}" for name, value in rows.items())
 
     def _repr_html_(self) -> str:
         return html_table("SpecimenResult", list(self._summary().items()))
@@ -251,7 +257,7 @@ def _write_points(result: SpecimenResult, path: Path) -> None:
 
     def write(tmp: Path) -> None:
         with h5py.File(tmp, "w") as h5:
-            h5.attrs["config_toml"] = config_to_toml(result.config)
+            h5.attrs["config_toml"] = config_to_toml(cast(Config, result.config))  # an FE^2 run has one
             h5.attrs["shared_network"] = len({id(n) for n in result.networks}) == 1
             h5["reference_mm"] = points
             h5["time_s"] = result.point_time

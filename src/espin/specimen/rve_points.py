@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NoReturn
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -38,7 +38,6 @@ from espin.mechanics.linear_solvers import make_linear_solver
 __all__ = ["RVEPoints", "rve_tolerance", "PointStates"]
 
 _NO_FREE = np.zeros((0, 2, 2))
-_RAGGED = ("inner", "plastic_stretch", "stress")  # one array per point, sizes may differ
 
 
 def rve_tolerance(config: Config, macro_rtol: float) -> Config:
@@ -106,13 +105,11 @@ def _solver(key: str, index: int, network: Network, config: Config) -> Equilibri
     return cached
 
 
-def _solve_chunk(chunk: _Chunk) -> dict[str, np.ndarray]:
+def _solve_chunk(chunk: _Chunk) -> _Solved:
     """The RVE solves of one chunk (runs in a worker)."""
-    n = len(chunk.F)
-    out: dict[str, list] = {name: [] for name in ("P", "A", "inner", "plastic_stretch", "stress", "recruited_fraction",
-                                                  "yielded_fraction", "iterations", "local_error")}
+    records, results, errors = [], [], []
     threshold = chunk.config.output.yield_threshold
-    for i in range(n):
+    for i in range(len(chunk.F)):
         network = chunk.networks[i]
         solver = _solver(chunk.key, 0 if chunk.shared else int(chunk.points[i]), network, chunk.config)
         start = StepState(chunk.start.time, chunk.start.inner[i], np.zeros(0), chunk.start.F[i],
@@ -122,17 +119,40 @@ def _solve_chunk(chunk: _Chunk) -> dict[str, np.ndarray]:
         except StepNotConverged as failure:
             raise type(failure)(f"RVE point {int(chunk.points[i])}: {failure.reason}", failure.kind,
                                 iterations=failure.iterations, factorizations=failure.factorizations) from None
-        record = step_record(0, solver, result, 0.0, (result.iterations, result.factorizations, 1), threshold)
-        out["P"].append(record.P)
-        out["A"].append(solver.macroscopic_tangent(result))
-        out["inner"].append(result.state.inner)
-        out["plastic_stretch"].append(result.state.plastic_stretch)
-        out["stress"].append(result.law.stress)
-        out["local_error"].append(solver.time_error(start, result))
-        out["recruited_fraction"].append(record.recruited_fraction)
-        out["yielded_fraction"].append(record.yielded_fraction)
-        out["iterations"].append(result.iterations)
-    return {name: values if name in _RAGGED else np.array(values) for name, values in out.items()}
+        records.append(step_record(0, solver, result, 0.0, (result.iterations, result.factorizations, 1), threshold))
+        results.append((result, solver.macroscopic_tangent(result)))
+        errors.append(solver.time_error(start, result))
+    return _Solved(
+        P=np.array([r.P for r in records]), A=np.array([A for _, A in results]),
+        inner=[r.state.inner for r, _ in results], plastic_stretch=[r.state.plastic_stretch for r, _ in results],
+        stress=[r.law.stress for r, _ in results], local_error=np.array(errors),
+        recruited_fraction=np.array([r.recruited_fraction for r in records]),
+        yielded_fraction=np.array([r.yielded_fraction for r in records]),
+        iterations=np.array([r.iterations for r, _ in results]))
+
+
+@dataclass(frozen=True, eq=False)
+class _Solved:
+    """The RVE solves of some points (arrays over points first; the RVE states one array per point)."""
+
+    P: np.ndarray  # (n, 2, 2) [MPa]
+    A: np.ndarray  # (n, 2, 2, 2, 2) [MPa]
+    inner: list[np.ndarray]
+    plastic_stretch: list[np.ndarray]
+    stress: list[np.ndarray]
+    local_error: np.ndarray
+    recruited_fraction: np.ndarray
+    yielded_fraction: np.ndarray
+    iterations: np.ndarray
+
+    @classmethod
+    def joined(cls, parts: Sequence[_Solved]) -> _Solved:
+        """The chunks' solves, in order."""
+        values: dict[str, Any] = {}
+        for name in cls.__dataclass_fields__:
+            items = [getattr(part, name) for part in parts]
+            values[name] = [a for item in items for a in item] if isinstance(items[0], list) else np.concatenate(items)
+        return cls(**values)
 
 
 def _raise_failed_chunk(outcome: TaskOutcome, points: np.ndarray) -> NoReturn:
@@ -193,6 +213,7 @@ class RVEPoints:
             raise ValueError(f"{len(self.networks)} networks for {n_points} points")
         self.config = config
         self.n_points = n_points
+        self.symmetric_tangent = True  # condensed from the Hessian of each RVE's incremental potential
         self.pool = pool or TaskPool(workers=1)
         self.chunks = max(1, min(n_points, chunks_per_worker * (1 if self.pool.serial else self.pool.workers)))
         self.key = f"{id(self)}-{np.random.default_rng().integers(1 << 62)}"
@@ -219,20 +240,20 @@ class RVEPoints:
         parts = np.array_split(np.arange(self.n_points), self.chunks)
         tasks = [_Chunk(self.key, part, [self.networks[i] for i in part], self.shared, self.config,
                         self.state.take(part), [guess[i] for i in part], F[part], time) for part in parts]
-        results: list[dict[str, np.ndarray] | None] = [None] * len(tasks)
+        results: dict[int, _Solved] = {}
         for outcome in self.pool.map(_solve_chunk, tasks):
             if not outcome.ok:
                 _raise_failed_chunk(outcome, parts[outcome.index])
             results[outcome.index] = outcome.value
-        merged = {name: ([a for r in results for a in r[name]] if name in _RAGGED
-                         else np.concatenate([r[name] for r in results])) for name in results[0]}
+        solved = _Solved.joined([results[k] for k in range(len(tasks))])
         self.solves += self.n_points
-        self.rve_iterations += int(merged["iterations"].sum())
-        self._trial = PointStates(time, F.copy(), merged["inner"], merged["plastic_stretch"], merged["stress"])
-        self._error = float(merged["local_error"].max())
-        self._trial_fields = {name: merged[name] for name in ("yielded_fraction", "recruited_fraction")}
-        self._trial_fields["rve_iterations"] = merged["iterations"].astype(float)
-        return merged["P"], merged["A"]
+        self.rve_iterations += int(solved.iterations.sum())
+        self._trial = PointStates(time, F.copy(), solved.inner, solved.plastic_stretch, solved.stress)
+        self._error = float(solved.local_error.max())
+        self._trial_fields = {"yielded_fraction": solved.yielded_fraction,
+                              "recruited_fraction": solved.recruited_fraction,
+                              "rve_iterations": solved.iterations.astype(float)}
+        return solved.P, solved.A
 
     def time_error(self) -> float:
         """Largest relative local error of the plastic update over the points at the last trial

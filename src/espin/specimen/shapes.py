@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import math
 import numbers
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
 
 import meshio
 import numpy as np
@@ -357,7 +357,7 @@ def _notch_pieces(half_width: float, depth: float, radius: float, reach: float) 
     centre_y = half_width - depth + radius
     beta = math.asin(max(min((depth - radius) / radius, 0.0), -1.0))  # 0 when the walls are straight
     mouth = radius * math.cos(beta)
-    pieces = [("line", (-reach, half_width), (-mouth, half_width))]
+    pieces: list[tuple] = [("line", (-reach, half_width), (-mouth, half_width))]
     if depth > radius:
         pieces.append(("line", (-radius, half_width), (-radius, centre_y)))
     pieces += [("arc", (0.0, centre_y), math.pi - beta, 1.5 * math.pi),  # the root of the notch is a node

@@ -34,6 +34,7 @@ import scipy.sparse.linalg as spla
 from skfem import Basis, ElementQuad1, ElementTriP1, MeshTri
 
 from espin.core.errors import ConfigError, SolverError, StepFailureKind, StepNotConverged
+from espin.mechanics.linear_solvers import make_linear_solver
 from espin.mechanics.march import MarchFailed, ReportTally, StepPolicy, march
 from espin.specimen.materials import PointMaterial
 from espin.specimen.membrane import Membrane
@@ -241,6 +242,23 @@ class MacroStep:
     history: list[float]
 
 
+class _MacroSolves:
+    """Factorizations of the free block of the macro tangent: espin's symmetric solvers (PARDISO or
+    SuperLU, the pattern analysed once per run) for a material with a symmetric tangent, else
+    SuperLU's LU with partial pivoting."""
+
+    def __init__(self, symmetric: bool) -> None:
+        self.linear = make_linear_solver("auto") if symmetric else None
+
+    def factorize(self, K: sp.csr_matrix) -> Callable[[np.ndarray], np.ndarray]:
+        """The solve of K x = b, as a function of b."""
+        if K.shape[0] == 0:  # every DOF prescribed (a patch test on one element)
+            return np.copy
+        if self.linear is not None:
+            return self.linear.factorize(K.tocsr()).solve
+        return spla.splu(K.tocsc()).solve
+
+
 class _GripSteps:
     """The specimen under its grip program as a :class:`~espin.mechanics.march.StepProblem`:
     time t is grip strain / strain rate, each attempt one macro Newton solve."""
@@ -250,10 +268,11 @@ class _GripSteps:
         self.membrane, self.material, self.constraints, self.program = membrane, material, constraints, program
         self.rtol, self.iteration_limit = rtol, max_iterations
         self.state = start
+        self.solves = _MacroSolves(material.symmetric_tangent)
 
     def attempt(self, start: float, end: float) -> MacroStep:
         strain = end * self.program.strain_rate_per_s
-        return _newton(self.membrane, self.material, self.constraints, self.state,
+        return _newton(self.membrane, self.material, self.constraints, self.solves, self.state,
                        self.constraints.values(strain), end, self.rtol, self.iteration_limit)
 
     def error(self, trial: MacroStep) -> float:
@@ -338,7 +357,6 @@ def run_specimen(
     constraints = _Constraints(membrane, specimen, grips, lateral, affine_F)
     gauge = _Extensometer(membrane, specimen)
     area = specimen.gauge_width_mm * thickness_mm
-    rate = program.strain_rate_per_s
 
     u = np.zeros(membrane.n_dofs)
     F = membrane.deformation_gradient(u)
@@ -360,27 +378,32 @@ def run_specimen(
 
     def reached(tally: ReportTally[MacroStep]) -> None:
         assert tally.trial is not None
-        record(tally.index, tally.time, tally.trial, (tally.iterations, tally.cuts, tally.substeps), tally.trial.history)
+        counts = (tally.iterations, tally.cuts, tally.substeps)
+        record(tally.index, tally.time, tally.trial, counts, tally.trial.history)
 
     record(0, 0.0, problem.state, (0, 0, 0), [])
     try:
-        march(problem, program.strain[1:] / rate, StepPolicy(time_rtol=time_rtol, max_cuts=max_cuts),
-              on_report=reached)
+        march(problem, program.strain[1:] / program.strain_rate_per_s,
+              StepPolicy(time_rtol=time_rtol, max_cuts=max_cuts), on_report=reached)
     except MarchFailed as stopped:
-        failure, where = stopped.failure, f"step {stopped.tally.index} of {program.steps}"
-        if failure.kind == StepFailureKind.STIFF:
-            message = (f"{where} (grip strain {stopped.time * rate:.4g}): {failure.reason}; the plastic flow is "
-                       "too fast to follow: check fiber.flow_rate_per_s and fiber.flow_resistance_MPa, or raise "
-                       "solver.time_rtol")
-        else:
-            message = (f"{where} (grip strain {stopped.time * rate:.4g}) did not converge after {max_cuts} halvings "
-                       f"in a row: {failure.reason}. Try more steps, or a smaller max_strain")
-        raise SpecimenFailed(message, steps) from None
+        raise SpecimenFailed(_failure_message(stopped, program, max_cuts), steps) from None
     return steps
 
 
-def _newton(membrane: Membrane, material: PointMaterial, constraints: _Constraints, start: MacroStep,
-            prescribed: np.ndarray, time: float, rtol: float, max_iterations: int) -> MacroStep:
+def _failure_message(stopped: MarchFailed, program: GripProgram, max_cuts: int) -> str:
+    """Where the grip program stopped, why, and what to try."""
+    failure = stopped.failure
+    strain = stopped.time * program.strain_rate_per_s
+    where = f"step {stopped.tally.index} of {program.steps} (grip strain {strain:.4g})"
+    if failure.kind == StepFailureKind.STIFF:
+        return (f"{where}: {failure.reason}; the plastic flow is too fast to follow: check fiber.flow_rate_per_s "
+                "and fiber.flow_resistance_MPa, or raise solver.time_rtol")
+    return (f"{where} did not converge after {max_cuts} halvings in a row: {failure.reason}. Try more steps, or a "
+            "smaller max_strain")
+
+
+def _newton(membrane: Membrane, material: PointMaterial, constraints: _Constraints, solves: _MacroSolves,
+            start: MacroStep, prescribed: np.ndarray, time: float, rtol: float, max_iterations: int) -> MacroStep:
     """One time step from the converged ``start`` to the ``prescribed`` values at ``time``.
 
     Raises
@@ -393,7 +416,7 @@ def _newton(membrane: Membrane, material: PointMaterial, constraints: _Constrain
     step = prescribed - start.u[dofs]
     u[dofs] += step
     K0 = start.K
-    u[free] += spla.spsolve(K0[free][:, free].tocsc(), -(start.f[free] + K0[free][:, dofs] @ step))
+    u[free] += solves.factorize(K0[free][:, free])(-(start.f[free] + K0[free][:, dofs] @ step))
     factorizations = 1
     # The residual scale: at least the force that 1e-6 of the increment makes at this tangent.
     floor = 1e-6 * float(np.max(np.abs(K0[:, dofs] @ step), initial=0.0))
@@ -409,7 +432,7 @@ def _newton(membrane: Membrane, material: PointMaterial, constraints: _Constrain
         if not np.isfinite(norm) or (iteration >= 4 and norm > history[-4]) or iteration == max_iterations:
             break
         K = membrane.tangent(A)
-        u[free] -= spla.spsolve(K[free][:, free].tocsc(), f[free])
+        u[free] -= solves.factorize(K[free][:, free])(f[free])
         factorizations += 1
     raise StepNotConverged(f"Newton stalled (max |r| {history[0]:.3g} -> {history[-1]:.3g} N in "
                            f"{len(history) - 1} iterations)", history=history, factorizations=factorizations)

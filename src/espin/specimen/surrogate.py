@@ -27,6 +27,7 @@ import time as time_module
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.interpolate import RBFInterpolator
@@ -143,7 +144,8 @@ class Surrogate:
     def _values(self, E: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """Interpolated (S11, S22, S12, fractions) at strains E (n, 3) and speeds (n,)."""
         levels = np.log(np.asarray(self.speeds))
-        at = np.stack([interpolant(E) for interpolant in self._interpolants])  # (levels, n, values)
+        # _interpolants: set by __post_init__ (not a field, so not compared, copied or shown)
+        at = np.stack([interpolant(E) for interpolant in self._interpolants])  # type: ignore[attr-defined]
         if len(levels) == 1:
             return at[0]
         x = np.clip(np.log(speed), levels[0], levels[-1])
@@ -208,6 +210,7 @@ class SurrogateMaterial:
     def __init__(self, surrogate: Surrogate, n_points: int) -> None:
         self.surrogate = surrogate
         self.n_points = n_points
+        self.symmetric_tangent = False  # dS/dE by differences of an interpolant: not a potential's
         self._U = np.tile(np.eye(2), (n_points, 1, 1))
         self._time = 0.0
         self._trial: tuple[np.ndarray, float, dict[str, np.ndarray]] | None = None
@@ -285,7 +288,7 @@ def build_surrogate(network: Network, config: Config, max_strain: float, *, reac
             task_speed.append(speed)
     pool = pool or TaskPool(workers=1)
     start = time_module.perf_counter()
-    runs: list[dict[str, np.ndarray] | None] = [None] * len(tasks)
+    runs: list[Any] = [None] * len(tasks)  # each task's dict of arrays, all set below
     for outcome in pool.map(_run_path, tasks):
         if not outcome.ok:
             raise SolverError(f"surrogate path {tuple(G[outcome.index % len(G)])} at speed "

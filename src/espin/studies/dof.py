@@ -185,7 +185,7 @@ def dof_study(
     if elements_per_segment < 1:
         raise ConfigError(f"elements_per_segment must be an integer >= 1, got {elements_per_segment}")
     cases = list(itertools.product(_as_tuple(size_ratios), _as_tuple(layers), _as_tuple(seeds)))
-    configs = [resolve_config(base, rve__size_ratio=s, rve__layers=n, rve__seed=seed) for s, n, seed in cases]
+    configs = [resolve_config(base, **{"rve.size_ratio": s, "rve.layers": n, "rve.seed": seed}) for s, n, seed in cases]
     rows = []
     for (size_ratio, n_layers, seed), config in zip(cases, configs):
         rve = generate(config, allow_large=True)  # only generated: the tensile test's memory is not needed

@@ -31,9 +31,9 @@ import numpy as np
 import pandas as pd
 
 from espin.core.atomic import atomic_write, atomic_write_bytes
-from espin.core.config import Config, config_digest
+from espin.core.config import Config, config_digest, dotted_overrides
 from espin.core.errors import ConfigError
-from espin.core.parallel import TaskOutcome, TaskPool, check_pool
+from espin.core.parallel import TaskOutcome, TaskPlace
 from espin.geometry.size_estimate import check_size
 
 __all__ = ["TensileTask", "plan_tasks", "run_tensile", "run_ensemble", "Ensemble", "PROPERTIES"]
@@ -237,11 +237,11 @@ class Ensemble:
     def curves(self, **point: Any) -> tuple[np.ndarray, np.ndarray]:
         """Strain and the stacked stress curves of the tasks at one parameter point.
 
-        Keyword names are the parameter names with dots replaced by ``__``. Curves are
-        interpolated onto the strain of the first one (they share it when the loading is the
-        same).
+        Keyword names are the parameter names with dots replaced by ``__`` (or the dotted names
+        through ``**{...}``). Curves are interpolated onto the strain of the first one (they
+        share it when the loading is the same).
         """
-        wanted = {k.replace("__", "."): v for k, v in point.items()}
+        wanted = dotted_overrides(point)
         chosen = [r for r in self.records if all(r["parameters"].get(k) == v for k, v in wanted.items())]
         if not chosen:
             raise KeyError(f"no finished task at {wanted}")
@@ -254,10 +254,7 @@ def run_ensemble(
     tasks: Sequence[TensileTask],
     folder: str | Path | None = None,
     *,
-    workers: int | None = None,
-    scheduler: Any = None,
-    blas_threads: int | None = 1,
-    security: Any = None,
+    place: TaskPlace | None = None,
     task_function: Callable[[TensileTask], dict[str, Any]] = run_tensile,
     on_outcome: Callable[[TaskOutcome, TensileTask], None] | None = None,
 ) -> Ensemble:
@@ -271,9 +268,9 @@ def run_ensemble(
         Results folder; tasks already finished there are skipped (resume), and stale
         temporary files of interrupted writes are removed first. None keeps everything in
         memory. One run at a time per folder.
-    workers, scheduler, blas_threads, security
-        Where the tasks run (see :class:`espin.core.parallel.TaskPool`); checked before
-        anything is read or written.
+    place
+        Where the tasks run (:class:`espin.core.parallel.TaskPlace`; default: local processes
+        on every core).
     task_function
         What a task does (default :func:`run_tensile`); a module-level function. A record it
         returns without the fields of :func:`run_tensile`'s that a rerun needs (``key``, the
@@ -287,12 +284,8 @@ def run_ensemble(
     -------
     Ensemble
 
-    Raises
-    ------
-    ConfigError
-        For an invalid ``scheduler`` or ``security``.
     """
-    check_pool(workers, scheduler, blas_threads, security)
+    place = place or TaskPlace()
     folder = Path(folder) if folder is not None else None
     names = sorted({name for task in tasks for name in task.parameters})
     if folder is not None:
@@ -304,7 +297,7 @@ def run_ensemble(
         log.info("%d tasks to run, %d already finished", len(todo), len(done))
         if on_outcome is None:
             on_outcome = _notebook_bar(len(todo))
-        with TaskPool(workers, scheduler, blas_threads, security) as pool:
+        with place.pool() as pool:
             for outcome in pool.map(task_function, todo):
                 task = todo[outcome.index]
                 outcome = _checked(outcome, task)
@@ -364,10 +357,11 @@ def _finished_records(folder: Path, tasks: Sequence[TensileTask]) -> dict[str, d
     A file that cannot be read, is not JSON or is not a complete record of its task is not
     used (a warning names it and the problem, never its contents): the task runs again.
     """
-    done = {}
+    done: dict[str, dict[str, Any]] = {}
     for task in tasks:
         path = folder / "tasks" / f"{task.key}.json"
         if path.is_file():
+            problem: str | None
             try:
                 record = json.loads(path.read_bytes())
             except OSError as err:

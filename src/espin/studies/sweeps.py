@@ -18,10 +18,10 @@ from typing import Any, Literal
 import pandas as pd
 
 from espin.core.atomic import atomic_write, atomic_write_bytes
-from espin.core.config import Config, config_digest, write_config
+from espin.core.config import Config, config_digest, dotted_overrides, write_config
 from espin.core.errors import ConfigError
 from espin.core.output_folder import OutputFolder
-from espin.core.parallel import TaskOutcome, check_pool
+from espin.core.parallel import TaskOutcome, TaskPlace
 from espin.geometry.rve import resolve_config
 from espin.studies.ensemble import Ensemble, TensileTask, plan_tasks, run_ensemble
 
@@ -95,8 +95,8 @@ def rve_size_study(
         Config, preset or TOML file (default ``plla``); ``**overrides`` as ``section__key``.
     folder
         Results folder: ``results.csv``, ``summary.csv``, ``study.toml`` (the base config) and
-        ``plan.json`` (sizes and seeds; both written before any work), ``tasks/``, and the figures ``rve_size_<property>.png`` (Figs. A.15-A.17) and
-        ``rve_size_curves.png`` (Fig. A.18, at the largest RVE).
+        ``plan.json`` (sizes and seeds; both written before any work), ``tasks/``, and the figures
+        ``rve_size_<property>.png`` (Figs. A.15-A.17) and ``rve_size_curves.png`` (Fig. A.18, at the largest RVE).
     workers, scheduler, blas_threads, security
         Where the tasks run (:class:`espin.core.parallel.TaskPool`); a Dask scheduler must be
         trusted (it runs the pickled tasks), ``security`` holds the TLS files of a ``tls://``
@@ -112,12 +112,13 @@ def rve_size_study(
     -------
     StudyResult
     """
-    fixed = sorted(k.replace("__", ".") for k in overrides if k in ("rve__size_ratio", "rve__size_um", "rve__layers"))
+    flat = dotted_overrides(overrides)
+    fixed = sorted(k for k in flat if k in ("rve.size_ratio", "rve.size_um", "rve.layers"))
     if fixed:
         raise ConfigError(f"{', '.join(fixed)}: set by the study's sizes (size_ratios, layer_counts, "
                           "layers_for_sizes, size_for_layers), not as an override")
-    check_pool(workers, scheduler, blas_threads, security)
-    base = resolve_config(base, **overrides)
+    place = TaskPlace(workers, scheduler, blas_threads, security)
+    base = resolve_config(base, **flat)
     if not size_ratios and not layer_counts:
         raise ConfigError("size_ratios, layer_counts: give at least one RVE size")
     points = [{"rve.size_ratio": float(s), "rve.layers": int(layers_for_sizes)} for s in size_ratios]
@@ -127,9 +128,8 @@ def rve_size_study(
     tasks = plan_tasks(base, points, seeds, allow_large=allow_large)
     plan = {"study": "rve-size", "size_ratios": list(size_ratios), "layer_counts": list(layer_counts),
             "layers_for_sizes": layers_for_sizes, "size_for_layers": size_for_layers, "seeds": seeds}
-    pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
     with _claimed(folder, "rve-size", base, overwrite):
-        result = _run(tasks, base, plan, folder, pool, on_outcome)
+        result = _run(tasks, base, plan, folder, place, on_outcome)
         ensemble = result.ensemble
         if folder is not None and ensemble.records:
             from espin.studies.figures import plot_curve_band, plot_rve_size
@@ -138,9 +138,11 @@ def rve_size_study(
             for name, path in plot_rve_size(result.summary, folder, layers_for_sizes=int(layers_for_sizes),
                                             size_for_layers=float(size_for_layers)).items():
                 result.files[name] = path
-            largest = max(ensemble.records, key=lambda r: (r["parameters"]["rve.size_ratio"], r["parameters"]["rve.layers"]))
-            strain, stress = ensemble.curves(**{k.replace(".", "__"): v for k, v in largest["parameters"].items()})
-            label = rf"$\tilde L$ = {largest['parameters']['rve.size_ratio']:g}, $N_l$ = {largest['parameters']['rve.layers']}"
+            largest = max(ensemble.records,
+                          key=lambda r: (r["parameters"]["rve.size_ratio"], r["parameters"]["rve.layers"]))
+            strain, stress = ensemble.curves(**largest["parameters"])
+            label = (rf"$\tilde L$ = {largest['parameters']['rve.size_ratio']:g}, "
+                     rf"$N_l$ = {largest['parameters']['rve.layers']}")
             result.files["curves"] = plot_curve_band(strain, stress, folder / "rve_size_curves.png", label=label)
     return result
 
@@ -194,7 +196,7 @@ def sweep(
     -------
     StudyResult
     """
-    check_pool(workers, scheduler, blas_threads, security)
+    place = TaskPlace(workers, scheduler, blas_threads, security)
     base = resolve_config(base, **overrides)
     if table_format not in ("csv", "parquet"):
         raise ConfigError(f"table_format: 'csv' or 'parquet' (got {table_format!r})")
@@ -208,16 +210,16 @@ def sweep(
     points = [dict(zip(keys, combo)) for combo in itertools.product(*grid.values())] if keys else [{}]
     seeds = realization_seeds(base, realizations, seed_start)
     tasks = plan_tasks(base, points, seeds, allow_large=allow_large)
-    pool = {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "security": security}
     with _claimed(folder, "sweep", base, overwrite):
-        result = _run(tasks, base, {"study": "sweep", "grid": grid, "seeds": seeds}, folder, pool, on_outcome)
+        result = _run(tasks, base, {"study": "sweep", "grid": grid, "seeds": seeds}, folder, place, on_outcome)
         if folder is not None and result.ensemble.records:
             from espin.studies.figures import plot_sweep
 
             folder = Path(folder)
             if table_format == "parquet":
                 table = result.table
-                result.files["table"] = atomic_write(folder / "sweep.parquet", lambda tmp: table.to_parquet(tmp, index=False))
+                result.files["table"] = atomic_write(folder / "sweep.parquet",
+                                                     lambda tmp: table.to_parquet(tmp, index=False))
             if keys:
                 result.files.update(plot_sweep(result.summary, keys, folder))
     return result
@@ -250,15 +252,14 @@ def _grid_values(key: str, values: Any) -> list[Any]:
 
 
 def _run(tasks: list[TensileTask], base: Config, plan: dict[str, Any], folder: str | Path | None,
-         pool: dict[str, Any], on_outcome: OnOutcome | None) -> StudyResult:
-    """Write the plan (before any work), run the ensemble on the task ``pool`` (workers,
-    scheduler, blas_threads, security), write the summary."""
+         place: TaskPlace, on_outcome: OnOutcome | None) -> StudyResult:
+    """Write the plan (before any work), run the ensemble where ``place`` says, write the summary."""
     files: dict[str, Path] = {}
     if folder is not None:
         folder = Path(folder)
         files["config"] = write_config(base, folder / "study.toml")
         files["plan"] = atomic_write_bytes(folder / "plan.json", json.dumps(plan, indent=1).encode())
-    ensemble = run_ensemble(tasks, folder, **pool, on_outcome=on_outcome)
+    ensemble = run_ensemble(tasks, folder, place=place, on_outcome=on_outcome)
     summary = ensemble.summary()
     if folder is not None:
         files["results"] = folder / "results.csv"

@@ -64,7 +64,7 @@ from espin.analysis.calibration.simulation import COARSE_STEP_STRAIN, KNEE_FACTO
 from espin.analysis.calibration.uncertainty import ETA_SECANT, _uncertainty
 from espin.core.config import Config
 from espin.core.errors import SolverError
-from espin.core.parallel import TaskPool
+from espin.core.parallel import TaskPlace
 
 __all__ = [
     "FIT_PARAMETERS",
@@ -157,7 +157,7 @@ def fit(
     eta_tolerance
         Absolute tolerance of the bracket search on eta, in (0, 0.1).
     workers, scheduler, security
-        Where simulations run (:class:`espin.core.parallel.TaskPool`); default serial. A Dask
+        Where simulations run (:class:`espin.core.parallel.TaskPlace`); default serial. A Dask
         scheduler must be trusted (it runs the pickled tasks); ``security`` holds the TLS files
         of a ``tls://`` one (:func:`espin.core.cluster.tls_security`).
     read_options
@@ -181,7 +181,7 @@ def fit(
     """
     start = time.perf_counter()
     # the pool's options are checked first; its workers start with the first simulation
-    pool = TaskPool(workers=workers, scheduler=scheduler, blas_threads=1, security=security)
+    pool = TaskPlace(workers, scheduler, 1, security).pool()
     problem = _problem(
         curve, base=base, parameters=parameters, bounds=bounds, fixed=fixed, realizations=realizations,
         seeds=seeds, strain_rate_per_s=strain_rate_per_s, step_strain=step_strain, eta_points=eta_points,

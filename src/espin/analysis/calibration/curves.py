@@ -234,7 +234,7 @@ def synthetic_curve(
         if failure is not None:
             raise SolverError(f"synthetic_curve: seed {seed}: {failure}")
         specimens.append(stress + noise_sd_MPa * generator.standard_normal(stress.size))
-    specimens = np.array(specimens)
-    sd = specimens.std(axis=0, ddof=1) if len(seeds) > 1 else None
-    return FittedCurve(rate, curve.strain, specimens.mean(axis=0), sd, source=f"synthetic, seeds {list(seeds)}",
+    stacked = np.array(specimens)
+    sd = stacked.std(axis=0, ddof=1) if len(seeds) > 1 else None
+    return FittedCurve(rate, curve.strain, stacked.mean(axis=0), sd, source=f"synthetic, seeds {list(seeds)}",
                        points_from=f"synthetic, {steps.count} load steps of at most {step_strain:g}")

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Protocol, cast
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -53,9 +53,9 @@ def _curves(ax: Axes, result: Fit) -> None:
                             color="0.8", linewidth=0, label="measured, mean ± sd of the specimens" if k == 0 else None)
         ax.plot(x, curve.stress_MPa, "o", color="k", markersize=3, markerfacecolor="none",
                 label=f"measured, {rate}")
-        ax.fill_between(x, curve.model_MPa - curve.model_sd_MPa, curve.model_MPa + curve.model_sd_MPa,
-                        color=f"C{k}", alpha=0.25, linewidth=0)
-        ax.plot(x, curve.model_MPa, color=f"C{k}",
+        model, model_sd = cast(np.ndarray, curve.model_MPa), cast(np.ndarray, curve.model_sd_MPa)  # a fit's curves
+        ax.fill_between(x, model - model_sd, model + model_sd, color=f"C{k}", alpha=0.25, linewidth=0)
+        ax.plot(x, model, color=f"C{k}",
                 label=f"model, {rate} (mean ± sd, n = {len(result.seeds)} RVE{'s' if len(result.seeds) != 1 else ''})")
     ax.set_xlabel("strain [%]")
     ax.set_ylabel(f"mat stress ({result.config.output.stress_measure}) [MPa]")
@@ -87,7 +87,7 @@ def _fiber(ax: Axes, result: Fit) -> None:
 def _profile(ax: Axes, result: Fit) -> None:
     """Least SSE at each eta visited (the profile the eta search walked); an eta where the fit
     failed (SSE inf) is a dotted vertical line."""
-    eta, sse = result.eta_profile.T
+    eta, sse = cast(np.ndarray, result.eta_profile).T  # drawn only with a profile
     finite = np.isfinite(sse)
     ax.plot(eta[finite], sse[finite], "o-", color="k", markersize=3)
     for k, failed in enumerate(eta[~finite]):

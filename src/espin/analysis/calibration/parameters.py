@@ -140,7 +140,8 @@ def _check_moduli(base: Config, bounds: Mapping[str, tuple[float, float]]) -> No
         )
 
 
-def _bounds_table(config: Config, keys: Sequence[str], bounds: Mapping[str, Any] | None) -> dict[str, tuple[float, float]]:
+def _bounds_table(config: Config, keys: Sequence[str],
+                 bounds: Mapping[str, Any] | None) -> dict[str, tuple[float, float]]:
     """(low, high) of every fitted key: the given ones checked, the others by default."""
     stray = sorted(set(_keys_of(bounds, "bounds")) - set(keys))
     if stray:

@@ -12,7 +12,7 @@ import numpy as np
 
 from espin.analysis.calibration.curves import AverageGrid, FittedCurve, _measured_curves
 from espin.analysis.calibration.parameters import ETA_KEY, FIT_PARAMETERS, _bounds_table, _keys_of, parameter_key
-from espin.analysis.calibration.simulation import _curve_steps, _loading_config, _steps_are_time_steps, _Steps
+from espin.analysis.calibration.simulation import _curve_steps, _loading_config, _Steps, _steps_are_time_steps
 from espin.core.config import Config, apply_overrides
 from espin.core.errors import ConfigError
 

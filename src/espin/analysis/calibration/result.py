@@ -7,7 +7,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -314,7 +314,8 @@ def _curve_table(curve: FittedCurve, seeds: Sequence[int]) -> Any:
         "sd_MPa": missing if curve.sd_MPa is None else curve.sd_MPa,
         "model_MPa": curve.model_MPa,
         "model_sd_MPa": curve.model_sd_MPa,
-        **{f"model_seed{seed}_MPa": row for seed, row in zip(seeds, curve.model_realizations_MPa)},
+        # A fit's curves carry the model (its realizations included).
+        **{f"model_seed{seed}_MPa": row for seed, row in zip(seeds, cast(np.ndarray, curve.model_realizations_MPa))},
     })
 
 

@@ -142,12 +142,11 @@ def _rve(rve_toml: str) -> Any:
 def _simulate_task(task: _Task) -> tuple[np.ndarray, str | None]:
     """Model stress at the task's strains [MPa] (NaN where a failed run did not reach), and
     the failure message of a run that did not converge (else None)."""
-    from espin.mechanics.driver import SimulationFailed
+    from espin.mechanics.driver import SimulationFailed, SimulationResult
     from espin.mechanics.run import simulate
 
-    overrides = {k.replace(".", "__"): v for k, v in task.fiber} | {
-        "loading__program": task.steps.program(task.strain_rate_per_s),
-    }
+    overrides: dict[str, Any] = dict(task.fiber) | {"loading.program": task.steps.program(task.strain_rate_per_s)}
+    result: SimulationResult | None
     try:
         result, failure = simulate(_rve(task.rve_toml), progress=False, **overrides), None
     except SimulationFailed as exc:

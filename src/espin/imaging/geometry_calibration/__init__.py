@@ -84,20 +84,20 @@ from espin.imaging.geometry_calibration.matching import (
     FIXED_TOLERANCE,
     DistributionMatch,
     _diameter_target,
-    crossing_target,
     _orientation_spec,
     _tortuosity_target,
+    crossing_target,
 )
 from espin.imaging.geometry_calibration.options import (
     MIN_PORTIONS,
     _base_rve_data,
-    check_options,
     _diameter_keys,
     _fitted,
     _resolve_base,
     _targets_section,
     _window,
     _with_section,
+    check_options,
 )
 from espin.imaging.geometry_calibration.result import (
     MECHANICS_NOTE,
@@ -354,7 +354,8 @@ def calibrate_geometry(
             search_targets, bias = tracer_corrected(targets, measure_renderings(draft, image),
                                                     measurement.measure(draft_rve, search_side)["tortuosity"])
             tracer = {"tortuosity_bias": bias, "first_walk": fitted.scores[fitted.chosen].walk}
-            if not np.array_equal(search_targets.tortuosity, targets.tortuosity):
+            # Both None (no tortuosity sample) compare equal, as meant; numpy's stubs refuse None.
+            if not np.array_equal(search_targets.tortuosity, targets.tortuosity):  # type: ignore[arg-type]
                 fitted = fit_walks(search_targets)
                 evaluations += fitted.evaluations
         if fitted.problem:
@@ -390,7 +391,8 @@ def calibrate_geometry(
     # 5. The written config and its match, measured on mats of that config.
     output = {"window_ratio": float(f"{window / calibrated_d:.6g}")}
     config = config_from_dict(
-        _with_section(base_config, rve, output, _targets_section(search_targets, window, float(min_chord), tracer.get("tortuosity_bias"))),
+        _with_section(base_config, rve, output,
+                      _targets_section(search_targets, window, float(min_chord), tracer.get("tortuosity_bias"))),
         "(calibrated)")
     parameters["output.window_ratio"] = output["window_ratio"]
     parameters["fitted"] = _fitted(targets, fit, fitted.chosen if fitted else None)

@@ -93,7 +93,9 @@ def save_comparison(image: np.ndarray, rendering: np.ndarray, um_per_px: float, 
 
     rows, cols = image.shape
     extent = (0.0, cols * um_per_px, 0.0, rows * um_per_px)
-    fig = Figure(figsize=(12.0, 11.0 * rows / (2.0 * cols) + 0.9), layout="constrained")
+    # 1.3 in for the title, the panel titles and the x label: constrained layout does not make
+    # room beyond the figure for images of fixed aspect (with 0.9 in, "x [µm]" was cut off).
+    fig = Figure(figsize=(12.0, 11.0 * rows / (2.0 * cols) + 1.3), layout="constrained")
     axes = fig.subplots(1, 2, sharex=True, sharey=True)
     for ax, picture, label in ((axes[0], image, image_label), (axes[1], rendering, rendering_label)):
         low, high = np.percentile(picture, [0.5, 99.5])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -64,7 +64,7 @@ def _compare(quantity: str, virtual: np.ndarray, sample: np.ndarray | None,
         test = stats.ks_2samp(virtual, sample)
         ks, p = float(test.statistic), float(test.pvalue)
     else:
-        ks, p = _one_sample_ks(virtual, cdf), None
+        ks, p = _one_sample_ks(virtual, cast(Callable, cdf)), None  # a target without a sample has a law
     virtual_summary = dict(_summary(quantity, virtual))
     rows = tuple((name, float(t), float(virtual_summary[name])) for name, t in target_summary)
     return DistributionMatch(quantity, label, None if sample is None else len(sample), len(virtual),
@@ -133,7 +133,7 @@ class _Target:
             return 1.0
         if self.sample is not None:
             return float(stats.ks_2samp(virtual, self.sample).statistic)
-        return _one_sample_ks(virtual, self.cdf)
+        return _one_sample_ks(virtual, cast(Callable, self.cdf))  # a target without a sample has a law
 
     def compare(self, virtual: np.ndarray) -> DistributionMatch:
         return _compare(self.quantity, virtual, self.sample, self.cdf, self.label, self.summary)
@@ -156,7 +156,7 @@ def _diameter_target(targets: GeometryTargets) -> _Target:
         return _sample_target("diameter_um", targets.diameter_um, targets.source)
     from scipy import stats
 
-    mean, sd = targets.diameter_mean_um, targets.diameter_sd_um or 0.0
+    mean, sd = cast(float, targets.diameter_mean_um), targets.diameter_sd_um or 0.0  # no sample: a mean
     if sd == 0.0:
         return _Target("diameter_um", None, _Fixed(mean),
                        f"fixed {mean:g} um", (("mean", mean), ("sd", 0.0), ("median", mean)))
@@ -189,7 +189,7 @@ def _orientation_spec(targets: GeometryTargets) -> tuple[str | dict[str, Any], _
     else:
         spec = {"von_mises": {"mean_deg": targets.orientation_mean_deg,
                               "kappa": targets.orientation_kappa}}
-    law = orientation_distribution(spec if spec == "uniform" else VonMises.model_validate(spec))
+    law = orientation_distribution("uniform" if spec == "uniform" else VonMises.model_validate(spec))
     # Summary of the exact distribution: director and order I1/I0(kappa).
     from scipy import special
 
@@ -197,7 +197,7 @@ def _orientation_spec(targets: GeometryTargets) -> tuple[str | dict[str, Any], _
         summary: tuple[tuple[str, float], ...] = (("order", 0.0),)
     else:
         k = targets.orientation_kappa
-        summary = (("director_deg", targets.orientation_mean_deg),
+        summary = (("director_deg", cast(float, targets.orientation_mean_deg)),
                    ("order", float(special.i1e(k) / special.i0e(k))))
     return spec, _Target("orientation_deg", None, lambda x: law.cdf(np.radians(x)), law.label,
                          summary), notes

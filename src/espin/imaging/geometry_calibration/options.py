@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -69,7 +69,7 @@ def _window(targets: GeometryTargets, window_um: float | None, config: Config) -
             "do not give window_um as well"
         )
     if targets.window_um is not None:
-        w, h = targets.field_of_view_um
+        w, h = cast(tuple[float, float], targets.field_of_view_um)  # the window comes from it
         return targets.window_um, f"square of equal mean chord to the {w:g} x {h:g} um field of view"
     if window_um is not None:
         return float(window_um), "window_um"
@@ -92,14 +92,14 @@ def _diameter_keys(targets: GeometryTargets, base: Config) -> tuple[dict[str, An
     if sample is not None:
         mean, sd = float(np.mean(sample)), float(np.std(sample, ddof=1))
     else:
-        mean, sd = targets.diameter_mean_um, targets.diameter_sd_um or 0.0
+        mean, sd = cast(float, targets.diameter_mean_um), targets.diameter_sd_um or 0.0  # no sample: a mean
     explicit_min = base.rve.diameter_min_um if "diameter_min_um" in base.rve.model_fields_set else None
-    family = base.rve.diameter_distribution
+    family: str = base.rve.diameter_distribution
     note = None
     if sample is not None and sd > 0.0:
         log_likelihood = _diameter_log_likelihoods(sample, mean, sd, explicit_min)
         if max(log_likelihood.values()) > -math.inf:  # else the normal's error below
-            family = max(log_likelihood, key=log_likelihood.get)
+            family = max(log_likelihood, key=log_likelihood.__getitem__)
         note = ("diameter family: " + ", ".join(f"{name} log-likelihood {value:.1f}"
                                                  for name, value in log_likelihood.items())
                 + f" -> {family}")

@@ -9,9 +9,9 @@ from typing import Any
 
 import numpy as np
 
+from espin.core.config import WALK_DEFAULTS
 from espin.core.errors import ConfigError
 from espin.imaging.geometry_calibration.fits import KAPPA_MAX, _mean_resultant, persistence_ratio
-from espin.core.config import WALK_DEFAULTS
 from espin.imaging.geometry_calibration.matching import CrossingTarget, _Target
 from espin.imaging.geometry_calibration.virtual import VirtualMeasurement
 

@@ -105,7 +105,8 @@ def measure_renderings(config: Config, image: MeasuredImage, renderings: int = R
             n_cross += seen.n_crossing
             u_sum += seen.u_turn_fraction * seen.n_crossing
             s_sum += seen.straightness * seen.n_crossing
-    return TracedRenderings(renderings, *(np.concatenate(v) for v in parts.values()), n_cross,
+    pooled = {key: np.concatenate(v) for key, v in parts.items()}
+    return TracedRenderings(renderings, pooled["diameter_um"], pooled["orientation_deg"], pooled["tortuosity"], n_cross,
                             u_sum / n_cross if n_cross else math.nan,
                             s_sum / n_cross if n_cross else math.nan)
 

@@ -98,9 +98,9 @@ class VirtualMeasurement:
             runs = window_runs(mat.vertices, mat.fiber_offsets, origin, side)
             crossings.append(window_crossings(runs, origin, side, self.min_chord_um))
             if self.piece_lengths_um is None:
-                seen = window_tortuosity(mat.vertices, mat.fiber_offsets, origin, side,
-                                         self.min_chord_um)
-                tortuosity, orientation, fiber = seen.tortuosity, seen.orientation, seen.fiber
+                visible = window_tortuosity(mat.vertices, mat.fiber_offsets, origin, side,
+                                            self.min_chord_um)
+                tortuosity, orientation, fiber = visible.tortuosity, visible.orientation, visible.fiber
             else:
                 rng = np.random.default_rng([SAMPLING_SEED, seed])
                 tortuosity, orientation, fiber = sample_pieces(
