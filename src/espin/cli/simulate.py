@@ -18,7 +18,7 @@ def simulate(
         typer.Argument(help="Preset (plla), TOML config, a saved RVE file (.h5), or a network file made "
                             "elsewhere (plain HDF5 or the authors' mesh text, docs/mechanics.md). Default: plla."),
     ] = None,
-    config: Annotated[
+    config_file: Annotated[
         Optional[str],
         typer.Option("--config", "-c", help="With a network file: the preset or TOML config whose fiber, "
                                             "loading, solver and output apply. Default: plla."),
@@ -79,8 +79,7 @@ def simulate(
         name = Path(source).stem if source else "plla"
         folder = out if out is not None else Path(f"{name}_test")
         # Validate everything (config, tables of the loading program) before any work.
-        config_source = config
-        config, rve = resolve_source(source, overrides, config_source)
+        config, rve = resolve_source(source, overrides, config_file)
         target = config if rve is None else rve
         program = load_program(config.loading)
         columns = (TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[info]}"),

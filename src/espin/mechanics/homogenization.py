@@ -52,6 +52,7 @@ def kirchhoff_stress(network: Network, force: np.ndarray, kin: Kinematics,
     forces T [uN], plus the fiber joints' part at node positions ``x`` [um] with bending on."""
     virial = np.einsum("e,ei,ej->ij", force * kin.length, kin.unit, kin.unit)
     if joints is not None:
+        x = cast(np.ndarray, x)  # given with joints
         virial = virial + joints.virial(x, x)
     return virial / network.reference_volume
 

@@ -56,8 +56,8 @@ from espin.core.config import (
 from espin.core.errors import ConfigError
 from espin.core.textfiles import TextFormat, missing, parse_number, read_text, shown_names, text_lines
 
-__all__ = ["path_program", "LoadProgram", "LateralStress", "load_program", "read_table", "MAX_TABLE_BYTES", "MAX_TABLE_ROWS",
-           "MAX_TABLE_LINE_CHARS", "MAX_TABLE_MAGNITUDE"]
+__all__ = ["path_program", "LoadProgram", "LateralStress", "load_program", "read_table", "MAX_TABLE_BYTES",
+           "MAX_TABLE_ROWS", "MAX_TABLE_LINE_CHARS", "MAX_TABLE_MAGNITUDE"]
 
 MAX_TABLE_BYTES = 16 * 2**20
 """Largest loading table read [bytes]: 16 MiB. 10^5 rows of five numbers take a few MB."""
