@@ -1,6 +1,7 @@
 """Benchmark: how representative one RVE's orientations are, random against balanced sampling.
 
 Run:  python benchmarks/bench_balanced_sampling.py [--seeds 200] [--size-ratio 200] [--layers 15]
+      python benchmarks/bench_balanced_sampling.py --fidelity [--seeds 1000] [--size-ratio 60] [--layers 5]
 
 Deposits `--seeds` mats of the plla geometry (seeds 0 ..) for each variant and prints the
 relative standard deviation over seeds of the mat's length-weighted <cos^2> and <cos^4> (the
@@ -11,10 +12,16 @@ Variants (the ablation of balanced sampling, espin.geometry.balanced):
   random                  the paper's sampling
   sobol                   balanced draws, no herding (every fiber keeps its walk as drawn)
   sobol, straight         the same on straight fibers (max_deviation_deg = 0): the draws' floor
-  balanced, 2 variants    herding between the walk and its mirror image (turns in 1 block)
-  balanced, 4 variants    turns of 2 blocks
-  balanced                espin's: turns of 4 blocks, 16 variants
+  balanced, 4 variants    turns of 2 blocks (biased: issue 35)
+  balanced, 16 variants   turns of 4 blocks (espin's before issue 35: biased)
+  balanced                espin's: herding between the walk and its mirror image
 and random / balanced with `lines` seeding.
+
+`--fidelity`: whether balanced sampling keeps what random sampling gives (issue 35): for the
+paper walk at 5 and 15 deg, the smooth walk and straight fibers, `--seeds` mats per arm, the
+mean over seeds of the mat's mean fiber tortuosity - 1 (contour over chord of whole fibers),
+its fiber count and its merged node candidates (network.n_merged), with standard errors and
+the difference in standard errors (z).
 """
 
 from __future__ import annotations
@@ -69,21 +76,58 @@ def run(name: str, seeds: int, overrides: dict, **patch) -> None:
           f"{rsd[2]:9.2f} {seconds / seeds:9.3f}", flush=True)
 
 
+def fidelity_row(overrides: dict) -> list[float]:
+    from espin.geometry.crosslinks import find_crosslinks
+    from espin.geometry.network import build_network
+
+    config = load_config("plla", overrides)
+    mat = deposition.deposit(config.rve)
+    first, last = mat.fiber_offsets[:-1], mat.fiber_offsets[1:] - 1
+    chord = np.hypot(*(mat.vertices[last] - mat.vertices[first]).T)
+    network = build_network(mat, find_crosslinks(mat), config.rve.merge_tolerance_um)
+    return [float(np.mean(mat.contour_length / chord)) - 1.0, mat.n_fibers, network.n_merged]
+
+
+def fidelity(seeds: int, base: dict) -> None:
+    cases = {"paper walk, 5 deg": {"rve.max_deviation_deg": 5.0}, "paper walk, 15 deg": {"rve.max_deviation_deg": 15.0},
+             "smooth walk": {"rve.walk": "smooth"}, "straight": {"rve.max_deviation_deg": 0.0}}
+    print(f"{'case':<20} {'quantity':<16} {'random':>22} {'balanced':>22} {'z':>6}")
+    for name, case in cases.items():
+        arms = {}
+        for sampling in ("random", "balanced"):
+            rows = [fidelity_row(base | case | {"rve.sampling": sampling, "rve.seed": seed}) for seed in range(seeds)]
+            r = np.array(rows)
+            arms[sampling] = (r.mean(axis=0), r.std(axis=0, ddof=1) / np.sqrt(seeds))
+        for k, quantity in enumerate(("tortuosity - 1", "fibers", "merged")):
+            (mr, sr), (mb, sb) = (arms["random"][0][k], arms["random"][1][k]), (arms["balanced"][0][k], arms["balanced"][1][k])
+            z = (mb - mr) / np.hypot(sr, sb) if np.hypot(sr, sb) > 0 else 0.0
+            print(f"{name:<20} {quantity:<16} {mr:12.6g} +- {sr:7.2g} {mb:12.6g} +- {sb:7.2g} {z:6.1f}", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--seeds", type=int, default=200)
-    parser.add_argument("--size-ratio", type=float, default=200.0)
-    parser.add_argument("--layers", type=int, default=15)
+    parser.add_argument("--seeds", type=int, help="mats per variant (default 200; --fidelity 1000)")
+    parser.add_argument("--size-ratio", type=float, help="L / D (default 200; --fidelity 60)")
+    parser.add_argument("--layers", type=int, help="layers (default 15; --fidelity 5)")
+    parser.add_argument("--fidelity", action="store_true", help="balanced against random: shapes, counts, merges")
     args = parser.parse_args()
+    defaults = (1000, 60.0, 5) if args.fidelity else (200, 200.0, 15)
+    for name, default in zip(("seeds", "size_ratio", "layers"), defaults):
+        if getattr(args, name) is None:
+            setattr(args, name, default)
     base = {"rve.size_ratio": args.size_ratio, "rve.layers": args.layers}
+    if args.fidelity:
+        print(f"plla geometry, L/D {args.size_ratio:g}, {args.layers} layers, {args.seeds} mats per arm")
+        fidelity(args.seeds, base)
+        return
     bal = base | {"rve.sampling": "balanced"}
     print(f"plla geometry, L/D {args.size_ratio:g}, {args.layers} layers, {args.seeds} seeds")
     print(f"{'variant':<26} {'cos2 RSD%':>9} {'cos4 RSD%':>9} {'<cos4>':>10} {'SE':>8} {'fibers%':>9} {'s / mat':>9}")
     run("random", args.seeds, base)
     run("sobol", args.seeds, bal, herding=False)
     run("sobol, straight", args.seeds, bal | {"rve.max_deviation_deg": 0.0}, herding=False)
-    run("balanced, 2 variants", args.seeds, bal, blocks=1)
     run("balanced, 4 variants", args.seeds, bal, blocks=2)
+    run("balanced, 16 variants", args.seeds, bal, blocks=4)
     run("balanced", args.seeds, bal)
     run("random, lines", args.seeds, base | {"rve.seeding": "lines"})
     run("balanced, lines", args.seeds, bal | {"rve.seeding": "lines"})

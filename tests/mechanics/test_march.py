@@ -115,6 +115,14 @@ def test_the_budget_and_the_smallest_step_stop_a_flow_too_fast_to_follow():
     assert stopped.value.failure.kind == "stiff"
 
 
+def test_steps_halved_below_the_smallest_report_the_failure_that_halved_them():
+    """Newton failures (not the plastic flow) made the step tiny: the march says so, with their kind."""
+    problem = _Fake(wall=0.2 + 1e-12)  # every step ending beyond it fails; steps shrink towards it
+    with pytest.raises(MarchFailed, match="step too long; the time step fell to .* after") as stopped:
+        _run(problem, [0.2, 1.0], max_cuts=100)
+    assert stopped.value.failure.kind == "inadmissible"
+
+
 def test_a_problem_without_iterations_keeps_one_step_per_report():
     problem = _Fake(limit=None)
     _run(problem, [1.0, 5.0, 5.0, 6.0])  # a report at the time of the one before: one step of zero length

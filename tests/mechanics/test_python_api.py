@@ -19,7 +19,8 @@ from espin.mechanics.run import simulate
 
 STEPS = 3
 CURVE_COLUMNS = ["step", "time_s", "strain",
-                 *(f"{p}{i}{j}{u}" for p, u in (("F", ""), ("P", "_MPa"), ("paper", "_MPa"), ("cauchy", "_MPa"))
+                 *(f"{p}{i}{j}{u}" for p, u in (("F", ""), ("P", "_MPa"), ("paper", "_MPa"), ("kirchhoff", "_MPa"),
+                                                ("cauchy", "_MPa"))
                    for i in (1, 2) for j in (1, 2)),
                  "stress_MPa", "recruited_fraction", "yielded_fraction", "iterations", "factorizations",
                  "substeps", "residual_uN"]

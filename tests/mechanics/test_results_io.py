@@ -25,7 +25,7 @@ from espin.mechanics.loading import load_program
 from espin.mechanics.results_file import SCHEMA_VERSION, SimulationWriter, load_results, write_results
 
 PNG = b"\x89PNG\r\n\x1a\n"
-_STACKED = ("time", "strain", "F", "P", "P_paper", "cauchy", "recruited_fraction",
+_STACKED = ("time", "strain", "F", "P", "P_paper", "kirchhoff", "cauchy", "recruited_fraction",
             "yielded_fraction", "iterations", "factorizations", "substeps", "residual")
 
 
@@ -48,7 +48,8 @@ def fake_result(network, seed: int = 0, **overrides) -> tuple[SimulationResult, 
         F = program.prescribed_F(program.time[k])
         records.append(StepRecord(
             index=k, time=float(program.time[k]), strain=float(program.strain[k]), F=F,
-            P=rng.normal(size=(2, 2)), P_paper=rng.normal(size=(2, 2)), cauchy=rng.normal(size=(2, 2)),
+            P=rng.normal(size=(2, 2)), P_paper=rng.normal(size=(2, 2)), kirchhoff=rng.normal(size=(2, 2)),
+            cauchy=rng.normal(size=(2, 2)),
             recruited_fraction=rng.random(), yielded_fraction=rng.random(),
             iterations=int(rng.integers(1, 9)), factorizations=int(rng.integers(1, 9)),
             substeps=int(rng.integers(1, 3)), residual=rng.random() * 1e-9,
@@ -66,7 +67,8 @@ def test_curve_csv_round_trip(network, tmp_path):
     path = write_results(result, tmp_path)["curve_csv"]
     with open(path, newline="") as fh:
         rows = list(csv.DictReader(fh))
-    tensors = {"F": result.F, "P": result.P, "paper": result.P_paper, "cauchy": result.cauchy}
+    tensors = {"F": result.F, "P": result.P, "paper": result.P_paper, "kirchhoff": result.kirchhoff,
+               "cauchy": result.cauchy}
     expected = {"step": np.arange(len(result.time)), "time_s": result.time, "strain": result.strain}
     for prefix, tensor in tensors.items():
         unit = "" if prefix == "F" else "_MPa"
@@ -96,8 +98,8 @@ def test_results_h5_round_trip(network, tmp_path):
     back = load_results(files["results_h5"])
     assert back.config == result.config and back.seed == result.config.rve.seed
     assert back.provenance["espin_version"] and back.provenance["units"]
-    names = {"time": "time_s", "P": "P_MPa", "P_paper": "P_paper_MPa", "cauchy": "cauchy_MPa",
-             "residual": "residual_uN"}
+    names = {"time": "time_s", "P": "P_MPa", "P_paper": "P_paper_MPa", "kirchhoff": "kirchhoff_MPa",
+             "cauchy": "cauchy_MPa", "residual": "residual_uN"}
     for attr in _STACKED:
         stored = back.steps[names.get(attr, attr)]
         assert np.array_equal(stored, getattr(result, attr)), attr
@@ -248,3 +250,17 @@ def test_results_of_a_partial_or_mixed_folder_are_read_with_a_warning(network, t
     write_results(result, claimed.path, run_id="another")
     with pytest.warns(PartialResultWarning, match="mixed folder"):
         assert load_results(claimed.path).status == "mixed"
+
+
+def test_a_results_file_from_before_the_kirchhoff_stress_reads_it_from_cauchy(network, tmp_path):
+    """A results.h5 written before /steps/kirchhoff_MPa existed is read with it as det F times
+    the Cauchy stress (the same stress)."""
+    import h5py
+
+    result, _ = fake_result(network)
+    path = write_results(result, tmp_path)["results_h5"]
+    with h5py.File(path, "a") as f:
+        del f["steps/kirchhoff_MPa"]
+    back = load_results(path)
+    np.testing.assert_allclose(back.steps["kirchhoff_MPa"],
+                               np.linalg.det(result.F)[:, None, None] * result.cauchy, rtol=1e-15)

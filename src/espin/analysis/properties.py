@@ -411,7 +411,7 @@ def simulation_properties(result: SimulationResult, measure: str | None = None, 
     result
         A monotonic loading program's result (:func:`espin.simulate`).
     measure
-        ``"nominal"`` or ``"paper"`` (default: the run's ``output.stress_measure``).
+        ``"nominal"``, ``"paper"`` or ``"kirchhoff"`` (default: the run's ``output.stress_measure``).
     **options
         Passed on to :func:`curve_properties`.
     """

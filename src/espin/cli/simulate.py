@@ -15,7 +15,13 @@ __all__ = ["register"]
 def simulate(
     source: Annotated[
         Optional[str],
-        typer.Argument(help="Preset (plla), TOML config, or a saved RVE file (.h5). Default: plla."),
+        typer.Argument(help="Preset (plla), TOML config, a saved RVE file (.h5), or a network file made "
+                            "elsewhere (plain HDF5 or the authors' mesh text, docs/mechanics.md). Default: plla."),
+    ] = None,
+    config_file: Annotated[
+        Optional[str],
+        typer.Option("--config", "-c", help="With a network file: the preset or TOML config whose fiber, "
+                                            "loading, solver and output apply. Default: plla."),
     ] = None,
     out: Annotated[
         Optional[Path], typer.Option("--out", "-o", help="Results folder. Default: <name>_test.")
@@ -25,7 +31,7 @@ def simulate(
         typer.Option(help="loading.test: uniaxial, equibiaxial, pure_shear, simple_shear, path."),
     ] = None,
     lateral: Annotated[
-        Optional[str], typer.Option(help="loading.lateral for uniaxial: fixed or free.")
+        Optional[str], typer.Option(help="loading.lateral for uniaxial: fixed or free (other forms: --set).")
     ] = None,
     direction_deg: Annotated[
         Optional[float], typer.Option(help="loading.direction_deg: loading axis, degrees from +x.")
@@ -52,6 +58,8 @@ def simulate(
 
     from espin.analysis.properties import curve_marks
     from espin.core.errors import EspinError
+    from espin.geometry.network import Network
+    from espin.mechanics.driver import MEASURES
     from espin.mechanics.loading import load_program
     from espin.mechanics.run import resolve_source
     from espin.mechanics.run import simulate as run_simulation
@@ -71,7 +79,7 @@ def simulate(
         name = Path(source).stem if source else "plla"
         folder = out if out is not None else Path(f"{name}_test")
         # Validate everything (config, tables of the loading program) before any work.
-        config, rve = resolve_source(source, overrides)
+        config, rve = resolve_source(source, overrides, config_file)
         target = config if rve is None else rve
         program = load_program(config.loading)
         columns = (TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[info]}"),
@@ -82,7 +90,7 @@ def simulate(
             task = bar.add_task("generating", total=program.n_steps, info="")
 
             def on_step(record) -> None:
-                stress = record.P if config.output.stress_measure == "nominal" else record.P_paper
+                stress = getattr(record, MEASURES[config.output.stress_measure])
                 R = program.rotation
                 local = R.T @ stress @ R
                 value = local[0, 1] if program.test == "simple_shear" else local[0, 0]
@@ -92,7 +100,8 @@ def simulate(
                 if not console.is_terminal:  # no live bar off a terminal: one plain line per step
                     console.print(f"step {record.index}/{program.n_steps}: {info}", highlight=False)
 
-            result = run_simulation(target, folder, on_step=on_step, overwrite=overwrite,
+            result = run_simulation(target, folder, config=config if isinstance(rve, Network) else None,
+                                    on_step=on_step, overwrite=overwrite,
                                     allow_large=allow_large, curve_marks=curve_marks)
     except EspinError as err:
         fail(err)

@@ -45,6 +45,7 @@ __all__ = [
     "SolverConfig",
     "OutputConfig",
     "TargetsConfig",
+    "StressLateral",
     "VonMises",
     "Histogram",
     "LoadSegment",
@@ -376,15 +377,22 @@ class TransverseCSVLateral(_Section):
     """CSV with columns axial_strain, transverse_strain (measured transverse strain)."""
 
 
+class StressLateral(_Section):
+    stress_MPa: Annotated[float, Field(ge=-MAX_MODULUS_MPA, le=MAX_MODULUS_MPA)]
+    """Lateral stress held [MPa], in [-1e6, 1e6]: F'22 adjusts so that the lateral component
+    of ``output.stress_measure`` (nominal P'22 or Kirchhoff tau'22) equals it; F'12 = 0."""
+
+
 _lateral_tag, _lateral_check = _tagged_union(
     "loading.lateral",
-    {"poisson_ratio": "PoissonLateral", "transverse_csv": "TransverseCSVLateral"},
-    '"fixed", "free", {poisson_ratio = nu} or {transverse_csv = path}',
+    {"poisson_ratio": "PoissonLateral", "transverse_csv": "TransverseCSVLateral", "stress_MPa": "StressLateral"},
+    '"fixed", "free", {poisson_ratio = nu}, {transverse_csv = path} or {stress_MPa = s}',
 )
 Lateral = Annotated[
     Annotated[Literal["fixed", "free"], Tag("plain")]
     | Annotated[PoissonLateral, Tag("PoissonLateral")]
-    | Annotated[TransverseCSVLateral, Tag("TransverseCSVLateral")],
+    | Annotated[TransverseCSVLateral, Tag("TransverseCSVLateral")]
+    | Annotated[StressLateral, Tag("StressLateral")],
     _lateral_tag,
     _lateral_check,
 ]
@@ -565,13 +573,20 @@ class SolverConfig(_Section):
     """Local error of the plastic update per time step, relative to the fiber stresses, in
     [1e-8, 1): load steps are split into as many time steps as it takes (docs/model.md
     section 4). "off": one time step per load step, halved only when Newton fails."""
+    kinematics: Literal["equilibrium", "affine"] = "equilibrium"
+    """How the cross-links move: "equilibrium" (default, the paper's model: they move until
+    the fiber forces balance) or "affine" (every node at x = F X, no equilibrium solve: the
+    classical affine network model, an upper bound of the stiffness; docs/model.md
+    section 4)."""
 
 
 class OutputConfig(_Section):
     """What is reported and written."""
 
-    stress_measure: Literal["nominal", "paper"] = "nominal"
-    """Stress on curves, plots and properties: nominal P or the paper's Eq. 17 (both written)."""
+    stress_measure: Literal["nominal", "paper", "kirchhoff"] = "nominal"
+    """Stress on curves, plots and properties: "nominal" P, "paper" (the paper's Eq. 17 as
+    printed) or "kirchhoff" (P F^T = det F times Cauchy, per reference volume: what the
+    authors' code reports); all three are written (docs/model.md section 5)."""
     yield_threshold: Annotated[float, Field(gt=0.0, lt=1.0)] = 1e-3
     """An element counts as yielded when lambda_p - 1 exceeds this, in (0, 1)."""
     window_ratio: Annotated[float, Field(gt=0.0, le=1e6)] = 50.0
@@ -593,6 +608,19 @@ class Config(_Section):
     solver: SolverConfig = SolverConfig()
     output: OutputConfig = OutputConfig()
     targets: TargetsConfig | None = None
+
+    @model_validator(mode="after")
+    def _check(self) -> Config:
+        if isinstance(self.loading.lateral, StressLateral) and self.output.stress_measure == "paper":
+            raise ValueError(
+                "loading.lateral = {stress_MPa = ...} holds the lateral component of "
+                'output.stress_measure, which must be "nominal" or "kirchhoff" (the paper\'s '
+                "Eq. 17 is no stress conjugate to F, so no lateral stretch is defined by it)")
+        if self.solver.kinematics == "affine" and self.fiber.bending_modulus_MPa > 0.0:
+            raise ValueError(
+                'fiber.bending_modulus_MPa must be 0 with solver.kinematics = "affine" (bending '
+                "resists the non-affine motion of the nodes, which affine kinematics leaves out)")
+        return self
 
     @property
     def observation_window_um(self) -> float:

@@ -3,7 +3,8 @@
 Random sampling (the paper) draws every fiber's axis, start and diameter independently, so one
 RVE of the paper's size carries a few percent of orientation noise: its modulus follows its
 own length-weighted <cos^4> and its yield stress its <cos^2>, which scatter from seed to seed.
-Balanced sampling keeps the law of every fiber and removes most of that noise
+Balanced sampling keeps the law of every fiber (its axis, start, diameter and shape) and
+removes most of that noise
 (:func:`espin.geometry.deposition.deposit` uses this module):
 
 1. **Low-discrepancy draws.** The fibers of the whole RVE take consecutive points of one
@@ -14,15 +15,20 @@ Balanced sampling keeps the law of every fiber and removes most of that noise
    follow their distributions far more closely than independent draws do. The layers are
    filled together (each fiber to a random open layer), so that fibers of one layer are not
    neighbours in the sequence.
-2. **Walk variants chosen by herding.** The directions of a fiber's walk are drawn once and
-   the fiber is laid in variants of the same law (the paper walk's turns negated in some of
-   its blocks, the smooth walk's mirror image). Of those, the one is kept that brings the
-   RVE's running sum of (content - mean of the fiber's variants) nearest zero, the content
-   c = sum over segments of A l (1, cos 2 phi, sin 2 phi, cos 4 phi, sin 4 phi): that sum stays
-   bounded instead of growing as sqrt(N), so the walks' drift, which balanced axes cannot
-   reach, cancels to first order. The variants are closed under negating all turns and the
-   rule is odd in (running sum, deviations), so the kept sum has mean zero: the expected
-   content is that of random sampling.
+2. **Walk or mirror image, chosen by herding.** The directions of a fiber's walk are drawn
+   once and the fiber is laid twice: as drawn, and as its mirror image about its first axis
+   (the paper walk's turns all negated, the smooth walk's deviation negated), which has the
+   same law. Of the two, the one is kept that brings the RVE's running sum R of (content -
+   mean of the two) nearest zero, the content c = sum over segments of A l (1, cos 2 phi,
+   sin 2 phi, cos 4 phi, sin 4 phi): that sum stays bounded instead of growing as sqrt(N), so
+   the walks' drift, which balanced axes cannot reach, cancels to first order.
+   **Each fiber keeps exactly the walk's law**: the two deviations are d and -d, so the walk
+   is kept when R . d < 0 (as drawn on a tie); R comes from the fibers before, independent of
+   this one, and its law is symmetric (the rule is odd), so either variant is kept with
+   probability 1/2 whatever its shape, and a fair choice between a walk and its mirror image
+   has the walk's law. More variants (turns negated in some blocks) break this: the herding
+   then prefers variants of extreme content, which have a shape of their own (16 variants made
+   the tortuosity - 1 of 5 deg paper walks 20 % lower, of 15 deg ones 4 % higher).
 """
 
 from __future__ import annotations
@@ -81,7 +87,8 @@ class BalancedSampler:
         ----------
         contents : (n_variants, n, 5) float64 [um^3]
             Orientation contents (:func:`orientation_content`) of the candidate fibers'
-            variants; the variants of a fiber form a set closed under negating all turns.
+            variants: the walk as drawn and its mirror image (two variants keep each
+            fiber's law exactly, module docstring).
 
         Returns
         -------

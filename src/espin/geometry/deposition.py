@@ -53,7 +53,10 @@ _BALANCED_WALKS_KEY = 1_000_001
 # the memory of large RVEs (points not used go back to the sequence).
 _BALANCED_BATCH = 1024
 # Blocks of a paper walk's turns whose signs balanced sampling chooses (2^blocks variants).
-_TURN_BLOCKS = 4
+# One: the walk and its mirror image, the only choice that keeps each fiber's shape law
+# exactly (geometry/balanced.py); 4 blocks (16 variants) made the tortuosity - 1 of 5 deg
+# walks 20 % lower (issue 35). benchmarks/bench_balanced_sampling.py patches it to compare.
+_TURN_BLOCKS = 1
 _BALANCED_LAYERS_KEY = 1_000_002
 
 

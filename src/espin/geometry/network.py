@@ -51,6 +51,9 @@ class Network:
         lay within the merge tolerance along a fiber.
     merge_tolerance : float [um]
         The merge tolerance that was used.
+    element_plastic_stretch : (n_elements,) float64 or None
+        Plastic stretch lambda_p of each element at the start of a test, for a network read
+        from a file that carries it (:mod:`espin.geometry.network_file`); None: 1.
     """
 
     node_position: np.ndarray
@@ -65,6 +68,14 @@ class Network:
     n_layers: int
     n_merged: int
     merge_tolerance: float
+    element_plastic_stretch: np.ndarray | None = None
+
+    @property
+    def initial_plastic_stretch(self) -> np.ndarray:
+        """(n_elements,) float64: lambda_p at the start of a test (1 unless the network says)."""
+        if self.element_plastic_stretch is None:
+            return np.ones(self.n_elements)
+        return self.element_plastic_stretch
 
     @property
     def n_nodes(self) -> int:

@@ -25,6 +25,15 @@ w_x), d theta / d x_a = perp(u) / |u|^2, d theta / d x_c = perp(v) / |v|^2 and d
 = -(d theta / d x_a + d theta / d x_c). With Delta = theta - theta_0, the joint's gradient is
 k sin(Delta) d theta/dx and its Hessian k cos(Delta) (d theta/dx)(d theta/dx)^T (positive
 semi-definite where |Delta| < pi / 2) plus k sin(Delta) d^2 theta / dx^2.
+
+A joint's force is known only to the rounding of its nodes' positions: an element vector
+u = x_b - x_a carries an error of order eps |x| (eps the float64 epsilon), so the angle one of
+order eps |x| / |u| and the force one of order k eps |x| (1 / |u|^2 + 1 / |v|^2). Next to an
+element much shorter than the RVE (a merge tolerance of 1e-6 D leaves elements of 2e-6 D) that
+exceeds the equilibrium's force tolerance by orders of magnitude, and Newton stalls on rounding;
+:meth:`FiberJoints.force_resolution` is that floor, node by node, and the equilibrium accepts a
+residual within it. The reference angles are taken in the solver's coordinates (relative to the
+RVE centre), so the undeformed state has none.
 """
 
 from __future__ import annotations
@@ -109,6 +118,17 @@ class FiberJoints:
             hessian += (self.stiffness * np.sin(change))[:, None, None] * _curvature(u, v)
         return hessian
 
+    def force_resolution(self, x: np.ndarray, n_dof: int) -> np.ndarray:
+        """(n_dof,) how precisely the joints' forces at each DOF are known at positions ``x``
+        [uN]: 4 eps max |x| sum over the node's joints of k (1 / |u|^2 + 1 / |v|^2) (module
+        notes); zero at nodes without joints."""
+        _, u, v, jacobian = self._geometry(x)
+        active = np.any(jacobian != 0.0, axis=1)
+        sensitivity = self.stiffness * (1.0 / np.einsum("ij,ij->i", u, u) + 1.0 / np.einsum("ij,ij->i", v, v))
+        per_node = np.where(active, sensitivity, 0.0)[:, None] * np.ones((1, 6))
+        scale = 4.0 * np.finfo(float).eps * float(np.max(np.abs(x)))
+        return scale * np.bincount(self.dof.ravel(), per_node.ravel(), minlength=n_dof)
+
     def virial(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """(2, 2) sum over joint nodes of g_n (x) y_n [uN um]: the joints' part of V0 P with
         ``y`` the reference positions X, of det F V0 sigma with ``y`` = ``x``.
@@ -165,5 +185,5 @@ def fiber_joints(network: Network, modulus_MPa: float) -> FiberJoints:
     stiffness = float(modulus_MPa) * np.pi * diameter**4 / 64.0 / mean_length
     floor = STRETCH_FLOOR * np.column_stack([network.element_length[joined], network.element_length[joined + 1]])
     reference = FiberJoints(triple.astype(np.int64), stiffness, np.zeros(len(joined)), floor)
-    angle = reference._geometry(network.node_position)[0]
+    angle = reference._geometry(network.node_position - network.centre)[0]  # the solver's coordinates
     return FiberJoints(triple.astype(np.int64), stiffness, angle, floor)

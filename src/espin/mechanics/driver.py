@@ -6,7 +6,9 @@ or more time steps (sub-steps): their size follows the local error of the plasti
 again, smaller), is halved when Newton does not converge (the strain rate stays the
 prescribed one: time and strain are cut together) and grows after easy convergence; it is
 carried from one recorded step to the next. Each sub-step starts from a predictor that
-extrapolates the non-affine part of the node motion (docs/model.md sections 4, 6).
+extrapolates the non-affine part of the node motion (docs/model.md sections 4, 6). With
+``solver.kinematics = "affine"`` the same march places every node at F X instead
+(:mod:`espin.mechanics.affine`).
 """
 
 from __future__ import annotations
@@ -23,19 +25,21 @@ from espin.core.config import Config
 from espin.core.errors import SolverError, StepFailureKind, StepNotConverged
 from espin.core.html import html_table
 from espin.geometry.network import Network
+from espin.mechanics.affine import AffineSteps
 from espin.mechanics.equilibrium import EquilibriumSolver, StepResult, StepState
 from espin.mechanics.fiber_law import yielded
-from espin.mechanics.homogenization import cauchy_stress, nominal_stress, paper_stress
-from espin.mechanics.loading import LoadProgram, load_program
+from espin.mechanics.homogenization import cauchy_stress, kirchhoff_stress, nominal_stress, paper_stress
+from espin.mechanics.loading import LateralStress, LoadProgram, load_program
 from espin.mechanics.march import MarchFailed, ReportTally, StepPolicy, march
 
-__all__ = ["StepRecord", "step_record", "SimulationResult", "SimulationFailed", "run_program", "result_from_records",
+__all__ = ["StepRecord", "step_record", "MEASURES", "SimulationResult", "SimulationFailed", "run_program",
+           "result_from_records",
            "FREE_LATERAL_NOTE", "curve_columns", "curve_summary"]
 
 log = logging.getLogger(__name__)
 
 FREE_LATERAL_NOTE = (
-    "lateral = free: in this 2-D network fibers resist compression only with the slack "
+    "lateral = free or {stress_MPa = s}: in this 2-D network fibers resist compression only with the slack "
     "modulus E_b, so the mat contracts laterally far more than a real one, the response is "
     "governed by E_b, and equilibrium can be non-unique (compressed chains buckle). Compare "
     "the stress P, not the lateral stretch, between runs."
@@ -58,6 +62,8 @@ class StepRecord:
         Nominal (first Piola-Kirchhoff) stress.
     P_paper : (2, 2) float64 [MPa]
         Stress of the paper's Eq. 17.
+    kirchhoff : (2, 2) float64 [MPa]
+        Kirchhoff stress per reference volume, P F^T = det F times Cauchy.
     cauchy : (2, 2) float64 [MPa]
         In-plane Cauchy stress at unchanged thickness.
     recruited_fraction, yielded_fraction : float
@@ -81,6 +87,7 @@ class StepRecord:
     F: np.ndarray
     P: np.ndarray
     P_paper: np.ndarray
+    kirchhoff: np.ndarray
     cauchy: np.ndarray
     recruited_fraction: float
     yielded_fraction: float
@@ -94,8 +101,12 @@ class StepRecord:
     recruited: np.ndarray
 
 
-_CURVE_TENSORS = (("F", "F", ""), ("P", "P", "_MPa"), ("paper", "P_paper", "_MPa"), ("cauchy", "cauchy", "_MPa"))
+_CURVE_TENSORS = (("F", "F", ""), ("P", "P", "_MPa"), ("paper", "P_paper", "_MPa"), ("kirchhoff", "kirchhoff", "_MPa"),
+                  ("cauchy", "cauchy", "_MPa"))
 """(column prefix, SimulationResult attribute, unit suffix) of the tensors of ``curve.csv``."""
+MEASURES = {"nominal": "P", "paper": "P_paper", "kirchhoff": "kirchhoff"}
+"""``output.stress_measure`` -> the attribute of :class:`StepRecord` and :class:`SimulationResult`
+that holds it."""
 _CURVE_SCALARS = (("recruited_fraction", "recruited_fraction"), ("yielded_fraction", "yielded_fraction"),
                   ("iterations", "iterations"), ("factorizations", "factorizations"), ("substeps", "substeps"),
                   ("residual_uN", "residual"))
@@ -109,7 +120,7 @@ def curve_columns(steps: Mapping[str, np.ndarray], stress: np.ndarray, first_ste
     ----------
     steps
         (n,) or (n, 2, 2) arrays by :class:`SimulationResult` attribute name (``time``,
-        ``strain``, ``F``, ``P``, ``P_paper``, ``cauchy``, ``recruited_fraction``, ...).
+        ``strain``, ``F``, ``P``, ``P_paper``, ``kirchhoff``, ``cauchy``, ``recruited_fraction``, ...).
     stress
         (n,) curve stress [MPa] (:meth:`SimulationResult.stress`).
     first_step
@@ -119,7 +130,8 @@ def curve_columns(steps: Mapping[str, np.ndarray], stress: np.ndarray, first_ste
     -------
     dict
         Column name -> (n,) array: ``step``, ``time_s``, ``strain``, the tensor components
-        ``F11`` .. ``F22``, ``P11_MPa`` .. , ``paper11_MPa`` .., ``cauchy11_MPa`` .. (RVE
+        ``F11`` .. ``F22``, ``P11_MPa`` .. , ``paper11_MPa`` .., ``kirchhoff11_MPa`` ..,
+        ``cauchy11_MPa`` .. (RVE
         axes), ``stress_MPa``, ``recruited_fraction``, ``yielded_fraction``, ``iterations``,
         ``factorizations``, ``substeps``, ``residual_uN``.
     """
@@ -141,11 +153,12 @@ def curve_summary(test: str, stress_measure: str, strain: np.ndarray, stress: np
     test
         The loading's test (``uniaxial``, ``simple_shear``, ...).
     stress_measure
-        ``nominal`` or ``paper`` (``output.stress_measure``).
+        ``nominal``, ``paper`` or ``kirchhoff`` (``output.stress_measure``).
     strain
         (n,) load parameter of each step (step 0 undeformed).
     stress
-        (n,) curve stress [MPa]: P'11, or P'12 for simple shear, in the loading frame.
+        (n,) curve stress [MPa]: the 11 component (12 for simple shear) of the measure, in the
+        loading frame.
 
     Returns
     -------
@@ -154,7 +167,8 @@ def curve_summary(test: str, stress_measure: str, strain: np.ndarray, stress: np
         magnitude, signed); ``peak stress`` (likewise) and ``last stress`` with ``MPa``;
         ``stress`` (the component and measure).
     """
-    component = "P'12" if test == "simple_shear" else "P'11"
+    symbol = {"nominal": "P", "paper": "T17", "kirchhoff": "tau"}[stress_measure]
+    component = f"{symbol}'12" if test == "simple_shear" else f"{symbol}'11"
     return {
         "test": test,
         "steps": str(len(strain) - 1),
@@ -174,7 +188,7 @@ class SimulationResult:
     config : Config
     program : LoadProgram
     time, strain : (n,) float64
-    F, P, P_paper, cauchy : (n, 2, 2) float64 (stresses MPa)
+    F, P, P_paper, kirchhoff, cauchy : (n, 2, 2) float64 (stresses MPa)
     recruited_fraction, yielded_fraction : (n,) float64
     iterations, factorizations, substeps : (n,) int64
     residual : (n,) float64 [uN]
@@ -189,6 +203,7 @@ class SimulationResult:
     F: np.ndarray
     P: np.ndarray
     P_paper: np.ndarray
+    kirchhoff: np.ndarray
     cauchy: np.ndarray
     recruited_fraction: np.ndarray
     yielded_fraction: np.ndarray
@@ -204,12 +219,14 @@ class SimulationResult:
         return np.einsum("ji,njk,kl->nil", R, tensor, R)
 
     def stress(self, measure: str | None = None) -> np.ndarray:
-        """(n,) stress of the curve [MPa] in the loading frame: P'11 (P'12 for simple shear).
+        """(n,) stress of the curve [MPa] in the loading frame: the 11 component (12 for simple
+        shear) of the measure.
 
-        ``measure`` is ``"nominal"`` or ``"paper"`` (default: ``output.stress_measure``).
+        ``measure`` is ``"nominal"``, ``"paper"`` or ``"kirchhoff"`` (default:
+        ``output.stress_measure``).
         """
         measure = measure or self.config.output.stress_measure
-        tensor = self.loading_frame(self.P if measure == "nominal" else self.P_paper)
+        tensor = self.loading_frame(getattr(self, MEASURES[measure]))
         return tensor[:, 0, 1] if self.program.test == "simple_shear" else tensor[:, 0, 0]
 
     def to_dataframe(self) -> Any:
@@ -264,6 +281,7 @@ def step_record(index: int, solver: EquilibriumSolver, result: StepResult, strai
         F=F,
         P=nominal_stress(network, result.force, result.kinematics, solver.joints, positions),
         P_paper=paper_stress(network, law.stress, result.kinematics),
+        kirchhoff=kirchhoff_stress(network, result.force, result.kinematics, solver.joints, positions),
         cauchy=cauchy_stress(network, result.force, result.kinematics, F, solver.joints, positions),
         recruited_fraction=float(volume[law.recruited].sum() / volume.sum()),
         yielded_fraction=float(volume[is_yielded].sum() / volume.sum()),
@@ -298,18 +316,22 @@ class _ProgramSteps:
     """A loading program on one network as a :class:`~espin.mechanics.march.StepProblem`: each
     attempt solves the equilibrium at the program's F from the predictor."""
 
-    def __init__(self, solver: EquilibriumSolver, program: LoadProgram, first: StepResult) -> None:
-        self.solver, self.program = solver, program
+    def __init__(self, solver: EquilibriumSolver, program: LoadProgram, lateral: LateralStress | None) -> None:
+        self.solver, self.program, self.lateral = solver, program, lateral
         self.directions = program.free_directions
         self.iteration_limit = solver.iteration_limit(len(self.directions))
-        self.state = first.state
+        F0 = program.prescribed_F(0.0)
+        network = solver.network
+        # the undeformed state: the first attempt is at time 0
+        self.state = StepState(0.0, solver.asm.reference[:network.n_inner] @ F0.T, np.zeros(len(self.directions)),
+                               F0, network.initial_plastic_stretch, np.zeros(network.n_elements))
         self.previous: StepState | None = None  # the state before, for the predictor
 
     def attempt(self, start: float, end: float) -> StepResult:
         F_next = self.program.prescribed_F(end)
         guess_inner, guess_free = _predict(self.state, self.previous, end, F_next, self.directions,
                                            self.solver.asm, self.solver.n_inner)
-        return self.solver.solve(self.state, end, F_next, self.directions, guess_inner, guess_free)
+        return self.solver.solve(self.state, end, F_next, self.directions, guess_inner, guess_free, self.lateral)
 
     def error(self, trial: StepResult) -> float:
         return self.solver.time_error(self.state, trial)
@@ -362,6 +384,10 @@ def run_program(
     if program.test == "uniaxial" and len(program.free_directions):
         log.warning(FREE_LATERAL_NOTE)
     solver = EquilibriumSolver.from_config(network, config, linear_solver)
+    lateral = (None if program.lateral_stress_MPa is None
+               else LateralStress(program.lateral_stress_MPa, config.output.stress_measure == "kirchhoff"))
+    steps = (AffineSteps(solver, program, lateral) if config.solver.kinematics == "affine"
+             else _ProgramSteps(solver, program, lateral))
     threshold = config.output.yield_threshold
     records: list[StepRecord] = []
 
@@ -375,16 +401,12 @@ def run_program(
                                 cuts=cuts, mixed=bool(len(program.free_directions)),
                                 partial=result_from_records(config, program, records) if records else None)
 
-    F0 = program.prescribed_F(0.0)
-    n_elements = network.n_elements
-    start = StepState(0.0, solver.asm.reference[:network.n_inner] @ F0.T, np.zeros(len(program.free_directions)),
-                      F0, np.ones(n_elements), np.zeros(n_elements))
     try:
-        first = solver.solve(start, 0.0, F0, program.free_directions, start.inner, start.free)
+        first = steps.attempt(0.0, 0.0)
     except StepNotConverged as failure:
         raise fail(failure, 0, 0.0, 0) from None
+    steps.commit(first)
     record(0, first, (first.iterations, first.factorizations, 1))
-    steps = _ProgramSteps(solver, program, first)
 
     def reached(tally: ReportTally[StepResult]) -> None:
         assert tally.trial is not None
@@ -502,6 +524,7 @@ def result_from_records(config: Config, program: LoadProgram, records: list[Step
         F=stack("F"),
         P=stack("P"),
         P_paper=stack("P_paper"),
+        kirchhoff=stack("kirchhoff"),
         cauchy=stack("cauchy"),
         recruited_fraction=stack("recruited_fraction"),
         yielded_fraction=stack("yielded_fraction"),

@@ -8,7 +8,9 @@ The step minimizes the incremental potential
 
 (each element's algorithmic stress depends on its own stretch only, so Phi exists for the
 plastic step too); its gradient is the residual [g_I, V0 P : G_k] and its Hessian the
-consistent tangent. Newton's method with:
+consistent tangent. A lateral stress target (:class:`~espin.mechanics.loading.LateralStress`)
+adds -V0 s F'22 (nominal) or -V0 s ln F'22 (Kirchhoff) to Phi, so its free row is
+V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
 
 * the exact tangent when the factorization's inertia shows it positive definite, else the
   tangent without the negative geometric stiffness of compressed elements (positive
@@ -25,7 +27,9 @@ consistent tangent. Newton's method with:
   control, |P : G_k| <= rtol max |P| + atol E_t phi (phi: fiber volume over V0);
 * with fiber bending on (``fiber.bending_modulus_MPa`` > 0, :mod:`espin.mechanics.bending`),
   the joints' springs add to Phi, its gradient and its Hessian (the clipped tangent keeps
-  their positive semi-definite part);
+  their positive semi-definite part), and a node's force tolerance grows by the precision its
+  joints' forces are known to (:meth:`~espin.mechanics.bending.FiberJoints.force_resolution`:
+  next to an element of 1e-6 D the rounding of the positions alone exceeds the tolerance);
 * when Newton fails, a continuation in the slack modulus before the driver cuts the step:
   the step is solved with E_b raised 100-fold (capped at E_t / 2), then 10-fold, then with
   the true E_b, each solve starting from the equilibrium of the one before. Slack and
@@ -56,6 +60,7 @@ from espin.mechanics.bending import FiberJoints, fiber_joints
 from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
 from espin.mechanics.line_search import line_search
 from espin.mechanics.linear_solvers import Factorization, LinearSolver
+from espin.mechanics.loading import LateralStress
 from espin.mechanics.time_steps import local_error
 
 __all__ = ["StepState", "StepResult", "EquilibriumSolver"]
@@ -136,6 +141,7 @@ class _Step:
     modes: np.ndarray  # (n_free, 2 n_border): d x_B / d f_k = G_k X_B
     weight: np.ndarray  # residual row scales for norms (all rows in uN)
     law: FiberLaw  # the law this solve uses (the continuation's stages soften E_b)
+    lateral: LateralStress | None  # the stress target of the one free component, if any
 
 
 @dataclass
@@ -223,13 +229,14 @@ class EquilibriumSolver:
                    config.fiber.bending_modulus_MPa)
 
     # -- evaluation ---------------------------------------------------------------------------
-    def _context(self, start: StepState, time: float, F_prescribed, directions, law: FiberLaw) -> _Step:
+    def _context(self, start: StepState, time: float, F_prescribed, directions, law: FiberLaw,
+                 lateral: LateralStress | None) -> _Step:
         X = self.border_reference
         modes = np.stack([(X @ G.T).ravel() for G in directions]) if len(directions) else np.zeros((0, 2 * len(X)))
         # Residual rows are forces [uN] for inner DOF and V0 P : G_k [uN um] for free
         # components; dividing the latter by L / 2 puts both in uN for norms.
         weight = np.r_[np.ones(2 * self.n_inner), np.full(len(directions), 2.0 / self.network.size)]
-        return _Step(start, time - start.time, F_prescribed, directions, modes, weight, law)
+        return _Step(start, time - start.time, F_prescribed, directions, modes, weight, law, lateral)
 
     def _evaluate(self, z: np.ndarray, step: _Step, near: _Point | None = None) -> _Point:
         """Everything at the iterate ``z``; an inadmissible state raises :class:`InadmissibleState`.
@@ -252,13 +259,20 @@ class EquilibriumSolver:
         if self.joints is not None:
             gradient += self.joints.gradient(x, self.asm.n_dof)
         residual = np.concatenate([gradient[:n], step.modes @ gradient[n:]])
+        if step.lateral is not None:  # the one free component F'22 = F : G holds a stress target
+            target, _ = step.lateral.nominal(float(np.vdot(F, step.directions[0])))
+            residual[n] -= self.network.reference_volume * target
         return _Point(z, F, x, kin, stretch, law, force, stiffness, gradient, residual)
 
     def _converged(self, p: _Point, n_free: int) -> tuple[bool, float]:
         n = 2 * self.n_inner
         g = p.residual[:n]
         force_norm = float(np.max(np.abs(g))) if n else 0.0
-        ok = force_norm <= self.config.rtol * float(np.max(np.abs(p.force), initial=0.0)) + self.force_tolerance_abs
+        tolerance = self.config.rtol * float(np.max(np.abs(p.force), initial=0.0)) + self.force_tolerance_abs
+        if self.joints is None:
+            ok = force_norm <= tolerance
+        else:  # the joints' forces are known only to the rounding of the positions (bending module notes)
+            ok = bool(np.all(np.abs(g) <= tolerance + self.joints.force_resolution(p.x, self.asm.n_dof)[:n]))
         if n_free:
             V0 = self.network.reference_volume
             stress = np.abs(p.residual[n:]) / V0
@@ -295,6 +309,9 @@ class EquilibriumSolver:
         K_II, K_IB, K_BB = self.asm.tangents(("II", "IB", "BB"), axial, transverse, p.kin, joints)
         coupling = sp.csr_matrix(K_IB @ modes.T)
         corner = modes @ (K_BB @ modes.T)
+        if step.lateral is not None:
+            _, slope = step.lateral.nominal(float(np.vdot(p.F, step.directions[0])))
+            corner[0, 0] -= self.network.reference_volume * slope
         return sp.bmat([[K_II, coupling], [coupling.T, sp.csr_matrix(corner)]], format="csr")
 
     def _direction(self, p: _Point, step: _Step, chord: Factorization | None, choice: _TangentChoice
@@ -337,8 +354,10 @@ class EquilibriumSolver:
         directions: np.ndarray,
         guess_inner: np.ndarray,
         guess_free: np.ndarray,
+        lateral: LateralStress | None = None,
     ) -> StepResult:
-        """Equilibrium at ``time`` from the converged ``start`` state.
+        """Equilibrium at ``time`` from the converged ``start`` state; ``lateral``: the stress
+        target of the one free direction (None: P : G_k = 0 for every free direction).
 
         Raises
         ------
@@ -354,14 +373,15 @@ class EquilibriumSolver:
                     else ThreadpoolController().select(internal_api="openblas").limit(limits=1))
         with openblas:
             try:
-                return self._solve(start, time, F_prescribed, directions, guess_inner, guess_free, self.law)
+                return self._solve(start, time, F_prescribed, directions, guess_inner, guess_free, self.law, lateral)
             except StepNotConverged as failure:
                 return self._solve_by_continuation(failure, start, time, F_prescribed, directions,
-                                                   guess_inner, guess_free)
+                                                   guess_inner, guess_free, lateral)
 
     def _solve_by_continuation(self, failure: StepNotConverged, start: StepState, time: float,
                                F_prescribed: np.ndarray, directions: np.ndarray,
-                               guess_inner: np.ndarray, guess_free: np.ndarray) -> StepResult:
+                               guess_inner: np.ndarray, guess_free: np.ndarray,
+                               lateral: LateralStress | None) -> StepResult:
         """The step again, through a continuation in the slack modulus (module docstring).
 
         Raises
@@ -376,7 +396,7 @@ class EquilibriumSolver:
             slack = min(factor * self.law.slack_modulus, 0.5 * self.law.taut_modulus)
             law = replace(self.law, slack_modulus=slack) if factor != 1.0 else self.law
             try:
-                result = self._solve(start, time, F_prescribed, directions, inner, free, law)
+                result = self._solve(start, time, F_prescribed, directions, inner, free, law, lateral)
             except StepNotConverged as stage:
                 raise StepNotConverged(
                     f"{failure.reason}; then the continuation in the slack modulus failed at "
@@ -391,11 +411,12 @@ class EquilibriumSolver:
                           factorizations, result.residual, history)
 
     def _solve(self, start: StepState, time: float, F_prescribed: np.ndarray, directions: np.ndarray,
-               guess_inner: np.ndarray, guess_free: np.ndarray, law: FiberLaw) -> StepResult:
+               guess_inner: np.ndarray, guess_free: np.ndarray, law: FiberLaw,
+               lateral: LateralStress | None) -> StepResult:
         """Newton's method from the guess, with ``law`` (the true one, or a continuation stage's)."""
         n_free = len(directions)
         limit = self.iteration_limit(n_free)
-        step = self._context(start, time, F_prescribed, directions, law)
+        step = self._context(start, time, F_prescribed, directions, law, lateral)
         history: list[float] = []
         factorizations = 0
         choice = _TangentChoice()

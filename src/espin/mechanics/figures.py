@@ -15,7 +15,7 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon
 
-from espin.core.config import Config, PoissonLateral
+from espin.core.config import Config, PoissonLateral, StressLateral
 from espin.core.figures import save_figure
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -123,7 +123,8 @@ def draw_marks(ax: Axes, marks: CurveMarks, strain_end: float, *, test: str = "u
                            color=color, ls=":", lw=1.2, label=labels[2])
     return artists
 
-_MEASURE_LABEL = {"nominal": "nominal $P'_{{{}}}$", "paper": "paper Eq. 17 $\\sigma'_{{{}}}$"}
+_MEASURE_LABEL = {"nominal": "nominal $P'_{{{}}}$", "paper": "paper Eq. 17 $\\sigma'_{{{}}}$",
+                  "kirchhoff": "Kirchhoff $\\tau'_{{{}}}$"}
 _STRAIN_LABEL = {
     "uniaxial": "strain $F'_{11} - 1$ [%]",
     "equibiaxial": "stretch - 1 [%]",
@@ -144,6 +145,8 @@ def _test_label(config: Config) -> str:
             text += f", lateral {lateral}"
         elif isinstance(lateral, PoissonLateral):
             text += f", lateral $\\nu$ = {lateral.poisson_ratio:g}"
+        elif isinstance(lateral, StressLateral):
+            text += f", lateral stress {lateral.stress_MPa:g} MPa ({config.output.stress_measure})"
         else:
             text += f", lateral from {lateral.transverse_csv.name}"
     return text
@@ -168,7 +171,7 @@ def plot_curve(result: SimulationResult, path: str | Path, measure: str | None =
     path
         Output file; the format follows the suffix (``.png`` by default).
     measure
-        ``"nominal"`` or ``"paper"``; default ``output.stress_measure``.
+        ``"nominal"``, ``"paper"`` or ``"kirchhoff"``; default ``output.stress_measure``.
     marks
         Bilinear fit of the curve in ``measure`` (e.g.
         :func:`espin.analysis.properties.simulation_properties`); None: no marks.

@@ -5,7 +5,9 @@ A test is defined in the loading frame, whose axes are those of the RVE rotated 
 sequence of segments (load to a strain at a rate, or hold) cut into steps. Each step knows its
 time, its load parameter ("strain") and the prescribed part of F. Mixed control (uniaxial
 with a free lateral side) adds unknown components of F: F = F_prescribed + sum_k f_k G_k, with
-the conjugate stress components P : G_k = 0 as extra equations.
+the conjugate stress components P : G_k = 0 as extra equations; a lateral stress target
+(``lateral = {stress_MPa = s}``) frees F'22 alone, with P'22 = s (nominal) or P'22 = s / F'22
+(Kirchhoff, tau'22 = P'22 F'22 = s) as its equation (:class:`LateralStress`).
 
 The load parameter s is the engineering strain F'11 - 1 for ``uniaxial``, lambda - 1 for
 ``equibiaxial`` (F = lambda I) and ``pure_shear`` (F' = diag(lambda, 1 / lambda)), the
@@ -48,13 +50,14 @@ from espin.core.config import (
     LoadingConfig,
     LoadSegment,
     PoissonLateral,
+    StressLateral,
     TransverseCSVLateral,
 )
 from espin.core.errors import ConfigError
 from espin.core.textfiles import TextFormat, missing, parse_number, read_text, shown_names, text_lines
 
-__all__ = ["path_program", "LoadProgram", "load_program", "read_table", "MAX_TABLE_BYTES", "MAX_TABLE_ROWS",
-           "MAX_TABLE_LINE_CHARS", "MAX_TABLE_MAGNITUDE"]
+__all__ = ["path_program", "LoadProgram", "LateralStress", "load_program", "read_table", "MAX_TABLE_BYTES",
+           "MAX_TABLE_ROWS", "MAX_TABLE_LINE_CHARS", "MAX_TABLE_MAGNITUDE"]
 
 MAX_TABLE_BYTES = 16 * 2**20
 """Largest loading table read [bytes]: 16 MiB. 10^5 rows of five numbers take a few MB."""
@@ -241,6 +244,34 @@ def _check_transverse_range(path: Path, table: np.ndarray, lines: np.ndarray, lo
                        "specimen)", int(lines[0]))
 
 
+@dataclass(frozen=True)
+class LateralStress:
+    """The lateral stress a uniaxial test holds (``loading.lateral = {stress_MPa = s}``).
+
+    Its one free component, F'22, is held where the lateral stress is ``stress_MPa``: the
+    nominal P'22 = s, or the Kirchhoff tau'22 = P'22 F'22 = s (F'21 = 0), i.e. P'22 = s / F'22.
+    Both are the derivative of a potential in F'22 (s F'22 and s ln F'22 per reference
+    volume), so the equilibrium stays a minimization.
+
+    Attributes
+    ----------
+    stress_MPa : float [MPa]
+        The target s.
+    kirchhoff : bool
+        Whether s is the Kirchhoff tau'22 (else the nominal P'22).
+    """
+
+    stress_MPa: float
+    kirchhoff: bool
+
+    def nominal(self, stretch: float) -> tuple[float, float]:
+        """The nominal P'22 [MPa] the target asks for at lateral stretch ``stretch`` = F'22,
+        and its derivative with F'22 [MPa]."""
+        if self.kirchhoff:
+            return self.stress_MPa / stretch, -self.stress_MPa / stretch**2
+        return self.stress_MPa, 0.0
+
+
 @dataclass(frozen=True, eq=False)
 class LoadProgram:
     """A loading program cut into steps.
@@ -256,9 +287,13 @@ class LoadProgram:
     rotation : (2, 2) float64
         R, from the loading frame to the RVE axes.
     free_directions : (n_free, 2, 2) float64
-        G_k: directions of the unknown components of F (RVE axes); P : G_k = 0.
+        G_k: directions of the unknown components of F (RVE axes); P : G_k = 0, or the
+        lateral stress target.
     test : str
         Kind of test.
+    lateral_stress_MPa : float or None
+        The lateral stress target s of ``lateral = {stress_MPa = s}`` [MPa] (its measure is
+        ``output.stress_measure``, :class:`LateralStress`); None for other conditions.
     """
 
     time: np.ndarray
@@ -267,6 +302,7 @@ class LoadProgram:
     rotation: np.ndarray
     free_directions: np.ndarray
     test: str
+    lateral_stress_MPa: float | None = None
     _table: np.ndarray | None = None
     _lateral: tuple[str, float | np.ndarray] = ("fixed", 0.0)
 
@@ -292,7 +328,7 @@ class LoadProgram:
             elif kind == "csv":
                 curve = cast(np.ndarray, value)  # the transverse table
                 lateral = 1.0 + float(np.interp(s, curve[:, 0], curve[:, 1]))
-            else:  # fixed, or free (the unknown f_k add to F'22 = 1)
+            else:  # fixed, free or a stress target (the unknown f_k add to F'22 = 1)
                 lateral = 1.0
             local = np.array([[1.0 + s, 0.0], [0.0, lateral]])
         elif self.test == "equibiaxial":
@@ -372,10 +408,15 @@ def load_program(loading: LoadingConfig) -> LoadProgram:
             segments.append(index)
     lateral: tuple[str, float | np.ndarray] = ("fixed", 0.0)
     free = np.zeros((0, 2, 2))
+    lateral_stress = None
     if loading.test == "uniaxial":
         if loading.lateral == "free":
             lateral = ("free", 0.0)
             free = np.array([R @ _E12 @ R.T, R @ _E22 @ R.T])
+        elif isinstance(loading.lateral, StressLateral):
+            lateral = ("stress", loading.lateral.stress_MPa)
+            free = np.array([R @ _E22 @ R.T])
+            lateral_stress = loading.lateral.stress_MPa
         elif isinstance(loading.lateral, PoissonLateral):
             lateral = ("poisson", loading.lateral.poisson_ratio)
         elif isinstance(loading.lateral, TransverseCSVLateral):
@@ -388,7 +429,7 @@ def load_program(loading: LoadingConfig) -> LoadProgram:
         raise ConfigError("loading: the strain must stay above -1 (positive stretch)")
     program = LoadProgram(
         time=np.array(times), strain=strains_arr, segment=np.array(segments, dtype=np.int64),
-        rotation=R, free_directions=free, test=loading.test, _lateral=lateral,
+        rotation=R, free_directions=free, test=loading.test, lateral_stress_MPa=lateral_stress, _lateral=lateral,
     )
     det = np.array([np.linalg.det(program.prescribed_F(t)) for t in program.time])
     if np.any(det <= 0.0):

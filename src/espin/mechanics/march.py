@@ -17,8 +17,9 @@ whose size follows one :class:`StepPolicy`:
   ``easy_fraction`` of the problem's iteration limit, never right after a cut, and never
   beyond what the error allows;
 * a step shorter than ``smallest`` of the reported interval, or more than ``budget`` time
-  steps for one reported interval, stop the march (kind ``stiff``: the plastic flow asks for
-  steps too small to follow).
+  steps for one reported interval, stop the march: with the failure of the last halving when
+  halvings made the step that small, else of kind ``stiff`` (the plastic flow asks for steps
+  too small to follow).
 
 The problem being marched is a :class:`StepProblem`: it attempts a step from its committed
 state, estimates the attempt's local time error, commits or rolls back. The RVE's loading
@@ -208,6 +209,7 @@ def march(problem: StepProblem[T], reports: Sequence[float] | np.ndarray, policy
     """
     limit = problem.iteration_limit
     rejected_before = False  # the last judged step was rejected: the next may not grow
+    cut_by: StepNotConverged | None = None  # the failure that last shrank the step (None: the time error did)
     step: float | None = None  # carried from report to report
     t = start
     for index, t_end in enumerate(reports, start=1):
@@ -223,9 +225,13 @@ def march(problem: StepProblem[T], reports: Sequence[float] | np.ndarray, policy
                     f"the plastic flow needed more than {policy.budget:,} time steps to reach the reported time "
                     f"(the last {h:.3g} s long)", StepFailureKind.STIFF), tally, end)
             if 0.0 < h < smallest:
-                raise MarchFailed(StepNotConverged(
-                    f"the time step fell to {h:.3g} s, below the smallest ({policy.smallest:g} of the reported "
-                    "interval)", StepFailureKind.STIFF), tally, end)
+                below = (f"the time step fell to {h:.3g} s, below the smallest ({policy.smallest:g} of the reported "
+                         "interval)")
+                if cut_by is not None:  # Newton's failures made it so small, not the plastic flow
+                    raise MarchFailed(StepNotConverged(
+                        f"{cut_by.reason}; {below} after {tally.cuts} halvings", cut_by.kind, history=cut_by.history,
+                        iterations=cut_by.iterations, factorizations=cut_by.factorizations), tally, end)
+                raise MarchFailed(StepNotConverged(below, StepFailureKind.STIFF), tally, end)
             try:
                 trial = problem.attempt(t, end)
             except StepNotConverged as failure:
@@ -236,6 +242,7 @@ def march(problem: StepProblem[T], reports: Sequence[float] | np.ndarray, policy
                     raise MarchFailed(failure, tally, end) from None
                 tally.cuts += 1
                 in_a_row += 1
+                cut_by = failure
                 step = 0.5 * h
                 log.info("time %.6g s: step cut to %.3g s (%s)", end, step, failure.reason)
                 continue
@@ -255,6 +262,7 @@ def march(problem: StepProblem[T], reports: Sequence[float] | np.ndarray, policy
                 if not accepted:
                     problem.rollback()
                     tally.rejected += 1
+                    cut_by = None
                     log.debug("time %.6g s: step rejected (local error %.3g), next %.3g s", end, error, step)
                     continue
             in_a_row = 0

@@ -10,15 +10,17 @@ which readers ignore only if it is the last one.
 
 ``curve.csv``: a header line, then one row per step (step 0 undeformed). Tensor components
 are in the RVE axes (``P12_MPa`` is P_12, i spatial, J reference); ``stress_MPa`` is the
-curve's stress in the loading frame and in ``output.stress_measure`` (P'11, or P'12 for
-simple shear). Floats have 17 significant digits, so reading them back is exact.
+curve's stress in the loading frame and in ``output.stress_measure`` (the 11 component, or
+12 for simple shear). Floats have 17 significant digits, so reading them back is exact.
 
 ``results.h5`` layout (schema ``espin.results``, version 1)::
 
     /          attrs: schema, schema_version, config_toml, seed, versions, units
-    /steps     time_s, strain, F, P_MPa, P_paper_MPa, cauchy_MPa, recruited_fraction,
+    /steps     time_s, strain, F, P_MPa, P_paper_MPa, kirchhoff_MPa, cauchy_MPa, recruited_fraction,
                yielded_fraction, iterations, factorizations, substeps, residual_uN, stress_MPa
                (n_steps + 1, ...) each with a ``units`` attr; attrs: test, stress_measure
+               (a file written before ``kirchhoff_MPa`` existed is read with it as det F
+               times ``cauchy_MPa``, the same stress)
     /final     stress_MPa (n_elements,), plastic_stretch (n_elements,), recruited
                (n_elements,) bool, positions_um (n_nodes, 2) relative to the RVE centre
                attrs: step, time_s, strain
@@ -68,6 +70,7 @@ _STEPS = {
     "F": ("F", "1"),
     "P": ("P_MPa", "MPa"),
     "P_paper": ("P_paper_MPa", "MPa"),
+    "kirchhoff": ("kirchhoff_MPa", "MPa"),
     "cauchy": ("cauchy_MPa", "MPa"),
     "recruited_fraction": ("recruited_fraction", "1"),
     "yielded_fraction": ("yielded_fraction", "1"),
@@ -224,8 +227,8 @@ def write_results(result: SimulationResult, folder: str | Path, *, curve: bool =
             stress = g.create_dataset("stress_MPa", data=result.stress())
             stress.attrs["units"] = "MPa"
             stress.attrs["description"] = (
-                "curve stress in the loading frame: P'12 for simple shear, else P'11, "
-                "of the stress_measure"
+                "curve stress in the loading frame: the 12 component for simple shear, else "
+                "the 11 component, of the stress_measure"
             )
             g.attrs.update(test=result.program.test, stress_measure=result.config.output.stress_measure)
             g = f.create_group("final")
@@ -310,6 +313,7 @@ _STEP_CHECKS: dict[str, tuple[Kind, tuple, str, dict]] = {
     "F": ("float", _TENSOR, "the deformation gradient of each step", {}),
     "P_MPa": ("float", _TENSOR, "the nominal stress of each step [MPa]", {}),
     "P_paper_MPa": ("float", _TENSOR, "the paper's Eq. 17 stress of each step [MPa]", {}),
+    "kirchhoff_MPa": ("float", _TENSOR, "the Kirchhoff stress of each step [MPa]", {}),
     "cauchy_MPa": ("float", _TENSOR, "the Cauchy stress of each step [MPa]", {}),
     "recruited_fraction": ("float", (None,), "the recruited fiber fraction of each step", {"low": 0, "high": 1}),
     "yielded_fraction": ("float", (None,), "the yielded fiber fraction of each step", {"low": 0, "high": 1}),
@@ -359,8 +363,12 @@ def load_results(path: str | Path) -> ResultsFile:
         n = len(time_s)
         steps = {"time_s": time_s}
         for name, (kind, shape, meaning, checks) in _STEP_CHECKS.items():
+            if name == "kirchhoff_MPa" and name not in f["steps"]:  # a file from before it was written
+                continue
             steps[name] = read_dataset(f, f"steps/{name}", kind=kind, shape=(n, *shape[1:]),
                                        meaning=meaning, **checks)
+        if "kirchhoff_MPa" not in steps:
+            steps["kirchhoff_MPa"] = np.linalg.det(steps["F"])[:, None, None] * steps["cauchy_MPa"]
         stress = read_dataset(f, "final/stress_MPa", kind="float", shape=(None,),
                               meaning="the final stress of each element [MPa]")
         m = len(stress)

@@ -13,6 +13,8 @@ from espin.core.config import Config, apply_overrides, config_digest, dotted_ove
 from espin.core.errors import ConfigError
 from espin.core.output_folder import OutputFolder
 from espin.core.progress import with_progress
+from espin.geometry.network import Network
+from espin.geometry.network_file import is_network_file, read_network
 from espin.geometry.rve import RVE, generate, resolve_config
 from espin.geometry.rve_file import load_rve
 from espin.geometry.rve_folder import RVE_OUTPUTS, write_rve_files
@@ -35,31 +37,43 @@ SIMULATION_OUTPUTS = ("config.toml", "curve.csv", "results.h5", "curve.png", "de
 """The files a tensile test writes (glob patterns relative to its folder), besides the RVE's."""
 
 
-def resolve_source(source: RVE | Config | str | Path | None, overrides: dict[str, Any]) -> tuple[Config, RVE | None]:
-    """The run's validated config, and the RVE when ``source`` is one (None: to be generated).
+def resolve_source(source: RVE | Network | Config | str | Path | None, overrides: dict[str, Any],
+                   config: Config | str | Path | None = None) -> tuple[Config, RVE | Network | None]:
+    """The run's validated config, and the RVE or network when ``source`` is one (None: to be
+    generated).
 
-    ``source`` is an :class:`RVE`, a saved ``.h5`` RVE file, a :class:`Config`, a preset name
+    ``source`` is an :class:`RVE`, a saved ``.h5`` RVE file, a :class:`Network` or a network
+    file made elsewhere (:mod:`espin.geometry.network_file`), a :class:`Config`, a preset name
     or a TOML file (None: ``plla``). ``overrides`` are ``section.key`` values; on a saved or
-    given RVE only the ``fiber``, ``loading``, ``solver`` and ``output`` sections may change.
+    given RVE or network only the ``fiber``, ``loading``, ``solver`` and ``output`` sections may
+    change. ``config``: with a network, the Config, preset or TOML file whose fiber law,
+    loading, solver and output apply (default ``plla``; its ``rve`` section does not).
     """
+    if isinstance(source, (str, Path)) and is_network_file(source):
+        source = read_network(source)
+    if config is not None and not isinstance(source, Network):
+        raise ConfigError("a separate config applies to a network file only; give the config as the source")
     if isinstance(source, (str, Path)) and str(source).endswith((".h5", ".hdf5")):
         source = load_rve(source)
-    if isinstance(source, RVE):
+    if isinstance(source, (RVE, Network)):
         geometry = sorted(k for k in overrides if k.startswith("rve."))
         if geometry:
             raise ConfigError(
-                f"{', '.join(geometry)}: the geometry of a given RVE cannot change; generate a "
+                f"{', '.join(geometry)}: the geometry of a given RVE or network cannot change; generate a "
                 "new RVE instead (only fiber, loading, solver and output keys apply)"
             )
+        if isinstance(source, Network):
+            return resolve_config(config, **overrides), source
         config = apply_overrides(source.config, overrides) if overrides else source.config
         return config, RVE(config, source.mat, source.crosslinks, source.network, source.path)
     return resolve_config(source, **overrides), None
 
 
 def simulate(
-    source: RVE | Config | str | Path | None = None,
+    source: RVE | Network | Config | str | Path | None = None,
     out: str | Path | None = None,
     *,
+    config: Config | str | Path | None = None,
     on_step: Callable[[StepRecord], None] | None = None,
     threads: int | None = None,
     overwrite: bool = False,
@@ -73,14 +87,18 @@ def simulate(
     Parameters
     ----------
     source
-        An :class:`RVE`, a saved RVE file (``.h5``), a :class:`Config`, a preset name or a
-        TOML file; default the ``plla`` preset (generated).
+        An :class:`RVE`, a saved RVE file (``.h5``), a :class:`Network` or a network file made
+        elsewhere (docs/mechanics.md), a :class:`Config`, a preset name or a TOML file; default
+        the ``plla`` preset (generated).
     out
         Results folder. When given: ``run.json`` (the manifest, ``running`` until the run
         ends), ``config.toml``, ``curve.csv`` (one row per converged step, appended as the
         run goes), ``results.h5`` (rewritten every minute and at the end), the VTK series
         ``deformation.pvd`` (+ ``vtk/``), ``curve.png``, ``deformed.png`` and, for a
         generated RVE, ``rve.h5`` with its statistics and figures.
+    config
+        With a network: the :class:`Config`, preset or TOML file whose fiber law, loading,
+        solver and output apply (default ``plla``; its ``rve`` section does not apply).
     on_step
         Called with each converged :class:`StepRecord` (e.g. for a progress display).
     threads
@@ -115,7 +133,7 @@ def simulate(
         results folder then holds the curve and results of the steps that converged and
         ``solver.log``, the residual history of the last attempt.
     """
-    config, rve = resolve_source(source, dotted_overrides(overrides))
+    config, rve = resolve_source(source, dotted_overrides(overrides), config)
     program = load_program(config.loading)  # its tables are read and checked before any work
     if rve is None:
         check_size(config, allow_large=allow_large)  # before the folder is claimed
@@ -125,11 +143,11 @@ def simulate(
         return _run(config, rve, program, None, on_step, threads, allow_large, curve_marks)
     outputs = SIMULATION_OUTPUTS + (RVE_OUTPUTS if rve is None else ())
     with OutputFolder.claim(out, "simulate", config_digest(config), outputs, overwrite=overwrite,
-                            inputs=[rve.path] if rve is not None and rve.path is not None else []) as claimed:
+                            inputs=[rve.path] if isinstance(rve, RVE) and rve.path is not None else []) as claimed:
         return _run(config, rve, program, claimed, on_step, threads, allow_large, curve_marks)
 
 
-def _run(config: Config, rve: RVE | None, program: LoadProgram, claimed: OutputFolder | None,
+def _run(config: Config, rve: RVE | Network | None, program: LoadProgram, claimed: OutputFolder | None,
          on_step: Callable[[StepRecord], None] | None, threads: int | None, allow_large: bool,
          curve_marks: Callable[[SimulationResult], CurveMarks | None] | None = None) -> SimulationResult:
     """Generate the RVE if needed, run the program, write the claimed folder."""
@@ -142,10 +160,11 @@ def _run(config: Config, rve: RVE | None, program: LoadProgram, claimed: OutputF
             write_rve_files(rve, folder, run_id=run_id)
     elif folder is not None:
         write_config(config, folder / "config.toml")
+    network = rve if isinstance(rve, Network) else rve.network
     if folder is not None:
         from espin.mechanics.results_file import SimulationWriter
 
-        callbacks.append(SimulationWriter(folder, rve.network, config, program, vtk=config.output.vtk,
+        callbacks.append(SimulationWriter(folder, network, config, program, vtk=config.output.vtk,
                                           run_id=run_id))
 
     def step_done(record: StepRecord) -> None:
@@ -155,7 +174,7 @@ def _run(config: Config, rve: RVE | None, program: LoadProgram, claimed: OutputF
     linear = make_linear_solver(config.solver.linear)
     try:
         with threadpool_limits(limits=threads):
-            result = run_program(rve.network, config, linear, program, on_step=step_done)
+            result = run_program(network, config, linear, program, on_step=step_done)
     except SimulationFailed as failure:
         if folder is not None:
             from espin.core.atomic import atomic_write_bytes
@@ -176,5 +195,5 @@ def _run(config: Config, rve: RVE | None, program: LoadProgram, claimed: OutputF
 
             marks = None if curve_marks is None else curve_marks(result)
             plot_curve(result, folder / "curve.png", marks=marks)
-            plot_deformed(rve.network, result.final, folder / "deformed.png")
+            plot_deformed(network, result.final, folder / "deformed.png")
     return result
