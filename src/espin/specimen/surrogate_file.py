@@ -37,7 +37,7 @@ import numpy as np
 from espin.core.atomic import atomic_write_bytes
 from espin.core.config import Config, LoadingConfig, OutputConfig, config_digest
 from espin.core.errors import ConfigError
-from espin.core.textfiles import TextFormat, read_text, text_lines
+from espin.core.textfiles import TextFormat, parse_number, read_text, text_lines
 
 __all__ = ["SAMPLE_COLUMNS", "SampleIdentity", "SampleFile", "mat_identity", "write_samples", "read_samples"]
 
@@ -207,10 +207,8 @@ def read_samples(path: str | Path) -> SampleFile:
     rows = []
     for number, line in text_lines(path, body, _FORMAT, skip_rows=1):
         fields = line.split(",")
-        try:
-            values = [float(v) for v in fields]
-        except ValueError:
-            values = []
+        parsed = [parse_number(v) for v in fields]
+        values = [v for v in parsed if v is not None]
         if len(fields) != len(SAMPLE_COLUMNS) or len(values) != len(fields) or not np.all(np.isfinite(values)):
             raise _FORMAT.fail(path, f"expected {len(SAMPLE_COLUMNS)} finite numbers", number + _offset(text, body))
         rows.append(values)
@@ -231,14 +229,17 @@ def _identity(path: Path, header: Mapping[str, str]) -> SampleIdentity:
     missing = [key for key in (*SampleIdentity.__dataclass_fields__, "data_sha256") if key not in header]
     if missing:
         raise _FORMAT.fail(path, f"its header has no {missing[0]} line; {_FORMAT.expected}")
-    try:
-        speeds = tuple(float(v) for v in header["speeds"].split())
-        identity = SampleIdentity(header["config_digest"], header["law"], float(header["strain_rate_per_s"]),
-                                  float(header["max_strain"]), float(header["reach"]), int(header["steps"]),
-                                  int(header["directions"]), speeds)
-    except ValueError:
+    texts = [header[key] for key in ("strain_rate_per_s", "max_strain", "reach", "steps", "directions")]
+    texts += header["speeds"].split()
+    parsed = [parse_number(text) for text in texts]
+    read = [value for value in parsed if value is not None]
+    if len(read) != len(texts) or not (read[3].is_integer() and read[4].is_integer()):
         raise _FORMAT.fail(path, "its header holds a value that is not a number where one is expected "
-                                 f"({', '.join(f'{k} = {v}' for k, v in header.items() if k != 'law')})") from None
+                                 f"({', '.join(f'{k} = {v}' for k, v in header.items() if k != 'law')})")
+    rate, max_strain, reach, steps, directions, *speed_list = read
+    speeds = tuple(speed_list)
+    identity = SampleIdentity(header["config_digest"], header["law"], rate, max_strain, reach, int(steps),
+                              int(directions), speeds)
     numbers = (identity.strain_rate_per_s, identity.max_strain, identity.reach, *speeds)
     if (len(identity.config_digest) != 64 or not all(np.isfinite(numbers)) or min(numbers) <= 0.0
             or identity.steps < 2 or identity.directions < 1 or not speeds or list(speeds) != sorted(set(speeds))):
