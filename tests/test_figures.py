@@ -266,6 +266,7 @@ def _figures_of_every_stage(pulled, tmp_path) -> None:
     pulled_specimen.plot(tmp_path)  # force.png, specimen.png
 
 
+@pytest.mark.slow
 def test_every_figure_types_units_and_symbols(pulled, caught, tmp_path):
     _figures_of_every_stage(pulled, tmp_path)
     assert len(caught) == 25

@@ -48,6 +48,7 @@ def flow_fit(base):
     return fit(data, base=base, parameters=("b_p", "c_p"), seeds=SEEDS)
 
 
+@pytest.mark.slow
 def test_recovers_flow_parameters_from_finer_data_within_their_uncertainty(flow_fit):
     true = {"fiber.flow_resistance_MPa": 4.0, "fiber.hardening_exponent": 0.8}
     for key, value in true.items():
@@ -75,6 +76,7 @@ def test_recovers_flow_parameters_from_finer_data_within_their_uncertainty(flow_
     assert low * high == pytest.approx(flow_fit.values["fiber.flow_resistance_MPa"] ** 2)
 
 
+@pytest.mark.slow
 def test_scaling_moduli_and_flow_resistance_scales_every_stress(small_rve):
     """Why E_t, E_b and b_p cannot all be fitted with eta: together they are a stress scale."""
     plla = load_config("plla").fiber
@@ -90,6 +92,7 @@ def test_scaling_moduli_and_flow_resistance_scales_every_stress(small_rve):
     np.testing.assert_allclose(scaled.stress(), k * one.stress(), rtol=1e-5, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_eta_bracket_finds_the_network_of_the_data(base):
     """eta alone: a grid then a bracket search; data from eta = 0.22 with 0.05 MPa noise."""
     base = resolve_config(base, rve__layers=3)  # 2 layers: a local step far from 0.22 wins
@@ -112,6 +115,7 @@ def test_eta_bracket_finds_the_network_of_the_data(base):
     assert 0 < result.gauss_newton_sd["rve.volume_fraction"] < resolution
 
 
+@pytest.mark.slow
 def test_two_rates_identify_flow_rate(base):
     """a_p and b_p from curves at two strain rates (one rate fixes only b_p asinh(rate / a_p))."""
     truth = resolve_config(base, fiber__flow_rate_per_s=1e-8, fiber__flow_resistance_MPa=4.0)
@@ -129,6 +133,7 @@ def test_two_rates_identify_flow_rate(base):
     assert low < 1e-8 < high or abs(math.log(a_p / 1e-8)) < 2 * math.log(high / a_p)
 
 
+@pytest.mark.slow
 def test_paper_case_eta_and_flow_from_other_specimens(base):
     """The paper's fit (eta, b_p, c_p together, N = 3 specimens) to specimens that are not the
     fit's realizations. Small RVEs differ a lot between seeds, so the specimens' own share,
@@ -148,6 +153,7 @@ def test_paper_case_eta_and_flow_from_other_specimens(base):
     assert result.r_squared > 0.99
 
 
+@pytest.mark.slow
 def test_eta_and_taut_modulus_are_not_separately_identifiable(base):
     """docs/calibration.md: with b_p free, eta and E_t both scale the curve: |corr| > 0.95."""
     truth = resolve_config(base, fiber__flow_resistance_MPa=4.0)
@@ -161,6 +167,7 @@ def test_eta_and_taut_modulus_are_not_separately_identifiable(base):
     assert any("not separately identifiable" in w or "not identifiable" in w for w in result.warnings)
 
 
+@pytest.mark.slow
 def test_slack_modulus_is_not_identifiable(base):
     """docs/calibration.md: E_b barely matters (straight elements, lateral fixed): the fit runs
     to a bound or reports a relative sd above 1, and says so."""
@@ -242,6 +249,7 @@ def test_a_failed_jacobian_column_is_retried_with_the_other_sign(monkeypatch, ba
     assert result.failed_simulations == 1
 
 
+@pytest.mark.slow
 def test_an_eta_where_the_fit_fails_scores_infinite_sse(monkeypatch, base, tmp_path):
     """A model failing at eta > 0.26 (a grid point) does not end the fit: that eta counts as
     SSE = inf, logged, listed and counted."""
@@ -287,6 +295,7 @@ def test_specimens_are_averaged_on_their_measured_strains(monkeypatch, base, tmp
     assert grid.curves[0].strain.size == 21 and "21 evenly spaced" in grid.curves[0].points_from
 
 
+@pytest.mark.slow
 def test_written_files_reproduce_the_fit(flow_fit, tmp_path):
     written = flow_fit.write(tmp_path)
     assert {p.name for p in written.values()} == {"fitted.toml", "fit.csv", "fit.json", "fit.png"}
@@ -310,6 +319,7 @@ def test_written_files_reproduce_the_fit(flow_fit, tmp_path):
     np.testing.assert_allclose((table["model_seed1_MPa"] + table["model_seed2_MPa"]) / 2, table["model_MPa"])
 
 
+@pytest.mark.slow
 def test_cli_fit(tmp_path, base):
     from espin.cli.fit import register
 

@@ -103,6 +103,7 @@ def test_skip_rows_preamble(tmp_path):
     assert np.array_equal(curve.strain, [0.0, 0.01])
 
 
+@pytest.mark.slow
 def test_espin_curve_csv_is_read_by_its_column_names(tmp_path):
     from espin.mechanics.run import simulate
 

@@ -275,6 +275,7 @@ def plla_result():
     return espin.simulate("plla", rve__size_ratio=60, rve__layers=5)
 
 
+@pytest.mark.slow
 def test_simulated_plla_curve(plla_result):
     props = simulation_properties(plla_result)
     assert props.has_yield, props.note

@@ -19,6 +19,7 @@ runner = CliRunner()
 EXAMPLES = Path(__file__).parents[2] / "examples"
 
 
+@pytest.mark.slow
 def test_generate_writes_the_folder(tmp_path):
     out = tmp_path / "rve"
     result = runner.invoke(app, ["generate", "plla", "--size-ratio", "30", "--layers", "2",
@@ -69,6 +70,7 @@ def test_example_generate_plla(tmp_path, monkeypatch):
     assert summary["fiber_tortuosity_mean"] < 1.02  # Table 2 fibers are nearly straight
 
 
+@pytest.mark.slow
 def test_simulate_from_preset_and_from_saved_rve(tmp_path):
     out = tmp_path / "test"
     args = ["simulate", "plla", "--set", "rve.size_ratio=30", "--set", "rve.layers=2",
@@ -99,6 +101,7 @@ def test_simulate_rejects_bad_input_before_work(tmp_path):
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.slow
 def test_example_tensile_plla(tmp_path, monkeypatch):
     """The paper's tensile test, small: linear start, yield near 3 %, hardening after."""
     monkeypatch.chdir(tmp_path)
@@ -113,6 +116,7 @@ def test_example_tensile_plla(tmp_path, monkeypatch):
     assert (tmp_path / "small_test" / "curve.csv").exists()
 
 
+@pytest.mark.slow
 def test_example_reproduce_paper_quick(tmp_path, monkeypatch):
     """The paper-reproduction example, reduced: every step runs and gives sane numbers."""
     monkeypatch.chdir(tmp_path)
@@ -129,6 +133,7 @@ def test_example_reproduce_paper_quick(tmp_path, monkeypatch):
         assert (tmp_path / "paper" / name).is_file(), name
 
 
+@pytest.mark.slow
 def test_image_to_mechanics_end_to_end(tmp_path):
     """espin measure -> calibrate-geometry -> generate -> simulate, as a user runs it."""
     from PIL import Image
@@ -166,6 +171,7 @@ def test_image_to_mechanics_end_to_end(tmp_path):
     assert curve["stress_MPa"][-1] > 0
 
 
+@pytest.mark.slow
 def test_exit_codes_tell_usage_input_and_solver_failures_apart(tmp_path):
     """docs/command_line.md: 2 usage, 3 bad input data, 4 solver failure."""
     usage = runner.invoke(app, ["simulate", "--steps", "0", "-o", str(tmp_path / "u")])

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from typer.testing import CliRunner
 
 from espin.analysis.experiments import read_curve
@@ -14,6 +16,7 @@ from espin.imaging.image import read_image
 from espin.imaging.metadata import read_pixel_size
 
 
+@pytest.mark.slow
 def test_example_data_is_ready_to_use_and_not_overwritten(tmp_path):
     result = CliRunner().invoke(app, ["example-data", "-o", str(tmp_path)])
     assert result.exit_code == 0, result.output

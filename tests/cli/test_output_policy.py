@@ -157,6 +157,7 @@ def test_calibrate_geometry_folder_policy(tmp_path):
                                                   "calibration.txt", "notes.txt"}
 
 
+@pytest.mark.slow
 def test_calibrate_geometry_toml_file_is_not_overwritten(tmp_path, monkeypatch):
     out = tmp_path / "mat.toml"
     report = tmp_path / "mat.calibration.json"

@@ -53,6 +53,7 @@ def sleep_unless_zero(x: int) -> int:
     {"workers": 2},
     pytest.param({"workers": 2, "scheduler": "local"}, id="dask-local"),
 ])
+@pytest.mark.slow
 def test_outcomes_in_order_and_failure_isolated(options):
     outcomes = parallel_map(square_or_fail, range(6), **options)
     assert [o.index for o in outcomes] == list(range(6))
@@ -63,6 +64,7 @@ def test_outcomes_in_order_and_failure_isolated(options):
     assert "square_or_fail" in failed[0].traceback
 
 
+@pytest.mark.slow
 def test_one_blas_thread_per_worker_from_the_first_task():
     outcomes = parallel_map(thread_counts, range(4), workers=2)
     assert all(o.ok for o in outcomes)
@@ -70,6 +72,7 @@ def test_one_blas_thread_per_worker_from_the_first_task():
         assert outcome.value and set(outcome.value.values()) == {1}, outcome.value
 
 
+@pytest.mark.slow
 def test_a_dying_worker_fails_only_its_task():
     outcomes = parallel_map(die_on_one, range(6), workers=2)
     assert [o.index for o in outcomes if not o.ok] == [1]
@@ -77,6 +80,7 @@ def test_a_dying_worker_fails_only_its_task():
     assert [o.value for o in outcomes if o.ok] == [0, 2, 3, 4, 5]
 
 
+@pytest.mark.slow
 def test_abandoned_run_stops_its_workers():
     import time
 
@@ -88,6 +92,7 @@ def test_abandoned_run_stops_its_workers():
     assert time.perf_counter() - start < 10
 
 
+@pytest.mark.slow
 def test_pool_reused_across_maps():
     with TaskPool(workers=2) as pool:
         first = sorted(o.value for o in pool.map(square_or_fail, [1, 2]))
@@ -105,6 +110,7 @@ def test_bad_options_named(kwargs, key):
         TaskPool(**kwargs)
 
 
+@pytest.mark.slow
 def test_scheduler_address_of_a_running_cluster():
     """--scheduler tcp://host:port: the same code path as a remote Dask cluster."""
     from distributed import LocalCluster
@@ -132,6 +138,7 @@ def temporaries_page_faults(_: object) -> tuple[int, str | None]:
     return resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before, os.environ.get("MALLOC_TRIM_THRESHOLD_")
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's allocator")
 def test_dask_workers_reuse_freed_temporaries_as_local_workers_do():
     """With MALLOC_TRIM_THRESHOLD_ set (as by Dask) glibc maps and faults in every temporary

@@ -88,6 +88,7 @@ def _noise(values, seed, scale):
     return 1.0 + scale * np.random.default_rng([key, seed]).standard_normal()
 
 
+@pytest.mark.slow
 def test_optimizer_finds_a_known_noisy_optimum_in_two_variables():
     # A smooth anisotropic response with 1 % realization noise: E(eta, kappa), E90(eta, kappa).
     def response(values, seed):
@@ -108,6 +109,7 @@ def test_optimizer_finds_a_known_noisy_optimum_in_two_variables():
     assert result.reached and all(t["met"] and t["inside"] for t in result.targets.values())
 
 
+@pytest.mark.slow
 def test_unreachable_target_names_the_binding_bound():
     def response(values, seed):
         return {("modulus_MPa", 0.0): 1000.0 * values["rve.volume_fraction"] * _noise(values, seed, 0.005)}
@@ -123,6 +125,7 @@ def test_unreachable_target_names_the_binding_bound():
     assert "constraint porosity >= 0.8" in result.message and result.values["rve.volume_fraction"] <= 0.2 + 1e-9
 
 
+@pytest.mark.slow
 def test_competing_targets_give_a_pareto_front(tmp_path):
     # E_0 = 1000 eta and E_90 = 500 eta: E_0 = 200 wants eta 0.2, E_90 = 150 wants eta 0.3.
     def response(values, seed):
@@ -156,6 +159,7 @@ def test_budget_and_base_are_checked_before_any_work():
         run_design(["E=150"], ["layers=2.6:3.4"], evaluator=_known(lambda v, s: {}))
 
 
+@pytest.mark.slow
 def test_mapping_variables_and_the_scatter_message():
     from espin.design.search import prepare_design
 
@@ -184,6 +188,7 @@ def small_design(tmp_path_factory):
     return folder, overrides, result
 
 
+@pytest.mark.slow
 def test_small_design_meets_its_target_and_writes_its_files(small_design):
     folder, _, result = small_design
     for name in ("design.toml", "design.json", "evaluations.csv", "convergence.png", "maps.png", "verification.png"):
@@ -198,6 +203,7 @@ def test_small_design_meets_its_target_and_writes_its_files(small_design):
     assert math.isfinite(result.evaluations["objective"].iloc[0])
 
 
+@pytest.mark.slow
 def test_rerun_repeats_no_tensile_test_with_any_workers(small_design, monkeypatch):
     folder, overrides, result = small_design
     import espin.design.search as search
@@ -224,6 +230,7 @@ def test_rerun_repeats_no_tensile_test_with_any_workers(small_design, monkeypatc
     assert sorted((folder / "runs" / "tasks").glob("*.json")) == files
 
 
+@pytest.mark.slow
 def test_same_seed_same_designs_with_two_workers(small_design, tmp_path):
     _, overrides, result = small_design
     parallel = design(["E=150"], ["eta=0.1:0.3"], base="plla", budget=12, folder=tmp_path / "two", workers=2,
@@ -232,6 +239,7 @@ def test_same_seed_same_designs_with_two_workers(small_design, tmp_path):
     assert parallel.evaluations[columns].equals(result.evaluations[columns])
 
 
+@pytest.mark.slow
 def test_stresses_do_not_depend_on_the_fiber_diameter():
     # Every length is a multiple of D and the RVE volume scales with it: P is unchanged.
     import espin
@@ -241,6 +249,7 @@ def test_stresses_do_not_depend_on_the_fiber_diameter():
     assert np.max(np.abs(curves[0] - curves[1])) <= 1e-9 * np.max(np.abs(curves[0]))
 
 
+@pytest.mark.slow
 def test_curve_target_recovers_a_known_design():
     from espin.design.targets import CurveTarget
 
@@ -263,6 +272,7 @@ def test_curve_target_recovers_a_known_design():
         run_design([target], ["eta=0.1:0.3"], base="plla", loading__max_strain=0.05, evaluator=_known(response))
 
 
+@pytest.mark.slow
 def test_realizations_per_design_model_the_seed_mean():
     # 6 % scatter between seeds against a 5 % tolerance: each design on 3 seeds, their mean modelled.
     def response(values, seed):

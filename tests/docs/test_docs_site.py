@@ -56,6 +56,7 @@ def _page(site: Path, name: str) -> str:
     return (site / name / "index.html").read_text(encoding="utf-8")
 
 
+@pytest.mark.slow
 def test_every_page_of_the_nav_is_built(site):
     nav = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
     pages = (re.findall(r":\s+(\S+\.(?:md|py))\s*$", nav, flags=re.M)

@@ -153,6 +153,7 @@ def test_crossing_targets_show_the_mats_u_turns_and_straightness(plla):
     assert "target_u_turn_fraction" in table and "mat_straightness" in table
 
 
+@pytest.mark.slow
 def test_the_rve_folder_writes_the_grading(plla, tmp_path):
     config = apply_overrides(plla.config, {"targets.tortuosity": [1.0, 1.1, 1.3],
                                            "targets.contour_length_um": [3.0, 4.0, 5.0],

@@ -326,6 +326,7 @@ def test_summary_is_flat_json_and_table_lists_it():
 # --------------------------------------------------------------------------------------------
 # figures
 # --------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_figures_are_written(tmp_path):
     from espin.geometry.figures import plot_mat, plot_statistics
 

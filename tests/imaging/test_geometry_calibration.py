@@ -75,6 +75,7 @@ def _ideal_tracer_pieces(mat, window_um: float, min_chord: float, seed: int = 0)
     return pieces[:, 0], pieces[:, 1], pieces[:, 2]
 
 
+@pytest.mark.slow
 def test_spec7_half_normal_tortuosity_is_reached():
     targets = GeometryTargets(tortuosity_scale=0.14)
     result = calibrate_geometry(targets, "plla", **FAST)
@@ -124,6 +125,7 @@ def test_round_trip_recovers_the_segment_length_at_the_true_deviation(measured_m
     assert result.match("tortuosity").ks < 0.07
 
 
+@pytest.mark.slow
 def test_both_free_only_the_persistence_length_is_identified(measured_mat):
     mat, seen = measured_mat
     targets = GeometryTargets(tortuosity=seen.tortuosity, source="known mat")
@@ -140,6 +142,7 @@ def test_both_free_only_the_persistence_length_is_identified(measured_mat):
     assert result.match("tortuosity").ks < 0.08
 
 
+@pytest.mark.slow
 def test_measured_folder_sets_window_diameters_and_orientation(measured_mat, tmp_path):
     mat, seen = measured_mat
     # Pieces as an ideal tracer measures them in a 24 um window (the square equivalent of the
@@ -221,6 +224,7 @@ def sem_measurement(sem_image):
     return measure(sem_image.image, um_per_px=sem_image.um_per_px)
 
 
+@pytest.mark.slow
 def test_synthetic_image_round_trip_recovers_the_deviation(sem_measurement, sem_image):
     result = calibrate_geometry(sem_measurement, "plla", **FAST)
     # The traced pieces are far shorter than the fibers across the image (median end to end
@@ -256,6 +260,7 @@ def test_synthetic_image_round_trip_recovers_the_deviation(sem_measurement, sem_
     assert whole.config.rve.max_deviation_deg < IMAGE_DEVIATION_DEG - 10.0
 
 
+@pytest.mark.slow
 def test_calibration_from_an_espin_measure_folder(sem_measurement, tmp_path):
     folder = tmp_path / "measured"
     sem_measurement.write(folder, figures=False)
@@ -277,6 +282,7 @@ def test_calibration_from_an_espin_measure_folder(sem_measurement, tmp_path):
     assert result.config.rve.diameter_um == pytest.approx(direct.config.rve.diameter_um, rel=1e-3)
 
 
+@pytest.mark.slow
 def test_comparison_shows_the_image_beside_a_rendering_at_its_scale(sem_measurement, tmp_path):
     """The image an SEMMeasurement analysed is kept, and the folder gets comparison.png: the
     image and a synthetic SEM of the calibrated mat over the same field of view."""
@@ -369,6 +375,7 @@ def _app() -> typer.Typer:
     return app
 
 
+@pytest.mark.slow
 def test_cli_writes_a_config_that_generate_takes(tmp_path):
     out = tmp_path / "calibrated.toml"
     result = CliRunner().invoke(_app(), [
@@ -557,6 +564,7 @@ def _pieces_and_shape(cfg, window_um: float, min_chord: float) -> GeometryTarget
                            u_turn_fraction=shape.u_turn_fraction, straightness=shape.straightness)
 
 
+@pytest.mark.slow
 def test_the_long_range_shape_chooses_the_smooth_walk_of_a_smooth_mat():
     """Pieces and long-range shape of a smooth mat (20 deg, 8 D): the smooth walk is chosen and
     its waviness recovered; without the long-range shape the walks cannot be told apart and
@@ -590,6 +598,7 @@ def test_tracer_correction_maps_the_sample_quantile_by_quantile():
     assert corrected.tortuosity.min() >= 1.0
 
 
+@pytest.mark.slow
 def test_rendered_check_measures_the_calibrated_mat_like_the_image(sem_measurement):
     result = calibrate_geometry(sem_measurement, "plla", seeds=4, min_portions=400)
     tracer = result.search["tracer"]

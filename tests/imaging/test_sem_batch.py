@@ -47,6 +47,7 @@ def batch(folder, tmp_path_factory):
     return result, out, seen
 
 
+@pytest.mark.slow
 def test_images_csv_has_a_row_per_image_and_the_failure(batch, folder):
     result, out, seen = batch
     table = pd.read_csv(out / "images.csv", keep_default_na=False, na_values=[""])
@@ -203,6 +204,7 @@ def test_cli_folder_default_and_several_files(folder, tmp_path, measure_app, mon
     assert broken.exit_code == 3 and "none of the 2 images could be measured" in broken.output
 
 
+@pytest.mark.slow
 def test_cli_single_image_writes_the_orientation_map_and_porosity(folder, tmp_path, measure_app):
     path, um_per_px = folder
     out = tmp_path / "one"

@@ -88,6 +88,7 @@ def straight():
     return out
 
 
+@pytest.mark.slow
 def test_straight_fibers_make_no_u_turns(straight):
     for _, m in straight:
         f = m.fibers
@@ -101,6 +102,7 @@ def test_straight_fibers_make_no_u_turns(straight):
     assert straightness > 0.97
 
 
+@pytest.mark.slow
 def test_curling_fibers_u_turn_as_often_as_the_truth():
     """Paper walk of 40 deg turns per segment (persistence about 60 D) in 100 D windows: a
     fifth of the true portions crossing edge to edge leave through the edge they entered."""
@@ -125,6 +127,7 @@ def test_curling_fibers_u_turn_as_often_as_the_truth():
     assert straightness < 0.95
 
 
+@pytest.mark.slow
 def test_edges_travel_through_fibers_csv_and_measurement_toml(straight, tmp_path):
     _, m = straight[0]
     files = m.write(tmp_path / "out")
@@ -159,6 +162,7 @@ def _measure_folder(m, folder, crossing: str | None = None):
     return files
 
 
+@pytest.mark.slow
 def test_geometry_targets_read_the_crossing_statistics(straight, tmp_path):
     _, m = straight[0]
     files = m.write(tmp_path / "out")
@@ -174,6 +178,7 @@ def test_geometry_targets_read_the_crossing_statistics(straight, tmp_path):
     assert (old.n_crossing, old.u_turn_fraction, old.straightness) == (None, None, None)
 
 
+@pytest.mark.slow
 def test_no_crossing_fiber_gives_none(straight, tmp_path):
     _, m = straight[0]
     _measure_folder(m, tmp_path / "out", "n_crossing = 0\nu_turn_fraction = nan\nstraightness = nan")
@@ -187,6 +192,7 @@ def test_no_crossing_fiber_gives_none(straight, tmp_path):
     ("n_crossing = -1", "n_crossing must be an integer >= 0"),
     ("n_crossing = 'many'", "n_crossing must be a number"),
 ])
+@pytest.mark.slow
 def test_bad_crossing_values_name_the_file(straight, tmp_path, line, match):
     _, m = straight[0]
     _measure_folder(m, tmp_path / "out", line)

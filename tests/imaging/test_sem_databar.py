@@ -68,6 +68,7 @@ def with_bar(mat):
                       data_bar_fraction=0.07)
 
 
+@pytest.mark.slow
 def test_measure_leaves_out_the_data_bar_found(with_bar):
     start = with_bar.data_bar_rows[0]
     found = measure(with_bar.image, um_per_px=with_bar.um_per_px)
@@ -84,6 +85,7 @@ def test_measure_leaves_out_the_data_bar_found(with_bar):
         measure(with_bar.image, um_per_px=with_bar.um_per_px, detect_data_bar="no")
 
 
+@pytest.mark.slow
 def test_cli_and_python_agree_on_the_data_bar(with_bar, tmp_path, measure_app):
     from PIL import Image
 

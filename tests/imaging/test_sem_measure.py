@@ -142,6 +142,7 @@ def test_orientation_model_selection_by_aic():
     assert np.trapezoid(aligned.orientation_pdf(grid), grid) == pytest.approx(1.0, rel=1e-3)
 
 
+@pytest.mark.slow
 def test_cli_measure(synthetic, tmp_path, measure_app):
     from PIL import Image
 

@@ -144,6 +144,7 @@ def fei_tiff(synthetic, tmp_path_factory):
     return _fei_tiff(path, _fei_text(um_per_px * 1e-6), data=data)
 
 
+@pytest.mark.slow
 def test_measure_takes_the_scale_from_the_metadata(synthetic, fei_tiff, tmp_path):
     data, um_per_px = synthetic
     from_tags = measure(fei_tiff)

@@ -40,6 +40,7 @@ def _rescaled(path: Path, rows: slice, factor: float) -> np.ndarray:
     return rescale(read_image(path)[rows], factor, anti_aliasing=True)
 
 
+@pytest.mark.slow
 def test_plga_scale_from_its_tick_marks(plga):
     bar = plga.scale_bar
     assert bar.kind == "ticks" and bar.n_ticks == 11
@@ -66,6 +67,7 @@ def test_nano_plausible_numbers(nano):
     assert 1.0 <= nano.fibers["tortuosity"].mean() < 1.2
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("which", ["plga", "nano"])
 def test_stable_under_crop_and_rescale(which, plga, nano):
     base = plga if which == "plga" else nano
@@ -83,6 +85,7 @@ def test_stable_under_crop_and_rescale(which, plga, nano):
         assert len(other.fibers) > 0.5 * len(base.fibers)
 
 
+@pytest.mark.slow
 def test_data_bar_found_without_crop_options(plga, nano):
     # PLGA-1500_1: Hitachi text and tick marks overlaid on the bottom rows (ticks in rows
     # 897-914, 17 px high): the bar starts at row 880, and the measurement is the one of the

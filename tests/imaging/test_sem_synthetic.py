@@ -90,6 +90,7 @@ def test_render_options_are_checked():
         render_sem(mat, depth_dimming=1.0)
 
 
+@pytest.mark.slow
 def test_mean_diameter_within_10_percent_or_1_px(wavy):
     for image, m in wavy:
         true = float(np.mean(image.diameter_um))
@@ -113,6 +114,7 @@ def test_mean_tortuosity_within_0_02_on_wavy_mats(wavy):
         assert abs(m.fibers["tortuosity"].mean() - image.visible.tortuosity.mean()) <= 0.015
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kappa, mean_deg", [(10.0, 30.0), (20.0, 150.0)])
 def test_direction_within_5_deg_and_tortuosity_within_0_02_on_aligned_mats(kappa, mean_deg):
     orientation = {"von_mises": {"mean_deg": mean_deg, "kappa": kappa}}
@@ -134,6 +136,7 @@ def test_direction_within_5_deg_and_tortuosity_within_0_02_on_aligned_mats(kappa
         assert abs(m.fibers["tortuosity"].mean() - v.tortuosity.mean()) <= 0.015
 
 
+@pytest.mark.slow
 def test_straight_fibers_read_a_small_tortuosity_floor():
     """Straight fibers (true tortuosity 1) crossing at all angles: the skeleton staircase,
     the end caps and the joins through crossings add little length."""

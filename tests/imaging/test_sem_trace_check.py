@@ -118,6 +118,7 @@ def test_junction_passes_and_their_turn():
     assert passes.turn_deg == pytest.approx([0.0, 30.0], abs=1.0)
 
 
+@pytest.mark.slow
 def test_switch_rate_of_the_tracer_on_rendered_mats():
     """One image of each benchmark case (uniform and aligned, straight and wavy, 2-3 layers):
     over about 1400 crossings passed at 10-90 deg, at most 2 % switch (1.3 % measured; the

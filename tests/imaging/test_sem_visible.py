@@ -51,6 +51,7 @@ def _scored(mat_keys: dict, options: dict, seed: int) -> tuple[int, int, int, in
             int((~visible & truth).sum()), len(truth))
 
 
+@pytest.mark.slow
 def test_visible_fibers_are_the_top_layer():
     tp, fp, fn, n = np.sum([_scored(*case) for case in RENDERINGS], axis=0)
     assert tp + fn >= 30 and n - (tp + fn) >= 30  # enough fibers of both kinds to mean something

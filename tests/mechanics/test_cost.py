@@ -40,6 +40,7 @@ def test_calibration_stays_within_its_budget_and_is_cached():
     assert time.perf_counter() - start < 1.5 and short.iterations > 0
 
 
+@pytest.mark.slow
 def test_prediction_within_2x_of_a_small_tensile_test():
     config = resolve_config("plla", rve__size_ratio=60, rve__layers=3)  # to 30 % in 30 steps, about 0.5 s
     make_linear_solver(config.solver.linear).release()  # its library loaded, as in a worker past its first test
@@ -90,6 +91,7 @@ def _sweep(tmp_path, *extra, env=None):
                                     "-o", str(tmp_path / "sweep"), *TINY, *extra], env=env)
 
 
+@pytest.mark.slow
 def test_study_prints_the_plan_and_quiet_hides_it(tmp_path):
     shown = _sweep(tmp_path, "--plan")
     assert shown.exit_code == 0, shown.output

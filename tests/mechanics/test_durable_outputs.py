@@ -70,6 +70,7 @@ def _run_and_kill(folder, steps: int, after_rows: int, overwrite: bool = False) 
         process.wait()
 
 
+@pytest.mark.slow
 def test_a_killed_run_keeps_its_converged_steps_and_is_marked_partial(tmp_path):
     folder = tmp_path / "killed"
     _run_and_kill(folder, steps=400, after_rows=3)
@@ -85,6 +86,7 @@ def test_a_killed_run_keeps_its_converged_steps_and_is_marked_partial(tmp_path):
     assert whole == _rows(tmp_path / "same")  # every converged step kept, as written
 
 
+@pytest.mark.slow
 def test_a_run_killed_over_an_earlier_one_leaves_no_mixed_folder(tmp_path):
     folder = tmp_path / "run"
     espin.simulate("plla", folder, loading__steps=5, output__figures=False, **TINY)
@@ -99,6 +101,7 @@ def test_a_run_killed_over_an_earlier_one_leaves_no_mixed_folder(tmp_path):
     assert rows - 1 <= len(steps) <= rows  # the new run's steps only: the earlier 6 are gone
 
 
+@pytest.mark.slow
 def test_another_runs_folder_is_refused_and_left_as_it_was(tmp_path):
     folder = tmp_path / "run"
     result = CliRunner().invoke(app, ["simulate", "plla", "-o", str(folder), "--steps", "5", *TINY_CLI])

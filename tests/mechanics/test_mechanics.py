@@ -141,6 +141,7 @@ def _vectors(net, record):
     return x[net.element_nodes[:, 1]] - x[net.element_nodes[:, 0]]
 
 
+@pytest.mark.slow
 def test_faster_pulling_gives_higher_stress_and_holds_relax(small_rve, linear):
     slow = run_program(small_rve.network, _config(loading__max_strain=0.06, loading__steps=6,
                                                   loading__strain_rate_per_s=1e-4), linear)
@@ -203,6 +204,7 @@ def test_failed_solve_says_where_why_and_what_to_try(small_rve, linear):
     assert err.value.kind == "stalled" and err.value.step == 1 and err.value.strain == pytest.approx(0.025)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("direction", [0.0, 30.0])
 @pytest.mark.parametrize("slack, flow", [(300.0, 0.0), (3.0, 0.0), (3.0, 1e-8)])
 def test_free_lateral_reaches_zero_free_stresses(small_rve, linear, direction, slack, flow):
@@ -293,6 +295,7 @@ def test_grid_gives_the_exact_stress_of_every_test(linear, test, extra):
         assert result.P[-1, 1, 1] < 0 < result.P[-1, 0, 0]  # vertical fibers compressed
 
 
+@pytest.mark.slow
 def test_superlu_gives_the_same_curves(small_rve, linear):
     """The SuperLU backend inside the solver (its inertia from U) against the default."""
     superlu = make_linear_solver("superlu")

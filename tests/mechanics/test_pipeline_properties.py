@@ -9,6 +9,8 @@ layer may overshoot it; the generator reports a miss above 10 %).
 
 from __future__ import annotations
 
+import pytest
+
 import numpy as np
 import pandas as pd
 from hypothesis import HealthCheck, given, settings
@@ -36,6 +38,7 @@ MATS = st.fixed_dictionaries({
 
 @settings(max_examples=12, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@pytest.mark.slow
 @given(MATS)
 def test_supported_mats_go_through_the_pipeline_or_are_refused_first(tmp_path_factory, mat):
     folder = tmp_path_factory.mktemp("run")

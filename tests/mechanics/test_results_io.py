@@ -191,6 +191,7 @@ def test_writer_saves_results_at_intervals(network, tmp_path, monkeypatch):
     {"loading.lateral": {"poisson_ratio": 0.3}, "loading.direction_deg": 45.0},
     {"loading.test": "simple_shear"},
 ])
+@pytest.mark.slow
 def test_figures_written(network, tmp_path, overrides):
     result, records = fake_result(network, **overrides)
     curve = plot_curve(result, tmp_path / "curve.png")

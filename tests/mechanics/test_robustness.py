@@ -24,6 +24,7 @@ DENSE_WAVY = dict(rve__volume_fraction=0.3196, rve__max_deviation_deg=38.39, rve
                   rve__size_ratio=60.0, rve__layers=8, rve__seed=15)
 
 
+@pytest.mark.slow
 def test_wavy_sparse_mat_in_simple_shear_converges():
     """Before the continuation, step 2 failed after 12 cuts (35 s); now both steps converge in
     about 6 s. Step 1 needs the continuation: Newton alone stops at 200 iterations."""
@@ -54,6 +55,7 @@ def test_continuation_ends_at_the_true_model(small_rve, monkeypatch):
     np.testing.assert_allclose(continued.P, plain.P, rtol=1e-6, atol=1e-9 * np.abs(plain.P).max())
 
 
+@pytest.mark.slow
 def test_merging_close_crosslinks_makes_shear_cheap():
     """Simple shear of a dense wavy mat, one 1 % step: with cross-links closer than 0.1 D
     merged (the default) Newton needs fewer iterations than at 1e-2 D, where elements a few

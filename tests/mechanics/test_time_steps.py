@@ -99,6 +99,7 @@ def _P11(network, config, steps, **overrides):
     return run_program(network, config, make_linear_solver("auto"))
 
 
+@pytest.mark.slow
 def test_network_curve_is_converged_in_time(small_rve):
     """The default curve (10 reported steps to 10 %) lies within 0.5 % of a time-converged
     one (Richardson from 80 and 160 uniform steps) at every reported strain >= 0.5 %, where
@@ -115,6 +116,7 @@ def test_network_curve_is_converged_in_time(small_rve):
     assert default.substeps[1:].sum() > 10
 
 
+@pytest.mark.slow
 def test_load_hold_unload_keeps_its_strains_and_accuracy(small_rve):
     """A program that loads, holds and unloads reports its own strains exactly, and its
     stresses lie within 0.5 % of the largest stress of a 16x finer uniform run."""

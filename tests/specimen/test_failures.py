@@ -30,6 +30,7 @@ class _Counted(RVEPoints):
         return super().evaluate(F, time)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("workers", [1, 2])
 def test_a_value_error_in_an_rve_point_stops_the_run_with_the_point_and_the_traceback(workers):
     rve = espin.generate("plla", rve__size_ratio=30, rve__layers=2)

@@ -50,6 +50,7 @@ def test_patch_test_lateral_fixed_reproduces_the_single_rve(rve):
     assert [s.substeps for s in steps[1:]] == list(single.substeps[1:])
 
 
+@pytest.mark.slow
 def test_patch_test_free_edge_reproduces_the_single_rve(rve, tmp_path):
     """The single RVE under uniaxial stress (lateral free: F12 and F22 found by P12 = P22 = 0, one time
     step) gives F(t); the strip's boundary follows it, so every point solves the same RVE problem.
@@ -129,6 +130,7 @@ def test_states_change_only_on_commit(rve):
     assert len(points.history_F) == 1 and points.fields()["yielded_fraction"].max() > 0.0
 
 
+@pytest.mark.slow
 def test_specimen_folder_and_reopened_point(rve, tmp_path):
     out = tmp_path / "run"
     result = espin.specimen(rve, strip(20.0, 5.0, elements_across=1), max_strain=0.02, steps=2, out=out)
@@ -162,6 +164,7 @@ def test_bad_options_are_refused_before_any_work(options, match, tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_surrogate_is_frame_indifferent_rate_dependent_and_its_tangent_is_consistent(rve):
     surrogate = build_surrogate(rve.network, rve.config, 0.05, reach=1.0, steps=4, speeds=(1.0, 4.0),
                                 paths=[(1.0, 0.0, 0.0), (1.0, -0.5, 0.0), (0.0, 1.0, 0.0), (1.0, 0.0, 0.5)])
@@ -196,6 +199,7 @@ def test_surrogate_is_frame_indifferent_rate_dependent_and_its_tangent_is_consis
     assert set(fields) == {"yielded_fraction", "recruited_fraction"}
 
 
+@pytest.mark.slow
 def test_per_point_realizations_differ_and_the_shared_rve_is_one():
     shared = espin.specimen("plla", strip(20.0, 5.0, elements_across=1), max_strain=0.01, steps=1,
                             rve__size_ratio=30, rve__layers=2)
@@ -208,6 +212,7 @@ def test_per_point_realizations_differ_and_the_shared_rve_is_one():
     assert own.force_N[-1] != pytest.approx(shared.force_N[-1], rel=1e-6)
 
 
+@pytest.mark.slow
 def test_a_surrogate_runs_again_from_its_samples(rve, tmp_path):
     from espin.specimen.surrogate_file import write_samples
 

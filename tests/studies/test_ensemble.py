@@ -74,6 +74,7 @@ def test_damaged_task_file_runs_again(tmp_path, monkeypatch):
     assert again.skipped == 1 and [r["run"] for r in again.records] == ["again", "first"]
 
 
+@pytest.mark.slow
 def test_serial_processes_and_dask_agree_exactly():
     tasks = plan_tasks(tiny_base(), [{"fiber.flow_resistance_MPa": 5.0}], [1, 2])
     runs = [run_ensemble(tasks, place=TaskPlace(1)), run_ensemble(tasks, place=TaskPlace(2)),

@@ -15,6 +15,7 @@ from espin.studies.sweeps import rve_size_study, sweep
 TINY = {"loading__max_strain": 0.08, "loading__steps": 8}
 
 
+@pytest.mark.slow
 def test_rve_size_study_series_and_files(tmp_path):
     result = rve_size_study("plla", size_ratios=(25, 35), layer_counts=(2, 3), layers_for_sizes=2,
                             size_for_layers=35, realizations=2, folder=tmp_path, workers=1, **TINY)
@@ -34,6 +35,7 @@ def test_rve_size_study_series_and_files(tmp_path):
     assert len(list((tmp_path / "tasks").glob("*.json"))) == 6
 
 
+@pytest.mark.slow
 def test_sweep_grid_table_and_parquet(tmp_path):
     grid = {"rve.volume_fraction": [0.15, 0.25], "rve.orientation.von_mises.kappa": [0.0, 4.0]}
     result = sweep("plla", grid, realizations=1, folder=tmp_path, table_format="parquet", workers=1,
@@ -49,6 +51,7 @@ def test_sweep_grid_table_and_parquet(tmp_path):
     assert len(result.summary) == 4
 
 
+@pytest.mark.slow
 def test_sweep_text_values_and_numpy_grid(tmp_path):
     grid = {"rve.seeding": ["lines", "border"], "rve.volume_fraction": np.array([0.15, 0.25])}
     result = sweep("plla", grid, folder=tmp_path, workers=1, rve__size_ratio=30, rve__layers=2, **TINY)
@@ -56,6 +59,7 @@ def test_sweep_text_values_and_numpy_grid(tmp_path):
     assert set(result.table["rve.seeding"]) == {"lines", "border"}
 
 
+@pytest.mark.slow
 def test_rerun_with_a_grown_grid_reuses_tasks_under_the_new_names(tmp_path):
     base = {"rve__size_ratio": 30, "rve__layers": 2, **TINY}
     sweep("plla", {"rve.volume_fraction": [0.15, 0.2]}, folder=tmp_path, workers=1, **base)
@@ -90,6 +94,7 @@ def test_parse_grid():
             parse_grid(bad)
 
 
+@pytest.mark.slow
 def test_study_sweep_command_resumes(tmp_path):
     app = typer.Typer()
     register(app)
