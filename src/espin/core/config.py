@@ -323,6 +323,10 @@ class FiberConfig(_Section):
     the paper's model. A fused crossing resists the relative rotation of its fibers with
     springs E I / lbar, E = ``bending_modulus_MPa`` (required > 0 with phi > 0): the mat gains
     lateral stiffness (docs/model.md section 3)."""
+    fused_crossing_stiffness_ratio: Annotated[float, Field(gt=0.0, le=1e4)] = 1.0
+    """Rotational stiffness c of a fused crossing relative to a fiber joint of the same two
+    elements (springs c E I / lbar), in (0, 1e4]; 1 (default): the weld as compliant as the
+    fiber bent over one element, larger: a stiffer weld (docs/model.md section 3)."""
 
     @model_validator(mode="after")
     def _check(self) -> FiberConfig:

@@ -12,12 +12,16 @@ where two or more fibers meet is fused with probability phi, drawn once from the
 carries, for every pair of element ends (arms) b-a of one fiber and b-c of another fiber, the
 spring of :mod:`espin.mechanics.bending`
 
-    W = k (1 - cos(theta - theta_0)),    k = E I / lbar,    I = pi D^4 / 64,
+    W = k (1 - cos(theta - theta_0)),    k = c E I / lbar,    I = pi D^4 / 64,
 
 theta the angle between the two arms at b, theta_0 its as-deposited value, lbar the mean
 contour length of the two arms and D their mean diameter; E is the fiber's Young's modulus,
 ``fiber.bending_modulus_MPa`` (the same E I bends the fibers between crossings: a fiber stiff
-enough in bending to hold a welded junction also bends along itself). A fused crossing of two
+enough in bending to hold a welded junction also bends along itself) and c =
+``fiber.fused_crossing_stiffness_ratio`` the weld's rotational stiffness relative to that of a
+fiber joint of the same two elements (1, default: the weld is as compliant as the fiber bent
+over one element; larger: a stiffer weld, infinity a rigid one; the relative angle of the
+fibers is then fixed and all compliance is the fibers' bending). A fused crossing of two
 fibers carries four such springs (A1-B1, A1-B2, A2-B1, A2-B2), which lock the angle between
 the fibers; rigid motions cost nothing. phi = 0 (default) adds no term: the paper's model.
 
@@ -40,7 +44,8 @@ __all__ = ["crossing_joints", "with_crossings"]
 _SEED_STREAM = 0x6675736564  # "fused": the draw of fused crossings has its own stream of the RVE seed
 
 
-def crossing_joints(network: Network, modulus_MPa: float, fraction: float, seed: int) -> FiberJoints:
+def crossing_joints(network: Network, modulus_MPa: float, fraction: float, seed: int,
+                    stiffness_ratio: float = 1.0) -> FiberJoints:
     """The springs of the fused crossings of a network (module notes).
 
     Parameters
@@ -52,6 +57,8 @@ def crossing_joints(network: Network, modulus_MPa: float, fraction: float, seed:
         phi in (0, 1]: probability that a crossing is fused (1: all).
     seed : int
         Seed of the draw (the RVE's seed; the draw uses its own stream of it).
+    stiffness_ratio : float
+        c: the springs are c E I / lbar (1: as stiff as a fiber joint of the same elements).
 
     Returns
     -------
@@ -90,7 +97,7 @@ def crossing_joints(network: Network, modulus_MPa: float, fraction: float, seed:
     length = network.element_contour_length
     diameter = 0.5 * (network.element_diameter[ep] + network.element_diameter[eq])
     mean_length = 0.5 * (length[ep] + length[eq])
-    stiffness = float(modulus_MPa) * np.pi * diameter**4 / 64.0 / mean_length
+    stiffness = float(stiffness_ratio) * float(modulus_MPa) * np.pi * diameter**4 / 64.0 / mean_length
     floor = STRETCH_FLOOR * np.column_stack([network.element_length[ep], network.element_length[eq]])
     reference = FiberJoints(triple, stiffness, np.zeros(len(triple)), floor)
     angle = reference._geometry(network.node_position)[0]

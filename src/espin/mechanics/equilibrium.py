@@ -197,15 +197,16 @@ class EquilibriumSolver:
     bending_modulus_MPa
         E of the fibers' bending stiffness across their nodes [MPa]; 0: none
         (:mod:`espin.mechanics.bending`).
-    fused_crossing_fraction, crossing_seed
-        Fraction phi of fused crossings and the seed of their draw; phi > 0 (with
+    fused_crossing_fraction, crossing_seed, crossing_stiffness_ratio
+        Fraction phi of fused crossings, the seed of their draw and their springs' stiffness
+        relative to a fiber joint's; phi > 0 (with
         ``bending_modulus_MPa`` > 0) adds their springs to the joints
         (:mod:`espin.mechanics.crossings`).
     """
 
     def __init__(self, network: Network, law: FiberLaw, config: SolverConfig, linear_solver,
                  bending_modulus_MPa: float = 0.0, fused_crossing_fraction: float = 0.0,
-                 crossing_seed: int = 0) -> None:
+                 crossing_seed: int = 0, crossing_stiffness_ratio: float = 1.0) -> None:
         self.network = network
         self.law = law
         self.config = config
@@ -214,7 +215,7 @@ class EquilibriumSolver:
                                            if bending_modulus_MPa > 0 else None)
         if fused_crossing_fraction > 0 and bending_modulus_MPa > 0:
             self.joints = with_crossings(self.joints, crossing_joints(
-                network, bending_modulus_MPa, fused_crossing_fraction, crossing_seed))
+                network, bending_modulus_MPa, fused_crossing_fraction, crossing_seed, crossing_stiffness_ratio))
         self.asm = NetworkAssembler(network, self.joints)
         self.l0 = network.element_length
         self.area = network.element_area
@@ -231,7 +232,8 @@ class EquilibriumSolver:
         """The solver of a run's config: its fiber law (with bending and fused crossings, drawn
         from the RVE's seed) and solver settings."""
         return cls(network, FiberLaw.from_config(config.fiber), config.solver, linear_solver,
-                   config.fiber.bending_modulus_MPa, config.fiber.fused_crossing_fraction, config.rve.seed)
+                   config.fiber.bending_modulus_MPa, config.fiber.fused_crossing_fraction, config.rve.seed,
+                   config.fiber.fused_crossing_stiffness_ratio)
 
     # -- evaluation ---------------------------------------------------------------------------
     def _context(self, start: StepState, time: float, F_prescribed, directions, law: FiberLaw) -> _Step:
