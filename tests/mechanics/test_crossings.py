@@ -60,7 +60,8 @@ def test_the_fused_fraction_draws_a_share_of_the_crossings(small_rve):
 
 def test_the_stiffness_ratio_scales_the_welds_only(small_rve):
     net = small_rve.network
-    one, stiff = crossing_joints(net, E_BEND, 1.0, seed=1), crossing_joints(net, E_BEND, 1.0, seed=1, stiffness_ratio=4.0)
+    one = crossing_joints(net, E_BEND, 1.0, seed=1)
+    stiff = crossing_joints(net, E_BEND, 1.0, seed=1, stiffness_ratio=4.0)
     assert np.array_equal(one.nodes, stiff.nodes)
     assert np.allclose(stiff.stiffness, 4.0 * one.stiffness, rtol=1e-15)
     assert np.array_equal(one.reference_angle, stiff.reference_angle)
