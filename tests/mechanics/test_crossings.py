@@ -125,3 +125,33 @@ def test_fused_crossings_hold_the_width():
     fused = espin.simulate("plla", fiber__fused_crossing_fraction=1.0, **kw)
     assert fused.F[-1][1, 1] > pinned.F[-1][1, 1] + 0.02
     assert abs(fused.P[-1][1, 1]) < 1e-3 * fused.P[-1][0, 0]
+
+
+def test_the_welds_stress_is_in_P():
+    """At equilibrium with fused crossings P = (1 / V0) sum over border nodes f_b (x) X_b: the
+    welds' forces are in the stress (through the joints' virial)."""
+    import espin.geometry.rve
+    from espin.mechanics.equilibrium import EquilibriumSolver, StepState
+    from espin.mechanics.fiber_law import FiberLaw
+    from espin.mechanics.homogenization import nominal_stress
+    from espin.mechanics.linear_solvers import make_linear_solver
+
+    rve = espin.geometry.rve.generate("plla", rve__size_ratio=30, rve__layers=2)
+    net = rve.network
+    law = FiberLaw.from_config(FiberConfig(flow_rate_per_s=0.0))
+    solver = EquilibriumSolver(net, law, rve.config.solver, make_linear_solver("auto"), bending_modulus_MPa=E_BEND,
+                               fused_crossing_fraction=1.0, crossing_seed=1, crossing_stiffness_ratio=4.0)
+    asm = solver.asm
+    X = asm.reference[: net.n_inner]
+    start = StepState(0.0, X, np.zeros(0), np.eye(2), np.ones(net.n_elements), np.zeros(net.n_elements))
+    F = np.array([[1.03, 0.004], [0.002, 0.99]])
+    step = solver.solve(start, 1.0, F, np.zeros((0, 2, 2)), X @ F.T, np.zeros(0))
+    x = asm.positions(step.state.inner, F)
+    g = (asm.gradient(step.force, step.kinematics) + solver.joints.gradient(x, asm.n_dof)).reshape(-1, 2)
+    n = net.n_inner
+    border = g[n:].T @ asm.reference[n:] / net.reference_volume
+    P = nominal_stress(net, step.force, step.kinematics, solver.joints, x)
+    assert np.allclose(border, P, rtol=1e-6, atol=1e-9 * np.abs(P).max())
+    bending_only = EquilibriumSolver(net, law, rve.config.solver, make_linear_solver("auto"),
+                                     bending_modulus_MPa=E_BEND)
+    assert len(solver.joints.stiffness) > len(bending_only.joints.stiffness)
