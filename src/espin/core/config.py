@@ -319,6 +319,15 @@ class FiberConfig(_Section):
     nodes [MPa], in [0, 1e6]; 0 (default): no bending, the paper's model. The physical value
     is the fiber's Young's modulus (E_t); it makes compression-dominated states (lateral
     ``free``, large prescribed contraction) solvable (docs/model.md section 3)."""
+    fused_crossing_fraction: Annotated[float, Field(ge=0.0, le=1.0)] = 0.0
+    """Fraction phi of fused (bonded) crossings, in [0, 1]; 0 (default): every crossing a pin,
+    the paper's model. A fused crossing resists the relative rotation of its fibers with
+    springs E I / lbar, E = ``bending_modulus_MPa`` (required > 0 with phi > 0): the mat gains
+    lateral stiffness (docs/model.md section 3)."""
+    fused_crossing_stiffness_ratio: Annotated[float, Field(gt=0.0, le=1e4)] = 1.0
+    """Rotational stiffness c of a fused crossing relative to a fiber joint of the same two
+    elements (springs c E I / lbar), in (0, 1e4]; 1 (default): the weld as compliant as the
+    fiber bent over one element, larger: a stiffer weld (docs/model.md section 3)."""
 
     @model_validator(mode="after")
     def _check(self) -> FiberConfig:
@@ -326,6 +335,11 @@ class FiberConfig(_Section):
             raise ValueError(
                 "fiber.taut_modulus_MPa must be > fiber.slack_modulus_MPa "
                 f"(= {self.slack_modulus_MPa:g})"
+            )
+        if self.fused_crossing_fraction > 0 and self.bending_modulus_MPa == 0:
+            raise ValueError(
+                "fiber.fused_crossing_fraction > 0 needs fiber.bending_modulus_MPa > 0 (the fibers' "
+                "Young's modulus E of the bond stiffness E I / lbar; plla: the taut modulus, 3000)"
             )
         return self
 

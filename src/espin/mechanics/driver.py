@@ -42,7 +42,8 @@ FREE_LATERAL_NOTE = (
     "lateral = free or {stress_MPa = s}: in this 2-D network fibers resist compression only with the slack "
     "modulus E_b, so the mat contracts laterally far more than a real one, the response is "
     "governed by E_b, and equilibrium can be non-unique (compressed chains buckle). Compare "
-    "the stress P, not the lateral stretch, between runs."
+    "the stress P, not the lateral stretch, between runs (fused crossings, "
+    "fiber.fused_crossing_fraction, give the mat lateral stiffness: docs/mechanics.md)."
 )
 
 
@@ -381,7 +382,7 @@ def run_program(
         and ``partial`` holds the curve up to the last converged step.
     """
     program = program or load_program(config.loading)
-    if program.test == "uniaxial" and len(program.free_directions):
+    if program.test == "uniaxial" and len(program.free_directions) and config.fiber.fused_crossing_fraction == 0:
         log.warning(FREE_LATERAL_NOTE)
     solver = EquilibriumSolver.from_config(network, config, linear_solver)
     lateral = (None if program.lateral_stress_MPa is None

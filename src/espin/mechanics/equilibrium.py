@@ -29,7 +29,9 @@ V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
   the joints' springs add to Phi, its gradient and its Hessian (the clipped tangent keeps
   their positive semi-definite part), and a node's force tolerance grows by the precision its
   joints' forces are known to (:meth:`~espin.mechanics.bending.FiberJoints.force_resolution`:
-  next to an element of 1e-6 D the rounding of the positions alone exceeds the tolerance);
+  next to an element of 1e-6 D the rounding of the positions alone exceeds the tolerance); so
+  do the springs of fused crossings (``fiber.fused_crossing_fraction`` > 0,
+  :mod:`espin.mechanics.crossings`), appended to them;
 * when Newton fails, a continuation in the slack modulus before the driver cuts the step:
   the step is solved with E_b raised 100-fold (capped at E_t / 2), then 10-fold, then with
   the true E_b, each solve starting from the equilibrium of the one before. Slack and
@@ -57,6 +59,7 @@ from espin.core.errors import InadmissibleState, StepNotConverged
 from espin.geometry.network import Network
 from espin.mechanics.assembly import Kinematics, NetworkAssembler
 from espin.mechanics.bending import FiberJoints, fiber_joints
+from espin.mechanics.crossings import crossing_joints, with_crossings
 from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
 from espin.mechanics.line_search import line_search
 from espin.mechanics.linear_solvers import Factorization, LinearSolver
@@ -201,16 +204,25 @@ class EquilibriumSolver:
     bending_modulus_MPa
         E of the fibers' bending stiffness across their nodes [MPa]; 0: none
         (:mod:`espin.mechanics.bending`).
+    fused_crossing_fraction, crossing_seed, crossing_stiffness_ratio
+        Fraction phi of fused crossings, the seed of their draw and their springs' stiffness
+        relative to a fiber joint's; phi > 0 (with
+        ``bending_modulus_MPa`` > 0) adds their springs to the joints
+        (:mod:`espin.mechanics.crossings`).
     """
 
     def __init__(self, network: Network, law: FiberLaw, config: SolverConfig, linear_solver,
-                 bending_modulus_MPa: float = 0.0) -> None:
+                 bending_modulus_MPa: float = 0.0, fused_crossing_fraction: float = 0.0,
+                 crossing_seed: int = 0, crossing_stiffness_ratio: float = 1.0) -> None:
         self.network = network
         self.law = law
         self.config = config
         self.linear = linear_solver
         self.joints: FiberJoints | None = (fiber_joints(network, bending_modulus_MPa)
                                            if bending_modulus_MPa > 0 else None)
+        if fused_crossing_fraction > 0 and bending_modulus_MPa > 0:
+            self.joints = with_crossings(self.joints, crossing_joints(
+                network, bending_modulus_MPa, fused_crossing_fraction, crossing_seed, crossing_stiffness_ratio))
         self.asm = NetworkAssembler(network, self.joints)
         self.l0 = network.element_length
         self.area = network.element_area
@@ -224,9 +236,11 @@ class EquilibriumSolver:
 
     @classmethod
     def from_config(cls, network: Network, config: Config, linear_solver: LinearSolver) -> EquilibriumSolver:
-        """The solver of a run's config: its fiber law (with bending) and solver settings."""
+        """The solver of a run's config: its fiber law (with bending and fused crossings, drawn
+        from the RVE's seed) and solver settings."""
         return cls(network, FiberLaw.from_config(config.fiber), config.solver, linear_solver,
-                   config.fiber.bending_modulus_MPa)
+                   config.fiber.bending_modulus_MPa, config.fiber.fused_crossing_fraction, config.rve.seed,
+                   config.fiber.fused_crossing_stiffness_ratio)
 
     # -- evaluation ---------------------------------------------------------------------------
     def _context(self, start: StepState, time: float, F_prescribed, directions, law: FiberLaw,
