@@ -1,4 +1,5 @@
-"""The source keeps its habits: ``ruff check src`` and ``mypy src/espin`` find nothing.
+"""The source keeps its habits: ``ruff check src``, ``ruff format --check src`` and ``mypy src/espin``
+find nothing.
 
 Both tools are configured in ``pyproject.toml`` ([tool.ruff], [tool.mypy]) and come with the
 ``test`` extra; where one is not installed its test is skipped and says so. A failure shows the
@@ -37,6 +38,10 @@ def _run(tool: str, *args: str) -> None:
 
 def test_ruff_finds_nothing_in_src():
     _run("ruff", "check", "--no-fix", "src")
+
+
+def test_src_is_formatted():
+    _run("ruff", "format", "--check", "src")
 
 
 @pytest.mark.slow

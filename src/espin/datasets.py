@@ -28,8 +28,15 @@ __all__ = ["SEM_UM_PER_PX", "sem_image", "specimen_curves", "calibrated_config"]
 SEM_UM_PER_PX = 0.05
 """Pixel size of the sample image [um / px]."""
 
-_SEM_MAT = {"rve.diameter_um": 0.45, "rve.diameter_sd_um": 0.1, "rve.walk": "smooth", "rve.waviness_deg": 12.0,
-            "rve.size_ratio": 100, "rve.layers": 4, "rve.seed": 7}
+_SEM_MAT = {
+    "rve.diameter_um": 0.45,
+    "rve.diameter_sd_um": 0.1,
+    "rve.walk": "smooth",
+    "rve.waviness_deg": 12.0,
+    "rve.size_ratio": 100,
+    "rve.layers": 4,
+    "rve.seed": 7,
+}
 
 
 def sem_image(path: str | Path, *, seed: int = 7) -> Path:
@@ -58,8 +65,10 @@ def sem_image(path: str | Path, *, seed: int = 7) -> Path:
     pixels = np.round(255.0 * np.clip(sem.image, 0.0, 1.0)).astype(np.uint8)
     path = Path(path)
     per_um = 1.0 / sem.um_per_px
-    return atomic_write(path, lambda tmp: tifffile.imwrite(tmp, pixels, imagej=True, resolution=(per_um, per_um),
-                                                            metadata={"unit": "um"}))
+    return atomic_write(
+        path,
+        lambda tmp: tifffile.imwrite(tmp, pixels, imagej=True, resolution=(per_um, per_um), metadata={"unit": "um"}),
+    )
 
 
 def specimen_curves(folder: str | Path, *, seed: int = 0) -> list[Path]:

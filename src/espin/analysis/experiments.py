@@ -92,8 +92,19 @@ from espin.core.textfiles import (
     too_large,
 )
 
-__all__ = ["CurveFileError", "CurveWarning", "Curve", "AveragedCurve", "read_curve", "average_curves",
-           "MAX_FILE_BYTES", "MAX_DATA_ROWS", "MAX_LINE_CHARS", "MAX_MAGNITUDE", "UNIT_MISMATCH_RATIO"]
+__all__ = [
+    "CurveFileError",
+    "CurveWarning",
+    "Curve",
+    "AveragedCurve",
+    "read_curve",
+    "average_curves",
+    "MAX_FILE_BYTES",
+    "MAX_DATA_ROWS",
+    "MAX_LINE_CHARS",
+    "MAX_MAGNITUDE",
+    "UNIT_MISMATCH_RATIO",
+]
 
 MAX_FILE_BYTES = 64 * 2**20
 """Largest curve file read [bytes], and largest unpacked size of an .xlsx workbook: 64 MiB. A
@@ -119,13 +130,23 @@ _LARGE_STRESS_MPA = 1e4
 _STRAIN_NAMES = ("strain",)
 _STRESS_NAMES = ("stress_MPa", "stress [MPa]", "stress (MPa)", "stress", "mean_MPa")
 _WORKBOOK_SUFFIXES = (".xlsx", ".xlsm")
-_EXPECTED = ("expected a text table (CSV: one point per line, strain and stress [MPa] as numbers; "
-             "UTF-8, UTF-16 with byte-order mark or Latin-1) or an .xlsx workbook")
+_EXPECTED = (
+    "expected a text table (CSV: one point per line, strain and stress [MPa] as numbers; "
+    "UTF-8, UTF-16 with byte-order mark or Latin-1) or an .xlsx workbook"
+)
 _DECIMAL_COMMA = re.compile(r"[+-]?(\d+,\d*|,\d+)([eE][+-]?\d+)?")
 _UNIT = re.compile(r"[\[(]\s*([^\])]*?)\s*[\])]|_([^_\s]+)$")
 _LENGTH_UNITS = ("mm", "m", "cm", "um", "µm", "μm", "in")
-_OTHER_STRESS_UNITS = {"pa": "Pa", "kpa": "kPa", "gpa": "GPa", "psi": "psi", "ksi": "ksi",
-                       "n": "N, a force", "kn": "kN, a force", "lbf": "lbf, a force"}
+_OTHER_STRESS_UNITS = {
+    "pa": "Pa",
+    "kpa": "kPa",
+    "gpa": "GPa",
+    "psi": "psi",
+    "ksi": "ksi",
+    "n": "N, a force",
+    "kn": "kN, a force",
+    "lbf": "lbf, a force",
+}
 
 
 class CurveFileError(InputError):
@@ -229,10 +250,15 @@ def _column_letters(index: int) -> str:
 def _format() -> TextFormat:
     """What a curve file is, with the module's limits as they are now."""
     return TextFormat(
-        what="curve file", expected=_EXPECTED, max_bytes=MAX_FILE_BYTES, max_line_chars=MAX_LINE_CHARS,
+        what="curve file",
+        expected=_EXPECTED,
+        max_bytes=MAX_FILE_BYTES,
+        max_line_chars=MAX_LINE_CHARS,
         error=CurveFileError,
-        size_hint=("a tensile test of 10^5 points takes a few MB; is this the curve? thin it out "
-                   "(keep every k-th line) or cut it"),
+        size_hint=(
+            "a tensile test of 10^5 points takes a few MB; is this the curve? thin it out "
+            "(keep every k-th line) or cut it"
+        ),
         line_hint="one point, a few numbers, per line; is this the curve file?",
     )
 
@@ -245,8 +271,10 @@ def _too_many_points(path: Path) -> CurveFileError:
 
 
 def _no_data(path: Path, skip_rows: int) -> CurveFileError:
-    return CurveFileError(f"{path}: no data (the file is empty after {skip_rows} skipped rows "
-                          f"and its blank and # comment lines); {_EXPECTED}")
+    return CurveFileError(
+        f"{path}: no data (the file is empty after {skip_rows} skipped rows "
+        f"and its blank and # comment lines); {_EXPECTED}"
+    )
 
 
 def _check_options(delimiter: str | None, decimal: str | None, skip_rows: int) -> None:
@@ -268,11 +296,15 @@ def _check_options(delimiter: str | None, decimal: str | None, skip_rows: int) -
 def _refuse_workbooks(path: Path, data: bytes) -> None:
     """Refuse a workbook's bytes in a file not named .xlsx (the fix: rename it, or save as CSV)."""
     if data.startswith(b"PK\x03\x04"):
-        raise CurveFileError(f"{path}: a zip archive (an Excel workbook?): name it .xlsx to read "
-                             "its first sheet, or save the sheet as CSV")
+        raise CurveFileError(
+            f"{path}: a zip archive (an Excel workbook?): name it .xlsx to read "
+            "its first sheet, or save the sheet as CSV"
+        )
     if data.startswith(b"\xd0\xcf\x11\xe0"):
-        raise CurveFileError(f"{path}: an old-format Excel (.xls) or other OLE2 file, which espin "
-                             "does not read: save the sheet as .xlsx or CSV")
+        raise CurveFileError(
+            f"{path}: an old-format Excel (.xls) or other OLE2 file, which espin "
+            "does not read: save the sheet as .xlsx or CSV"
+        )
 
 
 def _text_lines(path: Path, fmt: TextFormat, skip_rows: int) -> tuple[list[int], list[str]]:
@@ -320,13 +352,14 @@ def _fields(path: Path, numbers: list[int], lines: list[str], separator: str) ->
     except csv.Error:
         pass  # reported below, at the line where it happened
     if len(rows) < len(lines):
-        raise CurveFileError(f"{path}, line {numbers[len(rows)]}: a quoted field does not end on its "
-                             "line (an unbalanced '\"'); expected one point per line")
+        raise CurveFileError(
+            f"{path}, line {numbers[len(rows)]}: a quoted field does not end on its "
+            "line (an unbalanced '\"'); expected one point per line"
+        )
     return rows
 
 
-def _read_text(path: Path, fmt: TextFormat, skip_rows: int, delimiter: str | None,
-               decimal: str | None) -> _Table:
+def _read_text(path: Path, fmt: TextFormat, skip_rows: int, delimiter: str | None, decimal: str | None) -> _Table:
     numbers, lines = _text_lines(path, fmt, skip_rows)
     separator = delimiter or _separator(lines[0], decimal)
     return _Table(path, numbers, _fields(path, numbers, lines, separator), separator)
@@ -338,8 +371,10 @@ def _check_unpacked_size(path: Path, fmt: TextFormat) -> None:
         with zipfile.ZipFile(path) as archive:
             unpacked = sum(item.file_size for item in archive.infolist())
     except (zipfile.BadZipFile, OSError, EOFError, ValueError):
-        raise CurveFileError(f"{path}: not a readable .xlsx workbook (not a zip archive); expected an "
-                             "Excel workbook with the curve on its first sheet") from None
+        raise CurveFileError(
+            f"{path}: not a readable .xlsx workbook (not a zip archive); expected an "
+            "Excel workbook with the curve on its first sheet"
+        ) from None
     if unpacked > MAX_FILE_BYTES:
         raise too_large(path, fmt, f"{unpacked:,} bytes unpacked")
 
@@ -348,14 +383,17 @@ def _excel_frame(path: Path) -> pd.DataFrame:
     """The first sheet, every cell as read, empty ones as "" and no text taken for NaN (row index
     0 is the sheet's row 1)."""
     try:
-        return pd.read_excel(path, sheet_name=0, header=None, dtype=object, na_filter=False,
-                             engine="openpyxl")
+        return pd.read_excel(path, sheet_name=0, header=None, dtype=object, na_filter=False, engine="openpyxl")
     except ImportError:
-        raise CurveFileError(f"{path}: reading an .xlsx workbook needs the optional package openpyxl: "
-                             'pip install "espin[xlsx]" (or save the sheet as CSV)') from None
+        raise CurveFileError(
+            f"{path}: reading an .xlsx workbook needs the optional package openpyxl: "
+            'pip install "espin[xlsx]" (or save the sheet as CSV)'
+        ) from None
     except Exception as err:  # noqa: BLE001 - any failure of the workbook parser is a bad file
-        raise CurveFileError(f"{path}: not a readable .xlsx workbook ({type(err).__name__}); expected "
-                             "an Excel workbook with the curve on its first sheet") from None
+        raise CurveFileError(
+            f"{path}: not a readable .xlsx workbook ({type(err).__name__}); expected "
+            "an Excel workbook with the curve on its first sheet"
+        ) from None
 
 
 def _cell(value: object) -> str:
@@ -412,8 +450,14 @@ def _split_header(table: _Table) -> tuple[list[str] | None, list[int]]:
     return table.rows[0], list(range(1, len(table.rows)))
 
 
-def _column_index(table: _Table, column: int | str | None, header: list[str] | None,
-                  defaults: tuple[str, ...], fallback: int, what: str) -> int:
+def _column_index(
+    table: _Table,
+    column: int | str | None,
+    header: list[str] | None,
+    defaults: tuple[str, ...],
+    fallback: int,
+    what: str,
+) -> int:
     """0-based index of a column given by index, by name, or by default (module docs)."""
     if column is None:
         if header is None:
@@ -435,12 +479,15 @@ def _column_index(table: _Table, column: int | str | None, header: list[str] | N
             raise ConfigError(f"{what}_column (--{what}-column): an index must be >= 0, got {column}")
         return column
     if header is None:
-        raise CurveFileError(f"{table.path}: {what} column {column!r} is a name, but the file has no "
-                             "header line (a first line without numbers)")
+        raise CurveFileError(
+            f"{table.path}: {what} column {column!r} is a name, but the file has no "
+            "header line (a first line without numbers)"
+        )
     lowered = [name.lower() for name in header]
     if column.lower() not in lowered:
-        raise CurveFileError(f"{table.at(0)}: no {what} column named {column!r} in the header "
-                             f"(columns: {shown_names(header)})")
+        raise CurveFileError(
+            f"{table.at(0)}: no {what} column named {column!r} in the header (columns: {shown_names(header)})"
+        )
     return _only(table, lowered, column.lower(), what)
 
 
@@ -448,9 +495,11 @@ def _only(table: _Table, lowered: list[str], name: str, what: str) -> int:
     """The index of the one column called ``name``; a name given to several columns is an error."""
     indices = [k for k, found in enumerate(lowered) if found == name]
     if len(indices) > 1:
-        raise CurveFileError(f"{table.at(0)}: the header names columns {', '.join(str(k) for k in indices)} "
-                             f"alike ({shown(name, 'name')}, any case): choose the {what} column by 0-based "
-                             f"index with --{what}-column ({what}_column= in Python)")
+        raise CurveFileError(
+            f"{table.at(0)}: the header names columns {', '.join(str(k) for k in indices)} "
+            f"alike ({shown(name, 'name')}, any case): choose the {what} column by 0-based "
+            f"index with --{what}-column ({what}_column= in Python)"
+        )
     return indices[0]
 
 
@@ -461,8 +510,9 @@ def _label(header: list[str] | None, index: int, what: str) -> str:
     return f"{what} column {index}"
 
 
-def _columns(table: _Table, header: list[str] | None, strain_column: int | str | None,
-             stress_column: int | str | None) -> list[tuple[int, str]]:
+def _columns(
+    table: _Table, header: list[str] | None, strain_column: int | str | None, stress_column: int | str | None
+) -> list[tuple[int, str]]:
     """(index, label) of the strain and the stress column."""
     x_col = _column_index(table, strain_column, header, _STRAIN_NAMES, 0, "strain")
     y_col = _column_index(table, stress_column, header, _STRESS_NAMES, 1, "stress")
@@ -488,8 +538,10 @@ def _check_fields(table: _Table, data: list[int], columns: list[tuple[int, str]]
     col, label = next((col, label) for col, label in columns if col >= len(fields))
     if table.separator is None:
         raise CurveFileError(f"{table.cell(short, col)} ({label}): empty; expected a number")
-    raise CurveFileError(f"{table.at(short)}: {len(fields)} field(s) separated by "
-                         f"{_separator_name(table.separator)}, but the {label} is field {col + 1}")
+    raise CurveFileError(
+        f"{table.at(short)}: {len(fields)} field(s) separated by "
+        f"{_separator_name(table.separator)}, but the {label} is field {col + 1}"
+    )
 
 
 def _decimal(table: _Table, data: list[int], columns: list[tuple[int, str]], given: str | None) -> str:
@@ -511,17 +563,18 @@ def _why_not_a_value(text: str, value: float, decimal: str) -> str:
     if math.isnan(value):
         if word == "nan":
             return f"{quoted} is not a finite number (NaN)"
-        hint = ("; a decimal comma? every value must use the same decimal mark (decimal=',', "
-                "--decimal ,)") if decimal == "." and "," in text else ""
+        hint = (
+            ("; a decimal comma? every value must use the same decimal mark (decimal=',', --decimal ,)")
+            if decimal == "." and "," in text
+            else ""
+        )
         return f"{quoted} is not a number (expected e.g. 0.012 or 1.2e-2{hint})"
     if math.isinf(value) and word in ("inf", "infinity"):
         return f"{quoted} is not a finite number"
-    return (f"{quoted} is out of range: a strain or a stress [MPa] has a magnitude of at most "
-            f"{MAX_MAGNITUDE:g}")
+    return f"{quoted} is out of range: a strain or a stress [MPa] has a magnitude of at most {MAX_MAGNITUDE:g}"
 
 
-def _numbers(table: _Table, data: list[int], columns: list[tuple[int, str]],
-             decimal: str) -> list[np.ndarray]:
+def _numbers(table: _Table, data: list[int], columns: list[tuple[int, str]], decimal: str) -> list[np.ndarray]:
     """The columns' values on the data lines; the earliest bad field is an error."""
     parsed, bad_fields = [], []
     for col, label in columns:
@@ -553,8 +606,7 @@ def _check_increasing(table: _Table, data: list[int], strain: np.ndarray) -> Non
         )
 
 
-def _check_tensile(path: Path, strain: np.ndarray, stress: np.ndarray,
-                   columns: list[tuple[int, str]]) -> None:
+def _check_tensile(path: Path, strain: np.ndarray, stress: np.ndarray, columns: list[tuple[int, str]]) -> None:
     """A tensile curve: the strain rises above 0 and the stress is positive somewhere."""
     (_, x_label), (_, y_label) = columns
     if strain[-1] <= 0.0:
@@ -578,8 +630,14 @@ def _unit(name: str) -> str:
     return (match.group(1) or match.group(2) or "").lower().replace(" ", "")
 
 
-def _unit_warnings(path: Path, header: list[str] | None, columns: list[tuple[int, str]],
-                   strain: np.ndarray, stress: np.ndarray, percent: bool) -> list[str]:
+def _unit_warnings(
+    path: Path,
+    header: list[str] | None,
+    columns: list[tuple[int, str]],
+    strain: np.ndarray,
+    stress: np.ndarray,
+    percent: bool,
+) -> list[str]:
     """Why the units of a curve as read (``strain`` in the file's units) look wrong."""
     (x_col, x_label), (y_col, y_label) = columns
     x_name = header[x_col] if header is not None and x_col < len(header) else ""
@@ -588,24 +646,38 @@ def _unit_warnings(path: Path, header: list[str] | None, columns: list[tuple[int
     largest = float(strain[-1])
     found = []
     if not percent and (largest > 1.0 or says_percent):
-        why = (f"its largest strain is {largest:.4g}, i.e. {100 * largest:.4g} % (few mats stretch "
-               "beyond 100 % in a tensile test)" if largest > 1.0 else "the header names it in percent")
-        found.append(f"{path}: the {x_label} is read as a fraction (0.01 = 1 %), but {why}: if it "
-                     "is in percent, pass --percent-strain (percent_strain=True)")
+        why = (
+            f"its largest strain is {largest:.4g}, i.e. {100 * largest:.4g} % (few mats stretch "
+            "beyond 100 % in a tensile test)"
+            if largest > 1.0
+            else "the header names it in percent"
+        )
+        found.append(
+            f"{path}: the {x_label} is read as a fraction (0.01 = 1 %), but {why}: if it "
+            "is in percent, pass --percent-strain (percent_strain=True)"
+        )
     if percent and largest <= 1.0 and not says_percent:
-        found.append(f"{path}: the {x_label} is read as percent (--percent-strain), so the curve ends "
-                     f"at {largest:.4g} % strain: if it holds fractions (0.01 = 1 %), leave "
-                     "--percent-strain out")
+        found.append(
+            f"{path}: the {x_label} is read as percent (--percent-strain), so the curve ends "
+            f"at {largest:.4g} % strain: if it holds fractions (0.01 = 1 %), leave "
+            "--percent-strain out"
+        )
     if _unit(x_name) in _LENGTH_UNITS:
-        found.append(f"{path}: the {x_label} is labelled in {_unit(x_name)}, a length: espin reads "
-                     "engineering strain (extension / gauge length)")
+        found.append(
+            f"{path}: the {x_label} is labelled in {_unit(x_name)}, a length: espin reads "
+            "engineering strain (extension / gauge length)"
+        )
     if _unit(y_name) in _OTHER_STRESS_UNITS:
-        found.append(f"{path}: the {y_label} is labelled in {_OTHER_STRESS_UNITS[_unit(y_name)]}, "
-                     "but espin reads stress in MPa: convert the column")
+        found.append(
+            f"{path}: the {y_label} is labelled in {_OTHER_STRESS_UNITS[_unit(y_name)]}, "
+            "but espin reads stress in MPa: convert the column"
+        )
     peak = float(np.max(np.abs(stress)))
     if peak > _LARGE_STRESS_MPA:
-        found.append(f"{path}: stresses up to {peak:.4g} MPa in the {y_label}, over 10 GPa (no fiber "
-                     "mat is that strong): is it in Pa or kPa? espin reads MPa")
+        found.append(
+            f"{path}: stresses up to {peak:.4g} MPa in the {y_label}, over 10 GPa (no fiber "
+            "mat is that strong): is it in Pa or kPa? espin reads MPa"
+        )
     return found
 
 
@@ -620,8 +692,10 @@ def _partial(path: Path) -> list[str]:
         return []
     if manifest is None or not manifest.partial:
         return []
-    return [f"{path}: a partial result: its folder's run.json says the run is {manifest.status} "
-            "(killed, failed or still going)"]
+    return [
+        f"{path}: a partial result: its folder's run.json says the run is {manifest.status} "
+        "(killed, failed or still going)"
+    ]
 
 
 def read_curve(
@@ -744,8 +818,10 @@ def _shared_strains(curves: Sequence[Curve]) -> bool:
     """Whether every specimen was measured at the same strains (to ``_SAME_STRAIN``)."""
     first = np.asarray(curves[0].strain, dtype=float)
     scale = max(float(np.max(np.abs(c.strain))) for c in curves) or 1.0
-    return all(len(c.strain) == len(first) and np.allclose(c.strain, first, rtol=0.0, atol=_SAME_STRAIN * scale)
-               for c in curves[1:])
+    return all(
+        len(c.strain) == len(first) and np.allclose(c.strain, first, rtol=0.0, atol=_SAME_STRAIN * scale)
+        for c in curves[1:]
+    )
 
 
 def _measured_grid(curves: Sequence[Curve]) -> np.ndarray:
@@ -759,9 +835,7 @@ def _measured_grid(curves: Sequence[Curve]) -> np.ndarray:
     return np.clip(union[keep], span[0], span[-1])
 
 
-def average_curves(
-    curves: Sequence[Curve], grid: ArrayLike | str | None = None, n_points: int = 101
-) -> AveragedCurve:
+def average_curves(curves: Sequence[Curve], grid: ArrayLike | str | None = None, n_points: int = 101) -> AveragedCurve:
     """Mean, sample sd and count of several specimens' stress on a common strain grid.
 
     Parameters
@@ -825,5 +899,6 @@ def _averaged(strain: np.ndarray, stress: np.ndarray, curves: Sequence[Curve]) -
     squares = np.where(covered, (stress - mean) ** 2, 0.0).sum(axis=0)
     sd = np.sqrt(squares / np.maximum(n - 1, 1))
     sd[n < 2] = np.nan
-    return AveragedCurve(strain=strain, mean_MPa=mean, sd_MPa=sd, n=n.astype(np.int64),
-                         sources=tuple(c.source for c in curves))
+    return AveragedCurve(
+        strain=strain, mean_MPa=mean, sd_MPa=sd, n=n.astype(np.int64), sources=tuple(c.source for c in curves)
+    )

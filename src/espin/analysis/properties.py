@@ -163,8 +163,9 @@ def _best_breakpoint(x: np.ndarray, y: np.ndarray) -> float:
     left, right = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
     if right <= left:
         return float(grid[i])
-    found = minimize_scalar(lambda b: _hinge(x, y, b)[0], bounds=(left, right), method="bounded",
-                            options={"xatol": 1e-9 * (hi - lo)})
+    found = minimize_scalar(
+        lambda b: _hinge(x, y, b)[0], bounds=(left, right), method="bounded", options={"xatol": 1e-9 * (hi - lo)}
+    )
     return float(found.x) if found.fun <= sse[i] else float(grid[i])
 
 
@@ -189,9 +190,7 @@ def check_curve(strain: ArrayLike, stress: ArrayLike) -> tuple[np.ndarray, np.nd
     except (TypeError, ValueError) as err:
         raise CurveError(f"strain and stress must be arrays of numbers ({err})") from None
     if x.ndim != 1 or x.shape != y.shape:
-        raise CurveError(
-            f"strain and stress must be 1-D arrays of one length, got shapes {x.shape} and {y.shape}"
-        )
+        raise CurveError(f"strain and stress must be 1-D arrays of one length, got shapes {x.shape} and {y.shape}")
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
         bad = int(np.flatnonzero(~(np.isfinite(x) & np.isfinite(y)))[0])
         raise CurveError(f"point {bad} of the curve is not finite (strain {x[bad]}, stress {y[bad]} MPa)")
@@ -214,9 +213,14 @@ def _no_yield(x: np.ndarray, y: np.ndarray, note: str) -> CurveProperties:
     flat = abs(slope) * float(np.ptp(x)) <= _ROUNDING * float(np.abs(y).max())
     offset = math.nan if flat else -intercept / slope
     return CurveProperties(
-        modulus_MPa=slope, yield_stress_MPa=math.nan, yield_strain=math.nan,
-        post_yield_modulus_MPa=math.nan, has_yield=False,
-        r_squared=_r_squared(y, intercept + slope * x), note=note, strain_offset=offset,
+        modulus_MPa=slope,
+        yield_stress_MPa=math.nan,
+        yield_strain=math.nan,
+        post_yield_modulus_MPa=math.nan,
+        has_yield=False,
+        r_squared=_r_squared(y, intercept + slope * x),
+        note=note,
+        strain_offset=offset,
     )
 
 
@@ -262,10 +266,14 @@ def _check_strain_range(strain_range: object) -> tuple[float, float]:
 def _constant_stress(x: np.ndarray, y: np.ndarray) -> CurveProperties:
     """The result for a stress that is constant to rounding (module docs, "No clear yield")."""
     return CurveProperties(
-        modulus_MPa=0.0, yield_stress_MPa=math.nan, yield_strain=math.nan,
-        post_yield_modulus_MPa=math.nan, has_yield=False, r_squared=math.nan,
+        modulus_MPa=0.0,
+        yield_stress_MPa=math.nan,
+        yield_strain=math.nan,
+        post_yield_modulus_MPa=math.nan,
+        has_yield=False,
+        r_squared=math.nan,
         note=f"the stress is constant ({float(np.mean(y)):.4g} MPa at all {len(x)} points): "
-             "no elastic slope and no yield (a wrong stress column, or no load carried?)",
+        "no elastic slope and no yield (a wrong stress column, or no load carried?)",
         strain_offset=math.nan,
     )
 
@@ -345,8 +353,9 @@ def curve_properties(
     return _scaled(_bilinear_fit(x, y / scale, scale, elastic_fraction, max_slope_ratio), scale)
 
 
-def _bilinear_fit(x: np.ndarray, y: np.ndarray, scale: float, elastic_fraction: float,
-                  max_slope_ratio: float) -> CurveProperties:
+def _bilinear_fit(
+    x: np.ndarray, y: np.ndarray, scale: float, elastic_fraction: float, max_slope_ratio: float
+) -> CurveProperties:
     """:func:`curve_properties` of a checked curve whose stress is divided by ``scale``.
 
     The result is in the divided units too; notes quote stresses in MPa (times ``scale``).
@@ -373,16 +382,16 @@ def _bilinear_fit(x: np.ndarray, y: np.ndarray, scale: float, elastic_fraction: 
         return _no_yield(x, y, f"the initial slope ({modulus * scale:.4g} MPa) is not positive")
     if post_slope > max_slope_ratio * modulus:
         return _no_yield(
-            x, y, f"the post-yield slope ({post_slope * scale:.4g} MPa) is {post_slope / modulus:.0%} "
+            x,
+            y,
+            f"the post-yield slope ({post_slope * scale:.4g} MPa) is {post_slope / modulus:.0%} "
             f"of the initial slope ({modulus * scale:.4g} MPa), above {max_slope_ratio:.0%}: no clear "
             "yield",
         )
     post_intercept = a + (knee_slope - post_slope) * knee
     yield_at = (post_intercept - elastic_intercept) / (modulus - post_slope)
     if not x[0] < yield_at < x[-1]:
-        return _no_yield(
-            x, y, f"the elastic and post-yield lines meet at strain {yield_at:.4g}, outside the data"
-        )
+        return _no_yield(x, y, f"the elastic and post-yield lines meet at strain {yield_at:.4g}, outside the data")
 
     offset = -elastic_intercept / modulus
     props = CurveProperties(
@@ -512,8 +521,9 @@ def plot_bilinear_fits(
         draw_marks(ax, props, float(strain[-1]), color=colour, labelled=False)
     ax.set_xlabel("strain [%]")
     ax.set_ylabel("stress [MPa]")
-    ax.set_title("curves (solid): elastic line (dashed), yield point (circle), post-yield line (dotted)",
-                 fontsize="small")
+    ax.set_title(
+        "curves (solid): elastic line (dashed), yield point (circle), post-yield line (dotted)", fontsize="small"
+    )
     ax.set_xlim(left=0.0)
     ax.set_ylim(bottom=0.0)
     fig.legend(loc="outside lower center", fontsize="small")

@@ -84,8 +84,9 @@ def _check_options(chord_range: tuple[float, float], offset: float, break_drop: 
         raise CurveError(f"break_drop: a fraction of the tensile strength in (0, 1) (got {break_drop})")
 
 
-def chord_modulus(strain: np.ndarray, stress: np.ndarray, chord_range: tuple[float, float]
-                  ) -> tuple[float, float] | None:
+def chord_modulus(
+    strain: np.ndarray, stress: np.ndarray, chord_range: tuple[float, float]
+) -> tuple[float, float] | None:
     """Slope [MPa] and zero-stress strain eps_0 of the least-squares line through the points
     in ``chord_range``; None when it holds fewer than two distinct strains."""
     inside = (strain >= chord_range[0]) & (strain <= chord_range[1])
@@ -98,8 +99,9 @@ def chord_modulus(strain: np.ndarray, stress: np.ndarray, chord_range: tuple[flo
     return float(slope), float(-intercept / slope)
 
 
-def _offset_yield(strain: np.ndarray, stress: np.ndarray, modulus: float, zero: float,
-                  offset: float, start: float) -> tuple[float, float]:
+def _offset_yield(
+    strain: np.ndarray, stress: np.ndarray, modulus: float, zero: float, offset: float, start: float
+) -> tuple[float, float]:
     """First point from strain ``start`` on where the curve falls below the offset line."""
     above = stress - modulus * (strain - zero - offset)
     after = strain > start
@@ -110,8 +112,7 @@ def _offset_yield(strain: np.ndarray, stress: np.ndarray, modulus: float, zero: 
         return math.nan, math.nan
     i = candidates[0]
     t = above[i] / (above[i] - above[i + 1])
-    return (float(stress[i] + t * (stress[i + 1] - stress[i])),
-            float(strain[i] + t * (strain[i + 1] - strain[i])))
+    return (float(stress[i] + t * (stress[i + 1] - stress[i])), float(strain[i] + t * (strain[i + 1] - strain[i])))
 
 
 def standard_properties(
@@ -154,11 +155,13 @@ def standard_properties(
     span = f"{100 * chord_range[0]:g} % to {100 * chord_range[1]:g} % strain"
     if chord is None:
         inside = int(np.count_nonzero((x >= chord_range[0]) & (x <= chord_range[1])))
-        message = (f"the chord range {span} holds {inside} "
-                   f"point(s) of the curve (its strains: {100 * x[0]:.3g} % to {100 * x[-1]:.3g} %, "
-                   f"{x.size} points); give a chord range (chord_range, --chord-range LO:HI) over the curve's "
-                   "linear part that holds two points or more, e.g. 0:0.02 on a curve in 1 % steps such as "
-                   "espin's own (not the ISO range, so not an ISO 527 value)")
+        message = (
+            f"the chord range {span} holds {inside} "
+            f"point(s) of the curve (its strains: {100 * x[0]:.3g} % to {100 * x[-1]:.3g} %, "
+            f"{x.size} points); give a chord range (chord_range, --chord-range LO:HI) over the curve's "
+            "linear part that holds two points or more, e.g. 0:0.02 on a curve in 1 % steps such as "
+            "espin's own (not the ISO range, so not an ISO 527 value)"
+        )
         if require_chord:
             raise CurveError(message)
         notes.append(f"no chord modulus: {message}")
@@ -171,8 +174,10 @@ def standard_properties(
         yield_stress, yield_strain = _offset_yield(x, y, modulus, zero, offset, chord_range[0])
         if yield_strain == -math.inf:
             yield_strain = math.nan
-            notes.append(f"no offset yield: the curve lies below the chord line shifted by {100 * offset:g} % "
-                         "from the chord range on (is the curve linear there?)")
+            notes.append(
+                f"no offset yield: the curve lies below the chord line shifted by {100 * offset:g} % "
+                "from the chord range on (is the curve linear there?)"
+            )
         elif math.isnan(yield_stress):
             notes.append(f"no offset yield: the curve stays above the chord line shifted by {100 * offset:g} %")
     peak = int(np.argmax(y))
@@ -180,9 +185,11 @@ def standard_properties(
     if y[peak] <= 0.0:
         notes.append("no tensile strength or break: the stress is never positive")
     elif peak == y.size - 1:
-        notes.append("no tensile strength or break: the stress rises to the curve's last point (a simulated "
-                     "mat, or a test stopped before the maximum; a curve cut at a brittle break has its "
-                     "strength at the last point)")
+        notes.append(
+            "no tensile strength or break: the stress rises to the curve's last point (a simulated "
+            "mat, or a test stopped before the maximum; a curve cut at a brittle break has its "
+            "strength at the last point)"
+        )
     else:
         strength, strength_strain = float(y[peak]), float(x[peak])
         dropped = np.flatnonzero(y[peak:] < (1.0 - break_drop) * strength)
@@ -191,6 +198,15 @@ def standard_properties(
             break_strain, break_stress = float(x[last]), float(y[last])
         else:
             notes.append(f"no break: the stress does not fall by {100 * break_drop:g} % after its maximum")
-    return StandardProperties(modulus, (float(chord_range[0]), float(chord_range[1])), yield_stress,
-                              yield_strain, float(offset), strength, strength_strain, break_strain,
-                              break_stress, "; ".join(notes))
+    return StandardProperties(
+        modulus,
+        (float(chord_range[0]), float(chord_range[1])),
+        yield_stress,
+        yield_strain,
+        float(offset),
+        strength,
+        strength_strain,
+        break_strain,
+        break_stress,
+        "; ".join(notes),
+    )

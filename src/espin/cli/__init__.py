@@ -48,12 +48,15 @@ def _print_version(value: bool) -> None:
 
 @app.callback()
 def _main(
-    version: Annotated[bool, typer.Option("--version", callback=_print_version, is_eager=True,
-                                          help="Print espin's version and exit.")] = False,
-    verbose: Annotated[bool, typer.Option("--verbose", "-v",
-                                          help="Print what espin does (its log, INFO level) on stderr.")] = False,
-    log_file: Annotated[Optional[Path], typer.Option(
-        help="Append espin's full log (DEBUG level, with times) to this file.")] = None,
+    version: Annotated[
+        bool, typer.Option("--version", callback=_print_version, is_eager=True, help="Print espin's version and exit.")
+    ] = False,
+    verbose: Annotated[
+        bool, typer.Option("--verbose", "-v", help="Print what espin does (its log, INFO level) on stderr.")
+    ] = False,
+    log_file: Annotated[
+        Optional[Path], typer.Option(help="Append espin's full log (DEBUG level, with times) to this file.")
+    ] = None,
 ) -> None:
     """Virtual electrospun fiber mats and their mechanics, from microstructure to curves."""
     _configure_logging(verbose, log_file)
@@ -78,8 +81,9 @@ def _configure_logging(verbose: bool, log_file: Path | None) -> None:
         try:
             file_handler = logging.FileHandler(log_file, mode="a", encoding="utf-8")
         except OSError as err:
-            raise typer.BadParameter(f"cannot open {log_file} for appending: {err.strerror or err}",
-                                     param_hint="--log-file") from None
+            raise typer.BadParameter(
+                f"cannot open {log_file} for appending: {err.strerror or err}", param_hint="--log-file"
+            ) from None
         file_handler.setLevel(logging.DEBUG)
         file_handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
         handlers.append(file_handler)
@@ -90,8 +94,19 @@ def _configure_logging(verbose: bool, log_file: Path | None) -> None:
         logger.setLevel(logging.DEBUG if log_file is not None else logging.INFO)
 
 
-for _group in (generate, simulate, config, measure, properties, fit, study, design, specimen, calibrate_geometry,
-               example_data):
+for _group in (
+    generate,
+    simulate,
+    config,
+    measure,
+    properties,
+    fit,
+    study,
+    design,
+    specimen,
+    calibrate_geometry,
+    example_data,
+):
     _group.register(app)
 
 if __name__ == "__main__":  # pragma: no cover

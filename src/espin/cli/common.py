@@ -12,9 +12,27 @@ from typing import Annotated, Any, NoReturn, Optional
 
 import typer
 
-__all__ = ["SourceArg", "SetOpt", "OverwriteOpt", "AllowLargeOpt", "PlanOpt", "parse_set", "fail", "StrainColumnOpt",
-           "StressColumnOpt", "PercentStrainOpt", "DelimiterOpt", "DecimalOpt", "SkipRowsOpt", "read_options",
-           "curve_warnings", "print_plan", "LONG_WORK_S", "off_terminal_lines", "HEARTBEAT_S"]
+__all__ = [
+    "SourceArg",
+    "SetOpt",
+    "OverwriteOpt",
+    "AllowLargeOpt",
+    "PlanOpt",
+    "parse_set",
+    "fail",
+    "StrainColumnOpt",
+    "StressColumnOpt",
+    "PercentStrainOpt",
+    "DelimiterOpt",
+    "DecimalOpt",
+    "SkipRowsOpt",
+    "read_options",
+    "curve_warnings",
+    "print_plan",
+    "LONG_WORK_S",
+    "off_terminal_lines",
+    "HEARTBEAT_S",
+]
 
 SourceArg = Annotated[
     Optional[str],
@@ -32,30 +50,40 @@ SetOpt = Annotated[
 
 OverwriteOpt = Annotated[
     bool,
-    typer.Option("--overwrite", help="Replace the results of another run in the output folder "
-                 "(its files are removed first); without it such a folder is refused."),
+    typer.Option(
+        "--overwrite",
+        help="Replace the results of another run in the output folder "
+        "(its files are removed first); without it such a folder is refused.",
+    ),
 ]
 AllowLargeOpt = Annotated[
     bool,
-    typer.Option("--allow-large", help="Go on when the RVE is estimated to need more memory than "
-                 "is available (the estimate is printed in the refusal)."),
+    typer.Option(
+        "--allow-large",
+        help="Go on when the RVE is estimated to need more memory than "
+        "is available (the estimate is printed in the refusal).",
+    ),
 ]
 
 PlanOpt = Annotated[
     Optional[bool],
-    typer.Option("--plan/--no-plan", envvar="ESPIN_PLAN",
-                 help="Print the plan before the work: tensile tests x DOF -> estimated time on the "
-                      "workers, from a speed calibration of this machine (at most 2 s). Default: only "
-                      "when the work looks long (a minute or more at reference speed). Environment: "
-                      "ESPIN_PLAN=1 / 0."),
+    typer.Option(
+        "--plan/--no-plan",
+        envvar="ESPIN_PLAN",
+        help="Print the plan before the work: tensile tests x DOF -> estimated time on the "
+        "workers, from a speed calibration of this machine (at most 2 s). Default: only "
+        "when the work looks long (a minute or more at reference speed). Environment: "
+        "ESPIN_PLAN=1 / 0.",
+    ),
 ]
 LONG_WORK_S = 60.0
 """Work expected to take at least this long at the reference speed [s] gets its plan printed by
 default (the speed calibration then costs at most 2 s more)."""
 
 
-def print_plan(make_text: Callable[[Any], str], console: Any, plan: bool | None,
-               reference_seconds: Callable[[], float]) -> None:
+def print_plan(
+    make_text: Callable[[Any], str], console: Any, plan: bool | None, reference_seconds: Callable[[], float]
+) -> None:
     """Print a long command's plan (one plain line on ``console``) before its work starts.
 
     Parameters
@@ -121,8 +149,11 @@ def off_terminal_lines(console: Any, first: str) -> Iterator[Callable[[str], Non
         nonlocal last_text, last_at
         with lock:
             last_text, last_at = text, time.monotonic()
-            console.print(f"{'still: ' if again else ''}{text}  [{clock(last_at - start)} elapsed]",
-                          highlight=False, soft_wrap=True)
+            console.print(
+                f"{'still: ' if again else ''}{text}  [{clock(last_at - start)} elapsed]",
+                highlight=False,
+                soft_wrap=True,
+            )
 
     def beat() -> None:
         while not stop.wait(min(1.0, HEARTBEAT_S / 4)):
@@ -176,32 +207,45 @@ _DELIMITER_NAMES = {"tab": "\t", "\\t": "\t", "space": " ", "whitespace": " "}
 # Options of every command that reads curve CSV files (properties, fit).
 StrainColumnOpt = Annotated[
     Optional[str],
-    typer.Option(help="Strain column: 0-based index or header name (any case). "
-                      "Default: the header's 'strain' column; 0 without a header or with two columns."),
+    typer.Option(
+        help="Strain column: 0-based index or header name (any case). "
+        "Default: the header's 'strain' column; 0 without a header or with two columns."
+    ),
 ]
 StressColumnOpt = Annotated[
     Optional[str],
-    typer.Option(help="Stress column [MPa]: 0-based index or header name (any case). "
-                      "Default: the header's 'stress_MPa', 'stress [MPa]', 'stress (MPa)', 'stress' or "
-                      "'mean_MPa' column; 1 without a header or with two columns."),
+    typer.Option(
+        help="Stress column [MPa]: 0-based index or header name (any case). "
+        "Default: the header's 'stress_MPa', 'stress [MPa]', 'stress (MPa)', 'stress' or "
+        "'mean_MPa' column; 1 without a header or with two columns."
+    ),
 ]
 PercentStrainOpt = Annotated[
-    bool, typer.Option(help="The strain column is in percent (a curve whose strain exceeds 1 without "
-                            "it is warned about).")
+    bool,
+    typer.Option(help="The strain column is in percent (a curve whose strain exceeds 1 without it is warned about)."),
 ]
 DelimiterOpt = Annotated[
-    Optional[str], typer.Option(help="Field separator, one character (',', ';', tab, space). Default: "
-                                     "detected from the first line.")
+    Optional[str],
+    typer.Option(help="Field separator, one character (',', ';', tab, space). Default: detected from the first line."),
 ]
 DecimalOpt = Annotated[
-    Optional[str], typer.Option(help="Decimal mark, '.' or ','. Default: ',' when a file not separated "
-                                     "by commas has commas and no points in its numbers (0,01;1,5).")
+    Optional[str],
+    typer.Option(
+        help="Decimal mark, '.' or ','. Default: ',' when a file not separated "
+        "by commas has commas and no points in its numbers (0,01;1,5)."
+    ),
 ]
 SkipRowsOpt = Annotated[int, typer.Option(min=0, help="Lines (rows) to skip at the top of each file.")]
 
 
-def read_options(strain_column: str | None, stress_column: str | None, percent_strain: bool,
-                 delimiter: str | None, skip_rows: int, decimal: str | None = None) -> dict:
+def read_options(
+    strain_column: str | None,
+    stress_column: str | None,
+    percent_strain: bool,
+    delimiter: str | None,
+    skip_rows: int,
+    decimal: str | None = None,
+) -> dict:
     """The curve-file options of the command line as keyword arguments of
     :func:`espin.analysis.experiments.read_curve` (which checks their values)."""
     return {
@@ -226,8 +270,14 @@ def curve_warnings() -> Iterator[None]:
         warnings.simplefilter("always", CurveWarning)
         usual = warnings.showwarning
 
-        def show(message: Warning | str, category: type[Warning], filename: str, lineno: int,
-                 file: Any = None, line: str | None = None) -> None:
+        def show(
+            message: Warning | str,
+            category: type[Warning],
+            filename: str,
+            lineno: int,
+            file: Any = None,
+            line: str | None = None,
+        ) -> None:
             if issubclass(category, CurveWarning):
                 typer.secho(f"warning: {message}", fg=typer.colors.YELLOW, err=True)
             else:

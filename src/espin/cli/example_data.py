@@ -34,10 +34,12 @@ def example_data(
     from espin.datasets import calibrated_config, sem_image, specimen_curves
 
     try:
-        with OutputFolder.claim(out, "example-data", inputs_digest([], FILES, __version__), FILES,
-                                overwrite=overwrite):
-            written = [sem_image(out / "mat.tif"), *specimen_curves(out),
-                       calibrated_config(out / "calibrated_mat.toml")]
+        with OutputFolder.claim(out, "example-data", inputs_digest([], FILES, __version__), FILES, overwrite=overwrite):
+            written = [
+                sem_image(out / "mat.tif"),
+                *specimen_curves(out),
+                calibrated_config(out / "calibrated_mat.toml"),
+            ]
     except EspinError as err:
         fail(err)
     typer.echo(f"wrote {', '.join(str(p) for p in written)} (and {out / 'run.json'})")

@@ -157,8 +157,7 @@ def _table(result: FitResult) -> Any:
 
     from espin.analysis.calibration import ETA_KEY, FIT_PARAMETERS
 
-    table = Table(title=f"fit: R^2 = {result.r_squared:.5f}, RMSE = {result.rmse_MPa:.3g} MPa",
-                  caption_justify="left")
+    table = Table(title=f"fit: R^2 = {result.r_squared:.5f}, RMSE = {result.rmse_MPa:.3g} MPa", caption_justify="left")
     table.add_column("parameter", no_wrap=True)
     for name in ("value", "sd", "1-sd interval", "Gauss-Newton sd", "sd over RVEs", "bounds", "note"):
         table.add_column(name)
@@ -169,17 +168,27 @@ def _table(result: FitResult) -> Any:
         note = f"at {result.at_bound[key]} bound" if result.at_bound[key] else ""
         if key == ETA_KEY and result.eta_profile_sd is not None:
             note = ", ".join(filter(None, [note, f"profile sd {result.eta_profile_sd:.2g}"]))
-        table.add_row(f"{FIT_PARAMETERS[key].symbol} ({key})", f"{result.values[key]:.5g}",
-                      _sd_text(result, key, result.uncertainties[key]), f"{lo:.4g} .. {hi:.4g}",
-                      _sd_text(result, key, result.gauss_newton_sd[key]), _sd_text(result, key, spread),
-                      f"{low:.3g} .. {high:.3g}", note)
-    lines = ["sd = sqrt(Gauss-Newton sd^2 + (sd over RVEs)^2 / R); ×/÷: log-scale parameter, "
-             "1-sd interval value / f .. value * f"]
+        table.add_row(
+            f"{FIT_PARAMETERS[key].symbol} ({key})",
+            f"{result.values[key]:.5g}",
+            _sd_text(result, key, result.uncertainties[key]),
+            f"{lo:.4g} .. {hi:.4g}",
+            _sd_text(result, key, result.gauss_newton_sd[key]),
+            _sd_text(result, key, spread),
+            f"{low:.3g} .. {high:.3g}",
+            note,
+        )
+    lines = [
+        "sd = sqrt(Gauss-Newton sd^2 + (sd over RVEs)^2 / R); ×/÷: log-scale parameter, "
+        "1-sd interval value / f .. value * f"
+    ]
     gn = result.gauss_newton_sd.get(ETA_KEY)
     if result.eta_resolution is not None and gn is not None and gn < result.eta_resolution:
-        lines.append(f"eta: its Gauss-Newton sd ({gn:.2g}) is below the network's step, one fiber per "
-                     f"layer = {result.eta_resolution:.2g} of volume fraction: eta is not resolved finer "
-                     "than that")
+        lines.append(
+            f"eta: its Gauss-Newton sd ({gn:.2g}) is below the network's step, one fiber per "
+            f"layer = {result.eta_resolution:.2g} of volume fraction: eta is not resolved finer "
+            "than that"
+        )
     table.caption = "\n".join(lines)
     return table
 
@@ -192,8 +201,7 @@ def _live_warnings(console: Any) -> Any:
     class Live(logging.Handler):
         def emit(self, record: logging.LogRecord) -> None:
             if record.name != "espin.analysis.calibration.result":
-                console.print(f"warning: {record.getMessage()}", style="yellow", highlight=False,
-                              soft_wrap=True)
+                console.print(f"warning: {record.getMessage()}", style="yellow", highlight=False, soft_wrap=True)
 
     return Live(logging.WARNING)
 
@@ -211,8 +219,10 @@ def _fit_plan(problem: Any, workers: int | None, calibration: Any) -> tuple[str,
     from espin.analysis.calibration.simulation import _loading_config
     from espin.mechanics.cost import format_duration, pool_seconds, predict_test
 
-    tests = [predict_test(_loading_config(problem.base, steps, curve.strain_rate_per_s), calibration)
-             for curve, steps in zip(problem.curves, problem.steps)]
+    tests = [
+        predict_test(_loading_config(problem.base, steps, curve.strain_rate_per_s), calibration)
+        for curve, steps in zip(problem.curves, problem.steps)
+    ]
     per_evaluation = [t.seconds for t in tests for _ in problem.seeds]
     k = len(problem.fiber_keys)
     etas = problem.eta_points if problem.fits_eta else 1
@@ -223,24 +233,32 @@ def _fit_plan(problem: Any, workers: int | None, calibration: Any) -> tuple[str,
     where = "one worker of the scheduler" if workers is None else f"{workers} worker{'s' * (workers != 1)}"
     dof = max(t.dof for t in tests)
     steps = "/".join(str(t.steps) for t in tests)
-    text = (f"plan: fit, each evaluation {len(per_evaluation)} tensile test{'s' * (len(per_evaluation) != 1)} x "
-            f"{dof:,.0f} DOF ({steps} load steps) -> about {format_duration(evaluation_s)} on {where}; "
-            "the number of evaluations is not known up front: ")
+    text = (
+        f"plan: fit, each evaluation {len(per_evaluation)} tensile test{'s' * (len(per_evaluation) != 1)} x "
+        f"{dof:,.0f} DOF ({steps} load steps) -> about {format_duration(evaluation_s)} on {where}; "
+        "the number of evaluations is not known up front: "
+    )
     if problem.fits_eta:
-        text += (f"the {etas}-point eta grid needs at least {etas * (1 + k)} evaluations (1"
-                 + (f" + {k} Jacobian columns" if k else "") + f" per eta) -> at least {format_duration(least)}, "
-                 "then the eta bracket search adds etas; ")
+        text += (
+            f"the {etas}-point eta grid needs at least {etas * (1 + k)} evaluations (1"
+            + (f" + {k} Jacobian columns" if k else "")
+            + f" per eta) -> at least {format_duration(least)}, "
+            "then the eta bracket search adds etas; "
+        )
     if k:
-        text += (f"the least squares at one eta may take up to {MAX_NFEV} evaluations + their Jacobians "
-                 f"-> at most about {format_duration(most_per_eta)} per eta")
+        text += (
+            f"the least squares at one eta may take up to {MAX_NFEV} evaluations + their Jacobians "
+            f"-> at most about {format_duration(most_per_eta)} per eta"
+        )
     else:
         text += f"one evaluation per eta, about {format_duration(evaluation_s)} each"
     text += f" (speed calibration {calibration.seconds:.1f} s)"
     return text, least
 
 
-def _print_fit_plan(curve: Any, inputs: dict[str, Any], workers: int | None, scheduler: str | None, console: Any,
-                    plan: bool | None) -> None:
+def _print_fit_plan(
+    curve: Any, inputs: dict[str, Any], workers: int | None, scheduler: str | None, console: Any, plan: bool | None
+) -> None:
     """Print the fit's plan (:func:`_fit_plan`) before it starts; its inputs are checked here as
     the fit checks them (an error is left for the fit to report)."""
     import warnings
@@ -259,8 +277,12 @@ def _print_fit_plan(curve: Any, inputs: dict[str, Any], workers: int | None, sch
                 problem.append(_problem(curve, **inputs))
         return problem[0]
 
-    print_plan(lambda calibration: _fit_plan(checked(), n_workers, calibration)[0], console, plan,
-               lambda: _fit_plan(checked(), n_workers, REFERENCE_CALIBRATION)[1])
+    print_plan(
+        lambda calibration: _fit_plan(checked(), n_workers, calibration)[0],
+        console,
+        plan,
+        lambda: _fit_plan(checked(), n_workers, REFERENCE_CALIBRATION)[1],
+    )
 
 
 def register(app: typer.Typer) -> None:
@@ -274,9 +296,11 @@ def register(app: typer.Typer) -> None:
         ],
         params: Annotated[
             str,
-            typer.Option(help="Parameters to fit, comma-separated: eta (volume_fraction), E_t "
-                              "(taut_modulus_MPa), E_b, a_p (needs two rates), b_p, c_p; keys or "
-                              "short names also work."),
+            typer.Option(
+                help="Parameters to fit, comma-separated: eta (volume_fraction), E_t "
+                "(taut_modulus_MPa), E_b, a_p (needs two rates), b_p, c_p; keys or "
+                "short names also work."
+            ),
         ] = "eta,b_p,c_p",
         bounds: Annotated[
             Optional[list[str]],
@@ -299,24 +323,31 @@ def register(app: typer.Typer) -> None:
         ] = None,
         curves_at_rate: Annotated[
             Optional[list[str]],
-            typer.Option("--curves-at-rate",
-                         help="Curves at another strain rate: RATE=FILE[,FILE...] (1/s). Repeatable; "
-                              "two rates or more let a_p be fitted."),
+            typer.Option(
+                "--curves-at-rate",
+                help="Curves at another strain rate: RATE=FILE[,FILE...] (1/s). Repeatable; "
+                "two rates or more let a_p be fitted.",
+            ),
         ] = None,
         step_strain: Annotated[
             float,
-            typer.Option(help="Largest load step (strain) up to twice the curve's knee; beyond, up to "
-                              "0.01. Segments end at the measured strains."),
+            typer.Option(
+                help="Largest load step (strain) up to twice the curve's knee; beyond, up to "
+                "0.01. Segments end at the measured strains."
+            ),
         ] = 1e-3,
         average_grid: Annotated[
             str,
-            typer.Option(help="Where several CURVES are averaged: 'measured' (their common strains, else "
-                              "the union within the common range) or a number of evenly spaced strains."),
+            typer.Option(
+                help="Where several CURVES are averaged: 'measured' (their common strains, else "
+                "the union within the common range) or a number of evenly spaced strains."
+            ),
         ] = "measured",
         large_strain: Annotated[
             bool,
-            typer.Option("--large-strain",
-                         help="Accept strains above 1 (100 %); otherwise refused as probably percent."),
+            typer.Option(
+                "--large-strain", help="Accept strains above 1 (100 %); otherwise refused as probably percent."
+            ),
         ] = False,
         eta_points: Annotated[int, typer.Option(help="Points of the eta grid.")] = 5,
         eta_tolerance: Annotated[float, typer.Option(help="Tolerance of the eta bracket search.")] = 0.002,
@@ -325,9 +356,11 @@ def register(app: typer.Typer) -> None:
         ] = None,
         scheduler: Annotated[
             Optional[str],
-            typer.Option(help="Dask scheduler: 'local', tcp://host:port or tls://host:port (with --tls-ca-file, "
-                              "--tls-cert, --tls-key). It and its workers run the tasks they are sent "
-                              "(pickles): use only one you trust; tcp:// is unencrypted."),
+            typer.Option(
+                help="Dask scheduler: 'local', tcp://host:port or tls://host:port (with --tls-ca-file, "
+                "--tls-cert, --tls-key). It and its workers run the tasks they are sent "
+                "(pickles): use only one you trust; tcp:// is unencrypted."
+            ),
         ] = None,
         tls_ca_file: Annotated[
             Optional[Path], typer.Option("--tls-ca-file", help="CA certificate (PEM) of a tls:// scheduler.")
@@ -339,9 +372,7 @@ def register(app: typer.Typer) -> None:
         tls_key: Annotated[
             Optional[Path], typer.Option("--tls-key", help="Its key (PEM), unless --tls-cert holds it.")
         ] = None,
-        base: Annotated[
-            str, typer.Option(help="Preset or TOML config holding every value not fitted.")
-        ] = "plla",
+        base: Annotated[str, typer.Option(help="Preset or TOML config holding every value not fitted.")] = "plla",
         set_: Annotated[
             Optional[list[str]],
             typer.Option("--set", help="Override a key of the base config: section.key=VALUE. Repeatable."),
@@ -386,32 +417,67 @@ def register(app: typer.Typer) -> None:
             curve, strain_rate = _curves(curves, rate, _parse_rates(curves_at_rate))
             seed_list = None if seeds is None else _parse_seeds(seeds)
             grid = _parse_grid(average_grid)
-            options = [params, bounds, fix, realizations, seed_list, step_strain, grid, large_strain, eta_points,
-                       eta_tolerance, csv_options]
+            options = [
+                params,
+                bounds,
+                fix,
+                realizations,
+                seed_list,
+                step_strain,
+                grid,
+                large_strain,
+                eta_points,
+                eta_tolerance,
+                csv_options,
+            ]
             digest = _inputs_digest(config, curve, strain_rate, options)
-            plan_inputs = dict(base=config, parameters=[p for p in params.split(",") if p.strip()],
-                               bounds=_parse_bounds(bounds), fixed=_parse_fixed(fix), realizations=realizations,
-                               seeds=seed_list, strain_rate_per_s=strain_rate, step_strain=step_strain,
-                               average_grid=grid, large_strain=large_strain, eta_points=eta_points,
-                               eta_tolerance=eta_tolerance, read_options=csv_options)
+            plan_inputs = dict(
+                base=config,
+                parameters=[p for p in params.split(",") if p.strip()],
+                bounds=_parse_bounds(bounds),
+                fixed=_parse_fixed(fix),
+                realizations=realizations,
+                seeds=seed_list,
+                strain_rate_per_s=strain_rate,
+                step_strain=step_strain,
+                average_grid=grid,
+                large_strain=large_strain,
+                eta_points=eta_points,
+                eta_tolerance=eta_tolerance,
+                read_options=csv_options,
+            )
             _print_fit_plan(curve, plan_inputs, workers, scheduler, console, plan)
-            with OutputFolder.claim(out, "fit", digest, FIT_OUTPUTS, overwrite=overwrite, resume="same-inputs"), \
-                    curve_warnings(), console.status("fitting") as status, \
-                    off_terminal_lines(console, "fitting: the first evaluation") as say:
+            with (
+                OutputFolder.claim(out, "fit", digest, FIT_OUTPUTS, overwrite=overwrite, resume="same-inputs"),
+                curve_warnings(),
+                console.status("fitting") as status,
+                off_terminal_lines(console, "fitting: the first evaluation") as say,
+            ):
 
                 def on_evaluation(record: dict) -> None:
-                    line = (f"evaluation {record['evaluation']} ({record['stage']}): "
-                            f"SSE {record['sse_MPa2']:.4g} MPa^2")
+                    line = f"evaluation {record['evaluation']} ({record['stage']}): SSE {record['sse_MPa2']:.4g} MPa^2"
                     status.update(line)
                     say(line)  # off a terminal: one plain line each, repeated while the next runs
 
                 result = fit(
-                    curve, base=config, parameters=[p for p in params.split(",") if p.strip()],
-                    bounds=_parse_bounds(bounds), fixed=_parse_fixed(fix), realizations=realizations,
-                    seeds=seed_list, strain_rate_per_s=strain_rate, step_strain=step_strain,
-                    average_grid=grid, large_strain=large_strain, eta_points=eta_points,
-                    eta_tolerance=eta_tolerance, workers=workers, scheduler=scheduler, security=security,
-                    read_options=csv_options, on_evaluation=on_evaluation,
+                    curve,
+                    base=config,
+                    parameters=[p for p in params.split(",") if p.strip()],
+                    bounds=_parse_bounds(bounds),
+                    fixed=_parse_fixed(fix),
+                    realizations=realizations,
+                    seeds=seed_list,
+                    strain_rate_per_s=strain_rate,
+                    step_strain=step_strain,
+                    average_grid=grid,
+                    large_strain=large_strain,
+                    eta_points=eta_points,
+                    eta_tolerance=eta_tolerance,
+                    workers=workers,
+                    scheduler=scheduler,
+                    security=security,
+                    read_options=csv_options,
+                    on_evaluation=on_evaluation,
                 )
                 written = result.write_files(out)
         except EspinError as err:
@@ -424,7 +490,10 @@ def register(app: typer.Typer) -> None:
                 f"curve {curve.source} ({curve.strain_rate_per_s:g} 1/s): {curve.strain.size} points from "
                 f"{curve.points_from}; {steps['load_steps']} load steps, at most {steps['step_strain']:g} "
                 f"to strain {steps['fine_steps_to_strain']:.3g}, largest {steps['largest_step_strain']:.3g} "
-                "overall", highlight=False, soft_wrap=True)
+                "overall",
+                highlight=False,
+                soft_wrap=True,
+            )
         for warning in result.warnings:
             console.print(f"warning: {warning}", style="yellow", highlight=False, soft_wrap=True)
         console.print(
@@ -433,5 +502,4 @@ def register(app: typer.Typer) -> None:
             highlight=False,
         )
         console.print(f"wrote {out}/: " + ", ".join(p.name for p in written.values()), highlight=False)
-        console.print(f"next: espin simulate {out}/fitted.toml -o {out}/check", highlight=False,
-                      soft_wrap=True)
+        console.print(f"next: espin simulate {out}/fitted.toml -o {out}/check", highlight=False, soft_wrap=True)

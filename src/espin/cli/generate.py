@@ -14,20 +14,12 @@ __all__ = ["register"]
 
 def generate(
     source: SourceArg = None,
-    out: Annotated[
-        Optional[Path], typer.Option("--out", "-o", help="Output folder. Default: <name>_rve.")
-    ] = None,
+    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Output folder. Default: <name>_rve.")] = None,
     seed: Annotated[Optional[int], typer.Option(help="rve.seed: random seed (>= 0).")] = None,
     layers: Annotated[Optional[int], typer.Option(help="rve.layers: number of layers.")] = None,
-    size_ratio: Annotated[
-        Optional[float], typer.Option(help="rve.size_ratio: layer side / diameter.")
-    ] = None,
-    volume_fraction: Annotated[
-        Optional[float], typer.Option(help="rve.volume_fraction: per layer, in (0, 1).")
-    ] = None,
-    seeding: Annotated[
-        Optional[str], typer.Option(help="rve.seeding: border (paper) or lines.")
-    ] = None,
+    size_ratio: Annotated[Optional[float], typer.Option(help="rve.size_ratio: layer side / diameter.")] = None,
+    volume_fraction: Annotated[Optional[float], typer.Option(help="rve.volume_fraction: per layer, in (0, 1).")] = None,
+    seeding: Annotated[Optional[str], typer.Option(help="rve.seeding: border (paper) or lines.")] = None,
     sampling: Annotated[
         Optional[str], typer.Option(help="rve.sampling: random (paper) or balanced (less scatter across seeds).")
     ] = None,
@@ -65,9 +57,10 @@ def generate(
         name = Path(source).stem if source else "plla"
         folder = out if out is not None else Path(f"{name}_rve")
         check_size(config, allow_large=allow_large)  # before the folder is claimed
-        with OutputFolder.claim(folder, "generate", config_digest(config), RVE_OUTPUTS,
-                                overwrite=overwrite) as claimed, \
-                Progress(console=console, transient=True) as bar:
+        with (
+            OutputFolder.claim(folder, "generate", config_digest(config), RVE_OUTPUTS, overwrite=overwrite) as claimed,
+            Progress(console=console, transient=True) as bar,
+        ):
             task = bar.add_task("depositing layers", total=config.rve.layers)
 
             def progress(stage: str, done: int, total: int) -> None:
@@ -84,9 +77,11 @@ def generate(
     except EspinError as err:
         fail(err)
     console.print(result.statistics.format_table(), highlight=False, soft_wrap=True)
-    console.print(f"seeding: {config.rve.seeding}   sampling: {config.rve.sampling}   wrote {folder}/: " + ", ".join(
-        p.name for p in result.files.values()
-    ), highlight=False)
+    console.print(
+        f"seeding: {config.rve.seeding}   sampling: {config.rve.sampling}   wrote {folder}/: "
+        + ", ".join(p.name for p in result.files.values()),
+        highlight=False,
+    )
 
 
 def register(app: typer.Typer) -> None:

@@ -51,8 +51,10 @@ def _strain_range(text: str | None, percent: bool) -> tuple[float | None, float 
 
     if text is None:
         return None
-    rule = ("--strain-range: LO:HI strains with LO < HI, either end may be left empty (e.g. 0.02: "
-            "or, with --percent-strain, 2:)")
+    rule = (
+        "--strain-range: LO:HI strains with LO < HI, either end may be left empty (e.g. 0.02: "
+        "or, with --percent-strain, 2:)"
+    )
     parts = text.split(":")
     if len(parts) != 2:
         raise ConfigError(f"{rule}; got {text!r}")
@@ -97,12 +99,20 @@ def _summary_row(summary: dict[str, dict[str, float]], n_curves: int) -> list[st
 
     with_yield = summary["yield_stress_MPa"]["n"]
     note = "" if with_yield == n_curves else f"yield in {with_yield} of {n_curves}"
-    return [f"mean ± sd (N = {n_curves})", cell("modulus_MPa"), cell("yield_stress_MPa"),
-            cell("yield_strain", 100.0), cell("post_yield_modulus_MPa"), cell("r_squared"), note]
+    return [
+        f"mean ± sd (N = {n_curves})",
+        cell("modulus_MPa"),
+        cell("yield_stress_MPa"),
+        cell("yield_strain", 100.0),
+        cell("post_yield_modulus_MPa"),
+        cell("r_squared"),
+        note,
+    ]
 
 
-def _standard_options(chord_range: str | None, percent: bool, offset_percent: float,
-                      break_drop_percent: float) -> dict[str, Any]:
+def _standard_options(
+    chord_range: str | None, percent: bool, offset_percent: float, break_drop_percent: float
+) -> dict[str, Any]:
     """Keywords of :func:`~espin.analysis.standard_properties.standard_properties` from the
     command's options; a stated chord range must hold points of every curve."""
     import math
@@ -120,8 +130,12 @@ def _standard_options(chord_range: str | None, percent: bool, offset_percent: fl
         if lo is None or hi is None or lo < 0.0:
             raise ConfigError(f"--chord-range: LO:HI, both given, 0 <= LO < HI (got {chord_range!r})")
         chord = (lo, hi)
-    return {"chord_range": chord, "offset": offset_percent / 100.0, "break_drop": break_drop_percent / 100.0,
-            "require_chord": chord_range is not None}
+    return {
+        "chord_range": chord,
+        "offset": offset_percent / 100.0,
+        "break_drop": break_drop_percent / 100.0,
+        "require_chord": chord_range is not None,
+    }
 
 
 def _percent(strains: tuple[float, float]) -> str:
@@ -132,16 +146,30 @@ def _standard_row(name: str, p) -> list[str]:
     def cell(value: float, scale: float = 1.0) -> str:
         return "-" if value != value else f"{scale * value:.4g}"
 
-    return [name, cell(p.chord_modulus_MPa), cell(p.offset_yield_stress_MPa), cell(p.offset_yield_strain, 100.0),
-            cell(p.tensile_strength_MPa), cell(p.strain_at_strength, 100.0), cell(p.strain_at_break, 100.0),
-            p.note]
+    return [
+        name,
+        cell(p.chord_modulus_MPa),
+        cell(p.offset_yield_stress_MPa),
+        cell(p.offset_yield_strain, 100.0),
+        cell(p.tensile_strength_MPa),
+        cell(p.strain_at_strength, 100.0),
+        cell(p.strain_at_break, 100.0),
+        p.note,
+    ]
 
 
-_STANDARD_HEADER = ["curve", "chord modulus [MPa]", "offset yield [MPa]", "at strain [%]", "tensile strength [MPa]",
-                    "at strain [%]", "strain at break [%]", "note"]
+_STANDARD_HEADER = [
+    "curve",
+    "chord modulus [MPa]",
+    "offset yield [MPa]",
+    "at strain [%]",
+    "tensile strength [MPa]",
+    "at strain [%]",
+    "strain at break [%]",
+    "note",
+]
 
-_HEADER = ["curve", "E [MPa]", "yield stress [MPa]", "yield strain [%]", "post-yield modulus [MPa]",
-           "R^2", "note"]
+_HEADER = ["curve", "E [MPa]", "yield stress [MPa]", "yield strain [%]", "post-yield modulus [MPa]", "R^2", "note"]
 
 
 def _write_table(records: list[dict], path: Path) -> Path:
@@ -158,8 +186,9 @@ def _summary_records(summary: dict[str, dict[str, float]], n_curves: int) -> lis
     """Rows ``mean`` and ``sd`` over the specimens for properties.csv."""
     with_yield = summary["yield_stress_MPa"]["n"]
     note = f"yield quantities over the {with_yield} of {n_curves} specimens with a yield"
-    return [{"curve": stat} | {name: s[stat] for name, s in summary.items()} | {"note": note}
-            for stat in ("mean", "sd")]
+    return [
+        {"curve": stat} | {name: s[stat] for name, s in summary.items()} | {"note": note} for stat in ("mean", "sd")
+    ]
 
 
 @dataclass
@@ -177,9 +206,11 @@ class _Analysis:
     standard_rows: list[list[str]]
 
 
-def _analyse(curves: list[Curve],
-             strain_range: tuple[float | None, float | None] | None = None,
-             standard: dict[str, Any] | None = None) -> _Analysis:
+def _analyse(
+    curves: list[Curve],
+    strain_range: tuple[float | None, float | None] | None = None,
+    standard: dict[str, Any] | None = None,
+) -> _Analysis:
     """Fit each curve (on ``strain_range``, fractions) and find its standard tensile
     properties (``standard``: the keywords of
     :func:`espin.analysis.standard_properties.standard_properties`); with several, summarize
@@ -215,8 +246,10 @@ def _analyse(curves: list[Curve],
     rows = [_row(name, props) for name, props in zip(names, fitted)]
     measured = [measure(c.source, c.strain, c.stress_MPa) for c in curves]
     standard_rows = [_standard_row(name, p) for name, p in zip(names, measured)]
-    records = [{"curve": c.source} | p.as_dict() | {f"standard_{k}": v for k, v in m.as_dict().items()}
-               for c, p, m in zip(curves, fitted, measured)]
+    records = [
+        {"curve": c.source} | p.as_dict() | {f"standard_{k}": v for k, v in m.as_dict().items()}
+        for c, p, m in zip(curves, fitted, measured)
+    ]
     average = average_props = None
     if len(curves) > 1:
         summary = summarize_properties(fitted)
@@ -234,16 +267,20 @@ def _write_outputs(analysis: _Analysis, folder: Path) -> list[Path]:
     from espin.analysis.properties import plot_bilinear_fits
 
     written = [_write_table(analysis.records, folder / "properties.csv")]
-    plotted = [(name, c.strain, c.stress_MPa, p)
-               for name, c, p in zip(analysis.names, analysis.curves, analysis.fitted)]
+    plotted = [
+        (name, c.strain, c.stress_MPa, p) for name, c, p in zip(analysis.names, analysis.curves, analysis.fitted)
+    ]
     band = None
     average = analysis.average
     if average is not None:
         written.append(average.to_csv(folder / "average_curve.csv"))
         plotted.append(("average", average.strain, average.mean_MPa, cast("CurveProperties", analysis.average_props)))
         band = (average.strain, average.mean_MPa, average.sd_MPa)
-    written.append(plot_bilinear_fits(plotted, folder / "properties.png", band=band,
-                                      band_n=len(analysis.curves) if band is not None else None))
+    written.append(
+        plot_bilinear_fits(
+            plotted, folder / "properties.png", band=band, band_n=len(analysis.curves) if band is not None else None
+        )
+    )
     return written
 
 
@@ -256,8 +293,7 @@ def _claim(out: Path | None, paths: list[Path], options: list[Any], overwrite: b
 
     if out is None:
         return nullcontext()
-    return OutputFolder.claim(out, "properties", inputs_digest(paths, options), PROPERTIES_OUTPUTS,
-                              overwrite=overwrite)
+    return OutputFolder.claim(out, "properties", inputs_digest(paths, options), PROPERTIES_OUTPUTS, overwrite=overwrite)
 
 
 def _print_table(console: Any, header: Sequence[str], rows: Sequence[Sequence[str]], title: str) -> None:
@@ -284,8 +320,9 @@ def register(app: typer.Typer) -> None:
     def properties(
         curves: Annotated[
             list[Path],
-            typer.Argument(help="CSV / text files or .xlsx workbooks of stress-strain curves (specimens, "
-                                "or espin's curve.csv)."),
+            typer.Argument(
+                help="CSV / text files or .xlsx workbooks of stress-strain curves (specimens, or espin's curve.csv)."
+            ),
         ],
         strain_column: StrainColumnOpt = None,
         stress_column: StressColumnOpt = None,
@@ -295,31 +332,41 @@ def register(app: typer.Typer) -> None:
         skip_rows: SkipRowsOpt = 0,
         strain_range: Annotated[
             Optional[str],
-            typer.Option(metavar="LO:HI",
-                         help="Fit only the points with LO <= strain <= HI, in the strain "
-                              "column's units (percent with --percent-strain); either end may "
-                              "be empty, e.g. 0.02: to leave out a toe region. Default: all."),
+            typer.Option(
+                metavar="LO:HI",
+                help="Fit only the points with LO <= strain <= HI, in the strain "
+                "column's units (percent with --percent-strain); either end may "
+                "be empty, e.g. 0.02: to leave out a toe region. Default: all.",
+            ),
         ] = None,
         chord_range: Annotated[
             Optional[str],
-            typer.Option(metavar="LO:HI",
-                         help="Strain range of the chord modulus, in the strain column's units "
-                              "(percent with --percent-strain); at least two points of each "
-                              "curve must lie in it. Default: 0.05 % to 0.25 % (ISO 527-1), "
-                              "reported as missing where a curve has no points there."),
+            typer.Option(
+                metavar="LO:HI",
+                help="Strain range of the chord modulus, in the strain column's units "
+                "(percent with --percent-strain); at least two points of each "
+                "curve must lie in it. Default: 0.05 % to 0.25 % (ISO 527-1), "
+                "reported as missing where a curve has no points there.",
+            ),
         ] = None,
         offset_percent: Annotated[
             float, typer.Option(help="Offset strain of the offset yield (proof stress), percent.")
         ] = 0.2,
         break_drop_percent: Annotated[
-            float, typer.Option(help="Drop of the stress after its maximum, percent of the tensile "
-                                     "strength, that marks the break.")
+            float,
+            typer.Option(
+                help="Drop of the stress after its maximum, percent of the tensile strength, that marks the break."
+            ),
         ] = 50.0,
         out: Annotated[
             Optional[Path],
-            typer.Option("--out", "-o", help="Folder for properties.csv, the averaged curve "
-                                             "(average_curve.csv, 2+ curves), properties.png "
-                                             "and run.json."),
+            typer.Option(
+                "--out",
+                "-o",
+                help="Folder for properties.csv, the averaged curve "
+                "(average_curve.csv, 2+ curves), properties.png "
+                "and run.json.",
+            ),
         ] = None,
         overwrite: OverwriteOpt = False,
     ) -> None:
@@ -335,8 +382,7 @@ def register(app: typer.Typer) -> None:
         from espin.core.errors import EspinError
 
         try:
-            options = read_options(strain_column, stress_column, percent_strain, delimiter, skip_rows,
-                                   decimal)
+            options = read_options(strain_column, stress_column, percent_strain, delimiter, skip_rows, decimal)
             fit_range = _strain_range(strain_range, percent_strain)
             standard = _standard_options(chord_range, percent_strain, offset_percent, break_drop_percent)
             with curve_warnings():
@@ -347,11 +393,18 @@ def register(app: typer.Typer) -> None:
         except EspinError as err:
             fail(err)
         console = Console(width=140)
-        _print_table(console, _HEADER, analysis.rows,
-                     "bilinear fit: E = initial slope, yield = intersection of the lines")
-        _print_table(console, _STANDARD_HEADER, analysis.standard_rows, (
-            f"testing standards: chord modulus over {_percent(analysis.standard_options['chord_range'])} strain, "
-            f"offset yield at {analysis.standard_options['offset'] * 100:g} %, break at a "
-            f"{analysis.standard_options['break_drop'] * 100:g} % drop"))
+        _print_table(
+            console, _HEADER, analysis.rows, "bilinear fit: E = initial slope, yield = intersection of the lines"
+        )
+        _print_table(
+            console,
+            _STANDARD_HEADER,
+            analysis.standard_rows,
+            (
+                f"testing standards: chord modulus over {_percent(analysis.standard_options['chord_range'])} strain, "
+                f"offset yield at {analysis.standard_options['offset'] * 100:g} %, break at a "
+                f"{analysis.standard_options['break_drop'] * 100:g} % drop"
+            ),
+        )
         if out is not None:
             console.print(f"wrote {out}/: " + ", ".join(p.name for p in written), highlight=False)

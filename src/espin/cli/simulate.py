@@ -15,17 +15,21 @@ __all__ = ["register"]
 def simulate(
     source: Annotated[
         Optional[str],
-        typer.Argument(help="Preset (plla), TOML config, a saved RVE file (.h5), or a network file made "
-                            "elsewhere (plain HDF5 or the authors' mesh text, docs/mechanics.md). Default: plla."),
+        typer.Argument(
+            help="Preset (plla), TOML config, a saved RVE file (.h5), or a network file made "
+            "elsewhere (plain HDF5 or the authors' mesh text, docs/mechanics.md). Default: plla."
+        ),
     ] = None,
     config_file: Annotated[
         Optional[str],
-        typer.Option("--config", "-c", help="With a network file: the preset or TOML config whose fiber, "
-                                            "loading, solver and output apply. Default: plla."),
+        typer.Option(
+            "--config",
+            "-c",
+            help="With a network file: the preset or TOML config whose fiber, "
+            "loading, solver and output apply. Default: plla.",
+        ),
     ] = None,
-    out: Annotated[
-        Optional[Path], typer.Option("--out", "-o", help="Results folder. Default: <name>_test.")
-    ] = None,
+    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Results folder. Default: <name>_test.")] = None,
     test: Annotated[
         Optional[str],
         typer.Option(help="loading.test: uniaxial, equibiaxial, pure_shear, simple_shear, path."),
@@ -37,13 +41,9 @@ def simulate(
         Optional[float], typer.Option(help="loading.direction_deg: loading axis, degrees from +x.")
     ] = None,
     max_strain: Annotated[Optional[float], typer.Option(help="loading.max_strain.")] = None,
-    strain_rate_per_s: Annotated[
-        Optional[float], typer.Option(help="loading.strain_rate_per_s, 1/s.")
-    ] = None,
+    strain_rate_per_s: Annotated[Optional[float], typer.Option(help="loading.strain_rate_per_s, 1/s.")] = None,
     steps: Annotated[Optional[int], typer.Option(help="loading.steps.")] = None,
-    linear: Annotated[
-        Optional[str], typer.Option(help="solver.linear: auto, superlu or pardiso.")
-    ] = None,
+    linear: Annotated[Optional[str], typer.Option(help="solver.linear: auto, superlu or pardiso.")] = None,
     set_: SetOpt = None,
     overwrite: OverwriteOpt = False,
     allow_large: AllowLargeOpt = False,
@@ -82,8 +82,14 @@ def simulate(
         config, rve = resolve_source(source, overrides, config_file)
         target = config if rve is None else rve
         program = load_program(config.loading)
-        columns = (TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[info]}"),
-                   TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn())
+        columns = (
+            TextColumn("{task.description}"),
+            BarColumn(),
+            TextColumn("{task.fields[info]}"),
+            TimeElapsedColumn(),
+            TextColumn("ETA"),
+            TimeRemainingColumn(),
+        )
         # Off a terminal no live bar (rich would print its last frame, cut at 80 columns): the
         # plain line per step below.
         with Progress(*columns, console=console, disable=not console.is_terminal) as bar:
@@ -95,14 +101,21 @@ def simulate(
                 local = R.T @ stress @ R
                 value = local[0, 1] if program.test == "simple_shear" else local[0, 0]
                 info = f"strain {record.strain:.4f}  stress {value:.4g} MPa  iterations {record.iterations}"
-                bar.update(task, completed=record.index, description=f"step {record.index}/{program.n_steps}",
-                           info=info)
+                bar.update(
+                    task, completed=record.index, description=f"step {record.index}/{program.n_steps}", info=info
+                )
                 if not console.is_terminal:  # no live bar off a terminal: one plain line per step
                     console.print(f"step {record.index}/{program.n_steps}: {info}", highlight=False)
 
-            result = run_simulation(target, folder, config=config if isinstance(rve, Network) else None,
-                                    on_step=on_step, overwrite=overwrite,
-                                    allow_large=allow_large, curve_marks=curve_marks)
+            result = run_simulation(
+                target,
+                folder,
+                config=config if isinstance(rve, Network) else None,
+                on_step=on_step,
+                overwrite=overwrite,
+                allow_large=allow_large,
+                curve_marks=curve_marks,
+            )
     except EspinError as err:
         fail(err)
     stress = result.stress()
@@ -110,7 +123,8 @@ def simulate(
         f"{config.loading.test} test, {program.n_steps} steps: stress {stress[-1]:.4g} MPa at strain "
         f"{result.strain[-1]:.4g} ({config.output.stress_measure}); Newton iterations "
         f"{int(result.iterations.sum())}, factorizations {int(result.factorizations.sum())}",
-        highlight=False, soft_wrap=True,  # one line in a log too (rich wraps at 80 columns there)
+        highlight=False,
+        soft_wrap=True,  # one line in a log too (rich wraps at 80 columns there)
     )
     console.print(f"wrote {folder}/", highlight=False)
 

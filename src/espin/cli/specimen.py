@@ -28,43 +28,78 @@ def _shape_options(items: list[str] | None) -> dict[str, float]:
 
 
 def specimen_command(
-    source: Annotated[Optional[str], typer.Argument(
-        help="The mat: preset, TOML config or saved RVE (.h5). Default: plla (a generated RVE is L/D 60 with "
-             "3 layers unless --set rve.size_ratio / rve.layers say otherwise).")] = None,
-    shape: Annotated[str, typer.Option(
-        help="strip, dogbone (ISO 527-2 type 5A), holed_strip, notched_strip, or a mesh file meshio reads "
-             "(x = loading axis; grips = the faces at min and max x).")] = "holed_strip",
-    shape_option: Annotated[Optional[list[str]], typer.Option(
-        "--shape-option", help="A dimension of the built-in shape, NAME=VALUE in mm: length_mm, width_mm, "
-                               "hole_diameter_mm, notch_depth_mm, notch_radius_mm, scale (dogbone). "
-                               "Repeatable.")] = None,
-    model: Annotated[str, typer.Option(
-        help="fe2 (an RVE at every quadrature point), surrogate (a law interpolated from RVE runs: "
-             "seconds), neo_hookean (closed form, needs --modulus and --poisson).")] = "fe2",
+    source: Annotated[
+        Optional[str],
+        typer.Argument(
+            help="The mat: preset, TOML config or saved RVE (.h5). Default: plla (a generated RVE is L/D 60 with "
+            "3 layers unless --set rve.size_ratio / rve.layers say otherwise)."
+        ),
+    ] = None,
+    shape: Annotated[
+        str,
+        typer.Option(
+            help="strip, dogbone (ISO 527-2 type 5A), holed_strip, notched_strip, or a mesh file meshio reads "
+            "(x = loading axis; grips = the faces at min and max x)."
+        ),
+    ] = "holed_strip",
+    shape_option: Annotated[
+        Optional[list[str]],
+        typer.Option(
+            "--shape-option",
+            help="A dimension of the built-in shape, NAME=VALUE in mm: length_mm, width_mm, "
+            "hole_diameter_mm, notch_depth_mm, notch_radius_mm, scale (dogbone). "
+            "Repeatable.",
+        ),
+    ] = None,
+    model: Annotated[
+        str,
+        typer.Option(
+            help="fe2 (an RVE at every quadrature point), surrogate (a law interpolated from RVE runs: "
+            "seconds), neo_hookean (closed form, needs --modulus and --poisson)."
+        ),
+    ] = "fe2",
     thickness: Annotated[float, typer.Option(help="Specimen thickness [mm].")] = 0.1,
     max_strain: Annotated[float, typer.Option(help="Final grip strain (grip displacement / grip distance).")] = 0.2,
     steps: Annotated[int, typer.Option(help="Recorded steps.")] = 20,
     grips: Annotated[str, typer.Option(help="clamped (no lateral motion at the grips) or sliding.")] = "clamped",
-    lateral: Annotated[str, typer.Option(
-        help="fixed (the outer sides keep their width; holes stay free) or free (traction-free sides: "
-             "in this 2-D fiber model almost no lateral stiffness, small strains only).")] = "fixed",
+    lateral: Annotated[
+        str,
+        typer.Option(
+            help="fixed (the outer sides keep their width; holes stay free) or free (traction-free sides: "
+            "in this 2-D fiber model almost no lateral stiffness, small strains only)."
+        ),
+    ] = "fixed",
     elements_across: Annotated[int, typer.Option(help="Elements across the narrowest width.")] = 4,
     rve_seeds: Annotated[str, typer.Option(help="shared (one RVE geometry) or per_point.")] = "shared",
     rtol: Annotated[float, typer.Option(help="Macro tolerance (the RVEs solve to 1e-3 of it).")] = 1e-6,
-    surrogate_from: Annotated[Optional[Path], typer.Option(
-        help="surrogate: the surrogate_samples.csv of an earlier surrogate run of the same mat (no RVE runs: "
-             "seconds). Samples of another mat, law or strain rate, or built for a smaller --max-strain, are "
-             "refused.")] = None,
-    allow_surrogate_mismatch: Annotated[bool, typer.Option(
-        "--allow-surrogate-mismatch",
-        help="Use --surrogate-from samples of another mat or reach anyway (recorded in specimen.json).")] = False,
-    surrogate_reach: Annotated[float, typer.Option(
-        help="surrogate: the RVE paths reach this times --max-strain (stress concentrations strain more).")] = 3.0,
+    surrogate_from: Annotated[
+        Optional[Path],
+        typer.Option(
+            help="surrogate: the surrogate_samples.csv of an earlier surrogate run of the same mat (no RVE runs: "
+            "seconds). Samples of another mat, law or strain rate, or built for a smaller --max-strain, are "
+            "refused."
+        ),
+    ] = None,
+    allow_surrogate_mismatch: Annotated[
+        bool,
+        typer.Option(
+            "--allow-surrogate-mismatch",
+            help="Use --surrogate-from samples of another mat or reach anyway (recorded in specimen.json).",
+        ),
+    ] = False,
+    surrogate_reach: Annotated[
+        float,
+        typer.Option(
+            help="surrogate: the RVE paths reach this times --max-strain (stress concentrations strain more)."
+        ),
+    ] = 3.0,
     modulus: Annotated[Optional[float], typer.Option(help="neo_hookean: modulus [MPa].")] = None,
     poisson: Annotated[Optional[float], typer.Option(help="neo_hookean: Poisson's ratio.")] = None,
     workers: Annotated[int, typer.Option(help="Worker processes for the RVE solves (1 = serial).")] = 1,
-    scheduler: Annotated[Optional[str], typer.Option(
-        help="Dask scheduler: 'local' or tcp://host:port (the RVE solves then run on its workers).")] = None,
+    scheduler: Annotated[
+        Optional[str],
+        typer.Option(help="Dask scheduler: 'local' or tcp://host:port (the RVE solves then run on its workers)."),
+    ] = None,
     set_: SetOpt = None,
     out: Annotated[Path, typer.Option("--out", "-o", help="Results folder.")] = Path("specimen"),
     overwrite: OverwriteOpt = False,
@@ -96,21 +131,41 @@ def specimen_command(
                     say(text)
 
             def on_step(step) -> None:
-                line(f"step {step.index}/{steps}: grip strain {step.grip_strain:.4g}, force {step.force_N:.4g} N "
-                     f"({step.iterations} iterations, {step.substeps} time steps)")
+                line(
+                    f"step {step.index}/{steps}: grip strain {step.grip_strain:.4g}, force {step.force_N:.4g} N "
+                    f"({step.iterations} iterations, {step.substeps} time steps)"
+                )
 
-            result = specimen(source or "plla", shape, model=model, thickness_mm=thickness, max_strain=max_strain,
-                              steps=steps, grips=grips, lateral=lateral, elements_across=elements_across,
-                              shape_options=_shape_options(shape_option), rve_seeds=rve_seeds, rtol=rtol,
-                              modulus_MPa=modulus, poisson_ratio=poisson, surrogate_from=surrogate_from,
-                              allow_surrogate_mismatch=allow_surrogate_mismatch, surrogate_reach=surrogate_reach,
-                              out=out, overwrite=overwrite, workers=workers, scheduler=scheduler, on_step=on_step,
-                              report=line, **parse_set(set_))
+            result = specimen(
+                source or "plla",
+                shape,
+                model=model,
+                thickness_mm=thickness,
+                max_strain=max_strain,
+                steps=steps,
+                grips=grips,
+                lateral=lateral,
+                elements_across=elements_across,
+                shape_options=_shape_options(shape_option),
+                rve_seeds=rve_seeds,
+                rtol=rtol,
+                modulus_MPa=modulus,
+                poisson_ratio=poisson,
+                surrogate_from=surrogate_from,
+                allow_surrogate_mismatch=allow_surrogate_mismatch,
+                surrogate_reach=surrogate_reach,
+                out=out,
+                overwrite=overwrite,
+                workers=workers,
+                scheduler=scheduler,
+                on_step=on_step,
+                report=line,
+                **parse_set(set_),
+            )
     except EspinError as err:
         fail(err)
     console.print(result.format_summary(), highlight=False, soft_wrap=True)
-    console.print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir())), highlight=False,
-                  soft_wrap=True)
+    console.print(f"wrote {out}/: " + ", ".join(sorted(p.name for p in out.iterdir())), highlight=False, soft_wrap=True)
 
 
 def register(app: typer.Typer) -> None:

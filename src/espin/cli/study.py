@@ -23,15 +23,15 @@ RealizationsOpt = Annotated[int, typer.Option(help="RVE realizations (seeds) per
 SeedStartOpt = Annotated[
     Optional[int], typer.Option(help="First seed of the realizations. Default: the config's rve.seed.")
 ]
-WorkersOpt = Annotated[
-    Optional[int], typer.Option(help="Local worker processes. Default: all cores; 1 = serial.")
-]
+WorkersOpt = Annotated[Optional[int], typer.Option(help="Local worker processes. Default: all cores; 1 = serial.")]
 SchedulerOpt = Annotated[
     Optional[str],
-    typer.Option(help="Dask scheduler: 'local' (a Dask LocalCluster), tcp://host:port or tls://host:port "
-                      "(with --tls-ca-file, --tls-cert, --tls-key). The scheduler and its workers run the "
-                      "tasks they are sent (pickles): use only one you trust; tcp:// is unencrypted. "
-                      "Default: local processes without Dask."),
+    typer.Option(
+        help="Dask scheduler: 'local' (a Dask LocalCluster), tcp://host:port or tls://host:port "
+        "(with --tls-ca-file, --tls-cert, --tls-key). The scheduler and its workers run the "
+        "tasks they are sent (pickles): use only one you trust; tcp:// is unencrypted. "
+        "Default: local processes without Dask."
+    ),
 ]
 TlsCaOpt = Annotated[Optional[Path], typer.Option("--tls-ca-file", help="CA certificate (PEM) of a tls:// scheduler.")]
 TlsCertOpt = Annotated[Optional[Path], typer.Option("--tls-cert", help="This client's certificate (PEM) for tls://.")]
@@ -85,9 +85,18 @@ def parse_grid(items: list[str] | None) -> dict[str, list[Any]]:
     return grid
 
 
-def _print_study_plan(base: str | None, set_: list[str] | None, points: list[dict[str, Any]], realizations: int,
-                      seed_start: int | None, out: Path, workers: int | None, scheduler: str | None,
-                      plan: bool | None, quiet: bool) -> None:
+def _print_study_plan(
+    base: str | None,
+    set_: list[str] | None,
+    points: list[dict[str, Any]],
+    realizations: int,
+    seed_start: int | None,
+    out: Path,
+    workers: int | None,
+    scheduler: str | None,
+    plan: bool | None,
+    quiet: bool,
+) -> None:
     """Print the plan of a study's tensile tests (``points`` x ``realizations``, less those
     already finished in ``out``) before it runs."""
     from rich.console import Console
@@ -118,13 +127,18 @@ def _print_study_plan(base: str | None, set_: list[str] | None, points: list[dic
     def text(calibration: Any) -> str:
         line = make_plan(tests(), n_workers, calibration).text() if tests() else "plan: nothing to run"
         if finished:
-            line += (f"; {len(finished)} tensile test{'s' * (len(finished) != 1)} already finished in {out}/"
-                     " not run again")
+            line += (
+                f"; {len(finished)} tensile test{'s' * (len(finished) != 1)} already finished in {out}/ not run again"
+            )
         return line
 
     n_workers = None if scheduler is not None else (workers or default_workers())
-    print_plan(text, Console(stderr=True, quiet=quiet), plan,
-               lambda: make_plan(tests(), n_workers, REFERENCE_CALIBRATION).seconds)
+    print_plan(
+        text,
+        Console(stderr=True, quiet=quiet),
+        plan,
+        lambda: make_plan(tests(), n_workers, REFERENCE_CALIBRATION).seconds,
+    )
 
 
 def _run_with_progress(run, n_tasks: int, quiet: bool):
@@ -141,16 +155,27 @@ def _run_with_progress(run, n_tasks: int, quiet: bool):
 
     console = Console(stderr=True, quiet=quiet)
     failed = 0
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  TextColumn("ETA"), TimeRemainingColumn(), console=console, transient=True) as bar, \
-            off_terminal_lines(console, f"tensile tests: 0/{n_tasks} done") as say:
+    with (
+        Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TextColumn("ETA"),
+            TimeRemainingColumn(),
+            console=console,
+            transient=True,
+        ) as bar,
+        off_terminal_lines(console, f"tensile tests: 0/{n_tasks} done") as say,
+    ):
         task_id = bar.add_task("tensile tests", total=n_tasks)
 
         def on_outcome(outcome, task) -> None:
             nonlocal failed
             failed += not outcome.ok
-            bar.update(task_id, advance=1,
-                       description=f"tensile tests ({failed} failed)" if failed else "tensile tests")
+            bar.update(
+                task_id, advance=1, description=f"tensile tests ({failed} failed)" if failed else "tensile tests"
+            )
             # off a terminal (no live bar): one plain line per task, repeated while the next runs
             say(f"tensile tests: {int(bar.tasks[0].completed)}/{n_tasks} done ({failed} failed)")
 
@@ -177,14 +202,25 @@ def _report(result, folder: Path, columns: list[str], quiet: bool) -> None:
     console = Console(stderr=True, quiet=quiet)
     ensemble = result.ensemble
     if ensemble.skipped:
-        console.print(f"{ensemble.skipped} task(s) were already finished in {folder}/ and were not run again",
-                      highlight=False)
+        console.print(
+            f"{ensemble.skipped} task(s) were already finished in {folder}/ and were not run again", highlight=False
+        )
     if ensemble.unplanned:
-        console.print(f"{ensemble.unplanned} finished task(s) in {folder}/tasks/ belong to other settings "
-                      "(kept, not used)", highlight=False)
+        console.print(
+            f"{ensemble.unplanned} finished task(s) in {folder}/tasks/ belong to other settings (kept, not used)",
+            highlight=False,
+        )
     if ensemble.records:
-        table = result.summary[[c for c in result.summary.columns if c in columns or c.startswith("rve.")
-                                or c.startswith(("fiber.", "loading.", "solver.")) or c in ("n", "n_yield")]]
+        table = result.summary[
+            [
+                c
+                for c in result.summary.columns
+                if c in columns
+                or c.startswith("rve.")
+                or c.startswith(("fiber.", "loading.", "solver."))
+                or c in ("n", "n_yield")
+            ]
+        ]
         if not quiet:
             typer.echo(table.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
         console.print(f"wrote {folder}/: " + ", ".join(p.name for p in result.files.values()), highlight=False)
@@ -194,11 +230,14 @@ def _report(result, folder: Path, columns: list[str], quiet: bool) -> None:
         failures = Console(stderr=True)  # printed under --quiet too: the exit code alone says too little
         for failure in ensemble.failures:
             first_line = (failure["error"] or "").splitlines()[0][:200]
-            failures.print(f"[red]failed[/red] {failure['parameters']} seed {failure['seed']}: {first_line}",
-                           highlight=False)
-        failures.print(f"{len(ensemble.failures)} task(s) failed (tracebacks in {folder}/failed/; run.json says "
-                       "partial or failed); rerun the same command to retry them: finished tasks are skipped",
-                       highlight=False)
+            failures.print(
+                f"[red]failed[/red] {failure['parameters']} seed {failure['seed']}: {first_line}", highlight=False
+            )
+        failures.print(
+            f"{len(ensemble.failures)} task(s) failed (tracebacks in {folder}/failed/; run.json says "
+            "partial or failed); rerun the same command to retry them: finished tasks are skipped",
+            highlight=False,
+        )
         raise typer.Exit(code=EXIT_SOLVER)
 
 
@@ -211,7 +250,8 @@ _RSDS = [f"{p}_rsd" for p in ("modulus_MPa", "yield_stress_MPa", "post_yield_mod
 def rve_size(
     base: BaseArg = None,
     size_ratios: Annotated[
-        str, typer.Option(help="L/D values at --layers-for-sizes layers, comma-separated.")] = "50,100,150,200",
+        str, typer.Option(help="L/D values at --layers-for-sizes layers, comma-separated.")
+    ] = "50,100,150,200",
     layer_counts: Annotated[str, typer.Option(help="N_l values at --size-for-layers, comma-separated.")] = "5,10,15,20",
     layers_for_sizes: Annotated[int, typer.Option(help="N_l of the L/D series.")] = 5,
     size_for_layers: Annotated[float, typer.Option(help="L/D of the N_l series.")] = 200,
@@ -244,14 +284,38 @@ def rve_size(
         layers = _numbers("--layer-counts", layer_counts, int)
         points = list(dict.fromkeys([*((s, layers_for_sizes) for s in sizes), *((size_for_layers, n) for n in layers)]))
         n_points = len(points)
-        _print_study_plan(base, set_, [{"rve.size_ratio": float(s), "rve.layers": int(n)} for s, n in points],
-                          realizations, seed_start, out, workers, scheduler, plan, quiet)
-        return (lambda on_outcome: rve_size_study(
-            base, size_ratios=sizes, layer_counts=layers, layers_for_sizes=layers_for_sizes,
-            size_for_layers=size_for_layers, realizations=realizations, seed_start=seed_start,
-            folder=out, workers=workers, scheduler=scheduler, blas_threads=blas_threads, security=security,
-            on_outcome=on_outcome, overwrite=overwrite, allow_large=allow_large,
-            **parse_set(set_))), n_points * realizations
+        _print_study_plan(
+            base,
+            set_,
+            [{"rve.size_ratio": float(s), "rve.layers": int(n)} for s, n in points],
+            realizations,
+            seed_start,
+            out,
+            workers,
+            scheduler,
+            plan,
+            quiet,
+        )
+        return (
+            lambda on_outcome: rve_size_study(
+                base,
+                size_ratios=sizes,
+                layer_counts=layers,
+                layers_for_sizes=layers_for_sizes,
+                size_for_layers=size_for_layers,
+                realizations=realizations,
+                seed_start=seed_start,
+                folder=out,
+                workers=workers,
+                scheduler=scheduler,
+                blas_threads=blas_threads,
+                security=security,
+                on_outcome=on_outcome,
+                overwrite=overwrite,
+                allow_large=allow_large,
+                **parse_set(set_),
+            )
+        ), n_points * realizations
 
     _run_study(prepare, out, _MEANS + _RSDS, quiet)
 
@@ -261,9 +325,12 @@ def sweep(
     base: BaseArg = None,
     grid: Annotated[
         Optional[list[str]],
-        typer.Option("--grid", help="A swept key: section.key=v1,v2,... or section.key=start:stop:count; "
-                                    "e.g. --grid rve.orientation.von_mises.kappa=0,2,8. Repeatable (full grid). "
-                                    "None: an ensemble of the base config."),
+        typer.Option(
+            "--grid",
+            help="A swept key: section.key=v1,v2,... or section.key=start:stop:count; "
+            "e.g. --grid rve.orientation.von_mises.kappa=0,2,8. Repeatable (full grid). "
+            "None: an ensemble of the base config.",
+        ),
     ] = None,
     realizations: RealizationsOpt = 1,
     seed_start: SeedStartOpt = None,
@@ -298,11 +365,24 @@ def sweep(
         n_points = math.prod(len(values) for values in parsed.values())
         points = [dict(zip(parsed, combo)) for combo in itertools.product(*parsed.values())]
         _print_study_plan(base, set_, points, realizations, seed_start, out, workers, scheduler, plan, quiet)
-        return (lambda on_outcome: run_sweep(
-            base, parsed, realizations=realizations, seed_start=seed_start, folder=out,
-            table_format=table_format, workers=workers, scheduler=scheduler, blas_threads=blas_threads,
-            security=security, on_outcome=on_outcome, overwrite=overwrite, allow_large=allow_large,
-            **parse_set(set_))), n_points * realizations
+        return (
+            lambda on_outcome: run_sweep(
+                base,
+                parsed,
+                realizations=realizations,
+                seed_start=seed_start,
+                folder=out,
+                table_format=table_format,
+                workers=workers,
+                scheduler=scheduler,
+                blas_threads=blas_threads,
+                security=security,
+                on_outcome=on_outcome,
+                overwrite=overwrite,
+                allow_large=allow_large,
+                **parse_set(set_),
+            )
+        ), n_points * realizations
 
     _run_study(prepare, out, _MEANS + _SDS, quiet)
 
@@ -341,13 +421,16 @@ def dof(
         layer_list = _numbers("--layers", layers, int)
         config = resolve_config(base, **parse_set(set_))
         seeds = realization_seeds(config, realizations, seed_start)
-        with OutputFolder.claim(out, "dof", config_digest(config), ("dof.csv", "dof.png", "dof_fit.csv"),
-                                overwrite=overwrite):
+        with OutputFolder.claim(
+            out, "dof", config_digest(config), ("dof.csv", "dof.png", "dof_fit.csv"), overwrite=overwrite
+        ):
             table = dof_study(sizes, layer_list, base=config, seeds=seeds, elements_per_segment=elements_per_segment)
             fits = dof_fit_table(table)
-            files = [atomic_write(out / "dof.csv", lambda tmp: table.to_csv(tmp, index=False)),
-                     plot_dof_study(table, out / "dof.png"),
-                     atomic_write(out / "dof_fit.csv", lambda tmp: fits.to_csv(tmp, index=False))]
+            files = [
+                atomic_write(out / "dof.csv", lambda tmp: table.to_csv(tmp, index=False)),
+                plot_dof_study(table, out / "dof.png"),
+                atomic_write(out / "dof_fit.csv", lambda tmp: fits.to_csv(tmp, index=False)),
+            ]
     except EspinError as err:
         fail(err)
     if not quiet:
@@ -364,7 +447,8 @@ def _numbers(option: str, text: str, kind: type) -> list:
         values = [kind(v) for v in text.split(",") if v.strip()]
     except ValueError:
         raise ConfigError(
-            f"{option}: comma-separated {'integers' if kind is int else 'numbers'} (got {text!r})") from None
+            f"{option}: comma-separated {'integers' if kind is int else 'numbers'} (got {text!r})"
+        ) from None
     if not values:
         raise ConfigError(f"{option}: give at least one value")
     return values

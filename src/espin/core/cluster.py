@@ -198,8 +198,10 @@ def tls_security(
     if tls_ca_file is None and tls_cert is None and tls_key is None:
         return None
     if tls_ca_file is None or tls_cert is None:
-        raise ConfigError("tls_ca_file, tls_cert (--tls-ca-file, --tls-cert): TLS needs both the CA file and "
-                          "the client certificate (and --tls-key unless the certificate file holds the key)")
+        raise ConfigError(
+            "tls_ca_file, tls_cert (--tls-ca-file, --tls-cert): TLS needs both the CA file and "
+            "the client certificate (and --tls-key unless the certificate file holds the key)"
+        )
     from distributed.security import Security
 
     return Security(

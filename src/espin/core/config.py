@@ -83,8 +83,7 @@ class _Section(BaseModel):
     finite (no ``inf`` or ``nan``).
     """
 
-    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True, strict=True,
-                              allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True, strict=True, allow_inf_nan=False)
 
 
 # --------------------------------------------------------------------------------------------
@@ -249,17 +248,18 @@ class RVEConfig(_Section):
             updates["diameter_min_um"] = round(0.1 * self.diameter_um, 12)
         if self.seeding is None:
             updates["seeding"] = "border" if self.orientation == "uniform" else "lines"
-        other_walk = {"paper": ("waviness_deg", "waviness_length_ratio"),
-                      "smooth": ("max_deviation_deg",)}[self.walk]
+        other_walk = {"paper": ("waviness_deg", "waviness_length_ratio"), "smooth": ("max_deviation_deg",)}[self.walk]
         wrong = [key for key in other_walk if getattr(self, key) is not None]
         if wrong:
             raise ValueError(
                 f"rve.{wrong[0]} does not apply to rve.walk = {self.walk!r}: "
-                + ("max_deviation_deg is the paper walk's key" if self.walk == "smooth"
-                   else "waviness_deg and waviness_length_ratio are the smooth walk's keys")
+                + (
+                    "max_deviation_deg is the paper walk's key"
+                    if self.walk == "smooth"
+                    else "waviness_deg and waviness_length_ratio are the smooth walk's keys"
+                )
             )
-        updates |= {key: value for key, value in WALK_DEFAULTS[self.walk].items()
-                    if getattr(self, key) is None}
+        updates |= {key: value for key, value in WALK_DEFAULTS[self.walk].items() if getattr(self, key) is None}
         for key, value in updates.items():
             object.__setattr__(self, key, value)
         if self.diameter_sd_um > self.diameter_um:
@@ -268,9 +268,7 @@ class RVEConfig(_Section):
                 "(a coefficient of variation up to 1)"
             )
         if cast(float, self.diameter_min_um) >= self.diameter_um:  # set above when not given
-            raise ValueError(
-                f"rve.diameter_min_um must be > 0 and < rve.diameter_um = {self.diameter_um}"
-            )
+            raise ValueError(f"rve.diameter_min_um must be > 0 and < rve.diameter_um = {self.diameter_um}")
         if self.side_um <= self.segment_length_um:
             raise ValueError(
                 "the layer side must exceed the segment length: rve.size_ratio (or size_um) "
@@ -332,10 +330,7 @@ class FiberConfig(_Section):
     @model_validator(mode="after")
     def _check(self) -> FiberConfig:
         if self.taut_modulus_MPa <= self.slack_modulus_MPa:
-            raise ValueError(
-                "fiber.taut_modulus_MPa must be > fiber.slack_modulus_MPa "
-                f"(= {self.slack_modulus_MPa:g})"
-            )
+            raise ValueError(f"fiber.taut_modulus_MPa must be > fiber.slack_modulus_MPa (= {self.slack_modulus_MPa:g})")
         if self.fused_crossing_fraction > 0 and self.bending_modulus_MPa == 0:
             raise ValueError(
                 "fiber.fused_crossing_fraction > 0 needs fiber.bending_modulus_MPa > 0 (the fibers' "
@@ -438,8 +433,7 @@ class LoadingConfig(_Section):
         shorthand = sorted(self.model_fields_set & {"max_strain", "strain_rate_per_s", "steps"})
         if self.program is not None and shorthand:
             raise ValueError(
-                f"loading.program replaces the shorthand loading.{', loading.'.join(shorthand)}: "
-                "give one or the other"
+                f"loading.program replaces the shorthand loading.{', loading.'.join(shorthand)}: give one or the other"
             )
         if self.test != "uniaxial" and self.lateral != "fixed":
             raise ValueError(
@@ -457,11 +451,7 @@ class LoadingConfig(_Section):
         """The loading program, with the shorthand expanded into one segment."""
         if self.program is not None:
             return list(self.program)
-        return [
-            LoadSegment(
-                to_strain=self.max_strain, rate_per_s=self.strain_rate_per_s, steps=self.steps
-            )
-        ]
+        return [LoadSegment(to_strain=self.max_strain, rate_per_s=self.strain_rate_per_s, steps=self.steps)]
 
 
 # --------------------------------------------------------------------------------------------
@@ -475,8 +465,9 @@ def _sample_check(low: float, low_open: bool, high: float | None = None) -> Befo
     """Validator of a measured sample: a list of 1 to MAX_SAMPLE_VALUES finite numbers in
     the range from ``low`` (excluded if ``low_open``) to ``high`` (excluded), with one error
     for the whole list that gives the range and the first value out of it."""
-    bound = f"{'>' if low_open else '>='} {low:g}" if high is None else \
-        f"in {'(' if low_open else '['}{low:g}, {high:g})"
+    bound = (
+        f"{'>' if low_open else '>='} {low:g}" if high is None else f"in {'(' if low_open else '['}{low:g}, {high:g})"
+    )
 
     def check(value: Any) -> Any:
         if not isinstance(value, list):
@@ -486,11 +477,16 @@ def _sample_check(low: float, low_open: bool, high: float | None = None) -> Befo
         for index, x in enumerate(value):
             if isinstance(x, bool) or not isinstance(x, (int, float)):
                 raise ValueError(f"values must be numbers {bound}; value {index} is {x!r}")
-        bad = [i for i, x in enumerate(value) if not (math.isfinite(x) and (
-            (x > low if low_open else x >= low) and (high is None or x < high)))]
+        bad = [
+            i
+            for i, x in enumerate(value)
+            if not (math.isfinite(x) and ((x > low if low_open else x >= low) and (high is None or x < high)))
+        ]
         if bad:
-            raise ValueError(f"values must be finite and {bound}; value {bad[0]} is "
-                             f"{value[bad[0]]!r} ({len(bad):,} of {len(value):,} out of range)")
+            raise ValueError(
+                f"values must be finite and {bound}; value {bad[0]} is "
+                f"{value[bad[0]]!r} ({len(bad):,} of {len(value):,} out of range)"
+            )
         return [float(x) for x in value]
 
     return BeforeValidator(check)
@@ -541,26 +537,34 @@ class TargetsConfig(_Section):
 
     @model_validator(mode="after")
     def _check(self) -> TargetsConfig:
-        law = [key for key in ("diameter_mean_um", "diameter_sd_um", "diameter_distribution")
-               if getattr(self, key) is not None]
+        law = [
+            key
+            for key in ("diameter_mean_um", "diameter_sd_um", "diameter_distribution")
+            if getattr(self, key) is not None
+        ]
         if self.diameter_um is not None and law:
-            raise ValueError(f"give targets.diameter_um (a sample) or targets.{law[0]} (a "
-                             "distribution), not both")
+            raise ValueError(f"give targets.diameter_um (a sample) or targets.{law[0]} (a distribution), not both")
         if law and (self.diameter_mean_um is None or self.diameter_sd_um is None):
-            raise ValueError("a diameter distribution needs both targets.diameter_mean_um and "
-                             "targets.diameter_sd_um")
+            raise ValueError("a diameter distribution needs both targets.diameter_mean_um and targets.diameter_sd_um")
         if self.tortuosity is not None and self.tortuosity_halfnorm_scale is not None:
-            raise ValueError("give targets.tortuosity (a sample) or "
-                             "targets.tortuosity_halfnorm_scale (a distribution), not both")
+            raise ValueError(
+                "give targets.tortuosity (a sample) or targets.tortuosity_halfnorm_scale (a distribution), not both"
+            )
         if self.contour_length_um is not None and self.tortuosity is None:
-            raise ValueError("targets.contour_length_um needs targets.tortuosity (the contour "
-                             "lengths are those of the measured pieces)")
-        if (self.contour_length_um is not None and self.tortuosity is not None
-                and len(self.contour_length_um) != len(self.tortuosity)):
+            raise ValueError(
+                "targets.contour_length_um needs targets.tortuosity (the contour "
+                "lengths are those of the measured pieces)"
+            )
+        if (
+            self.contour_length_um is not None
+            and self.tortuosity is not None
+            and len(self.contour_length_um) != len(self.tortuosity)
+        ):
             raise ValueError(
                 "targets.contour_length_um must hold one contour length per targets.tortuosity "
                 f"value (the lengths of those pieces): got {len(self.contour_length_um):,} "
-                f"lengths and {len(self.tortuosity):,} tortuosities")
+                f"lengths and {len(self.tortuosity):,} tortuosities"
+            )
         if self.diameter_mean_um is not None and self.diameter_distribution is None:
             object.__setattr__(self, "diameter_distribution", "normal")
         return self
@@ -629,11 +633,13 @@ class Config(_Section):
             raise ValueError(
                 "loading.lateral = {stress_MPa = ...} holds the lateral component of "
                 'output.stress_measure, which must be "nominal" or "kirchhoff" (the paper\'s '
-                "Eq. 17 is no stress conjugate to F, so no lateral stretch is defined by it)")
+                "Eq. 17 is no stress conjugate to F, so no lateral stretch is defined by it)"
+            )
         if self.solver.kinematics == "affine" and self.fiber.bending_modulus_MPa > 0.0:
             raise ValueError(
                 'fiber.bending_modulus_MPa must be 0 with solver.kinematics = "affine" (bending '
-                "resists the non-affine motion of the nodes, which affine kinematics leaves out)")
+                "resists the non-affine motion of the nodes, which affine kinematics leaves out)"
+            )
         return self
 
     @property
@@ -648,7 +654,13 @@ class Config(_Section):
 _PYDANTIC_TAG = re.compile(r"^(constrained-\w+|\w+\[.*\])$")
 """Names pydantic gives the members of a union (``constrained-float``, ``literal['off']``)."""
 _UNION_TAGS = {
-    "plain", "VonMises", "Histogram", "PoissonLateral", "TransverseCSVLateral", "LoadSegment", "HoldSegment",
+    "plain",
+    "VonMises",
+    "Histogram",
+    "PoissonLateral",
+    "TransverseCSVLateral",
+    "LoadSegment",
+    "HoldSegment",
 }
 
 
@@ -721,16 +733,16 @@ def _read_toml(path: Path) -> dict[str, Any]:
         raise ConfigError(f"config file {path} is not a regular file (a TOML file is expected)")
     size = path.stat().st_size
     if size > MAX_CONFIG_BYTES:
-        raise ConfigError(f"config file {path} has {size:,} bytes; a TOML config is expected, at "
-                          f"most {MAX_CONFIG_BYTES:,} bytes")
+        raise ConfigError(
+            f"config file {path} has {size:,} bytes; a TOML config is expected, at most {MAX_CONFIG_BYTES:,} bytes"
+        )
     try:
         with open(path, "rb") as fh:
             return tomllib.load(fh)
     except OSError as err:
         raise ConfigError(f"cannot read config file {path}: {err.strerror or err}") from None
     except UnicodeDecodeError as err:
-        raise ConfigError(f"config file {path} is not UTF-8 text (byte {err.start}): a TOML "
-                          "file is expected") from None
+        raise ConfigError(f"config file {path} is not UTF-8 text (byte {err.start}): a TOML file is expected") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"config file {path} is not valid TOML: {err}") from None
     except RecursionError:
@@ -774,8 +786,12 @@ def _drop_derived(data: dict[str, Any], overrides: dict[str, Any]) -> None:
     if not isinstance(rve, dict):
         return
     given = set(overrides)
-    if "rve.diameter_um" in given and "rve.diameter_min_um" not in given and "diameter_um" in rve \
-            and rve.get("diameter_min_um") == round(0.1 * rve["diameter_um"], 12):
+    if (
+        "rve.diameter_um" in given
+        and "rve.diameter_min_um" not in given
+        and "diameter_um" in rve
+        and rve.get("diameter_min_um") == round(0.1 * rve["diameter_um"], 12)
+    ):
         rve.pop("diameter_min_um")
     walk = overrides.get("rve.walk")
     if walk in WALK_DEFAULTS:  # another walk: the keys of the old one go
@@ -832,8 +848,11 @@ def _beside(data: dict[str, Any], folder: Path) -> dict[str, Any]:
     if isinstance(loading.get("path_csv"), str) and not Path(loading["path_csv"]).is_absolute():
         loading["path_csv"] = str(folder / loading["path_csv"])
     lateral = loading.get("lateral")
-    if isinstance(lateral, dict) and isinstance(lateral.get("transverse_csv"), str) \
-            and not Path(lateral["transverse_csv"]).is_absolute():
+    if (
+        isinstance(lateral, dict)
+        and isinstance(lateral.get("transverse_csv"), str)
+        and not Path(lateral["transverse_csv"]).is_absolute()
+    ):
         loading["lateral"] = {**lateral, "transverse_csv": str(folder / lateral["transverse_csv"])}
     return {**data, "loading": loading}
 
@@ -863,9 +882,7 @@ def load_config(source: str | Path | None = None, overrides: dict[str, Any] | No
     else:
         path = Path(source)
         if not path.suffix and not _exists(path):
-            raise ConfigError(
-                f"{str(source)[:80]!r} is neither a preset ({', '.join(PRESETS)}) nor an existing file"
-            )
+            raise ConfigError(f"{str(source)[:80]!r} is neither a preset ({', '.join(PRESETS)}) nor an existing file")
         data = _beside(_read_toml(path), path.parent)
         label = f"({path})"
     if overrides:
@@ -906,7 +923,6 @@ def write_config(config: Config, path: str | Path) -> Path:
     from espin.core.atomic import atomic_write_bytes
 
     return atomic_write_bytes(Path(path), config_to_toml(config).encode("utf-8"))
-
 
 
 def referenced_files(node: Any, name: str = "") -> Iterator[tuple[str, Path]]:

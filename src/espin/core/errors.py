@@ -24,9 +24,20 @@ from collections.abc import Sequence
 from enum import StrEnum
 from typing import Any, ClassVar
 
-__all__ = ["EspinError", "ConfigError", "InputError", "RVEFileError", "SolverError", "SEMError",
-           "StepFailureKind", "StepNotConverged", "InadmissibleState",
-           "EXIT_USAGE", "EXIT_INPUT", "EXIT_SOLVER"]
+__all__ = [
+    "EspinError",
+    "ConfigError",
+    "InputError",
+    "RVEFileError",
+    "SolverError",
+    "SEMError",
+    "StepFailureKind",
+    "StepNotConverged",
+    "InadmissibleState",
+    "EXIT_USAGE",
+    "EXIT_INPUT",
+    "EXIT_SOLVER",
+]
 
 EXIT_USAGE = 2
 EXIT_INPUT = 3
@@ -102,8 +113,15 @@ class StepNotConverged(SolverError):
 
     default_kind: ClassVar[StepFailureKind] = StepFailureKind.STALLED
 
-    def __init__(self, reason: str, kind: StepFailureKind | str | None = None, *,
-                 history: Sequence[float] = (), iterations: int | None = None, factorizations: int = 0) -> None:
+    def __init__(
+        self,
+        reason: str,
+        kind: StepFailureKind | str | None = None,
+        *,
+        history: Sequence[float] = (),
+        iterations: int | None = None,
+        factorizations: int = 0,
+    ) -> None:
         super().__init__(reason)
         self.reason = reason
         self.kind = StepFailureKind(kind or self.default_kind)
@@ -113,12 +131,15 @@ class StepNotConverged(SolverError):
 
     def __reduce__(self) -> tuple[Any, ...]:
         # Keyword fields survive pickling (task pools carry the exception back from workers).
-        return (_rebuild_step_failure, (type(self), self.reason, str(self.kind), self.history, self.iterations,
-                                        self.factorizations))
+        return (
+            _rebuild_step_failure,
+            (type(self), self.reason, str(self.kind), self.history, self.iterations, self.factorizations),
+        )
 
 
-def _rebuild_step_failure(cls: type[StepNotConverged], reason: str, kind: str, history: list[float],
-                          iterations: int, factorizations: int) -> StepNotConverged:
+def _rebuild_step_failure(
+    cls: type[StepNotConverged], reason: str, kind: str, history: list[float], iterations: int, factorizations: int
+) -> StepNotConverged:
     return cls(reason, kind, history=history, iterations=iterations, factorizations=factorizations)
 
 

@@ -31,8 +31,17 @@ from espin.core.config import Config, config_from_dict, config_to_toml
 from espin.core.errors import ConfigError, RVEFileError
 from espin.core.version import __version__
 
-__all__ = ["UNITS", "Kind", "file_error", "open_checked", "provenance", "read_attr", "read_config",
-           "read_dataset", "write_header"]
+__all__ = [
+    "UNITS",
+    "Kind",
+    "file_error",
+    "open_checked",
+    "provenance",
+    "read_attr",
+    "read_config",
+    "read_dataset",
+    "write_header",
+]
 
 UNITS = "length um, stress MPa, force uN (MPa um^2), time s, angles rad"
 
@@ -119,8 +128,7 @@ def _open(path: Path, what: str) -> h5py.File:
     if path.is_dir():
         raise file_error(path, "", f"cannot open {what} file: it is a directory", expected)
     if path.exists() and not path.is_file():
-        raise file_error(path, "", f"cannot open {what} file: not a regular file (a pipe or a device)",
-                         expected)
+        raise file_error(path, "", f"cannot open {what} file: not a regular file (a pipe or a device)", expected)
     if path.is_file() and path.stat().st_size == 0:
         raise file_error(path, "", f"cannot open {what} file: it is empty", expected)
     try:
@@ -128,33 +136,30 @@ def _open(path: Path, what: str) -> h5py.File:
     except FileNotFoundError:
         raise file_error(path, "", f"cannot open {what} file: no such file", expected) from None
     except OSError as err:
-        raise file_error(path, "", f"cannot open {what} file: not HDF5, or damaged or truncated "
-                         f"({err})", expected) from None
+        raise file_error(
+            path, "", f"cannot open {what} file: not HDF5, or damaged or truncated ({err})", expected
+        ) from None
 
 
 def _check_schema(f: h5py.File, path: Path, schema: str, version: int, what: str) -> None:
     found = _root_attr(f, path, "schema")
     if not (isinstance(found, str) and found == schema):
         problem = "has no schema attribute" if found is None else f"has schema {_show(found)}"
-        raise file_error(path, "", f"is not an espin {what} file: it {problem}",
-                         f"schema {schema!r}")
+        raise file_error(path, "", f"is not an espin {what} file: it {problem}", f"schema {schema!r}")
     stored = _root_attr(f, path, "schema_version")
     expected = f"schema_version {version}, the {what} schema this espin ({__version__}) reads"
     if stored is None:
-        raise file_error(path, "", f"has no schema_version: not a complete espin {what} file",
-                         expected)
+        raise file_error(path, "", f"has no schema_version: not a complete espin {what} file", expected)
     if not _is_integer(stored):
         raise file_error(path, "schema_version", f"{_show(stored)} is not an integer", expected)
     stored = int(stored)
     if stored < 1:
-        raise file_error(path, "schema_version", f"{stored} is invalid (versions start at 1)",
-                         expected)
+        raise file_error(path, "schema_version", f"{stored} is invalid (versions start at 1)", expected)
     if stored != version:
         writer = _root_attr(f, path, "espin_version")
         writer = "an unknown espin version" if writer is None else f"espin {writer}"
         advice = "upgrade espin" if stored > version else "regenerate the file with this espin"
-        raise file_error(path, "", f"has {what} schema version {stored}, written by {writer}: "
-                         f"{advice}", expected)
+        raise file_error(path, "", f"has {what} schema version {stored}, written by {writer}: {advice}", expected)
 
 
 def _root_attr(f: h5py.File, path: Path, name: str) -> object:
@@ -162,8 +167,7 @@ def _root_attr(f: h5py.File, path: Path, name: str) -> object:
     try:
         return f.attrs.get(name)
     except (OSError, RuntimeError, TypeError, ValueError) as err:
-        raise file_error(path, f"root attribute {name}", f"cannot be read ({err})",
-                         "an espin file header") from None
+        raise file_error(path, f"root attribute {name}", f"cannot be read ({err})", "an espin file header") from None
 
 
 def _is_integer(value: object) -> TypeGuard[int | np.integer]:
@@ -192,15 +196,17 @@ def read_config(f: h5py.File, path: Path) -> Config:
     try:
         config = config_from_dict(tomllib.loads(text), f"(stored in {path})")
     except tomllib.TOMLDecodeError as err:
-        raise file_error(path, "root attribute config_toml", f"is not valid TOML ({err})",
-                         expected) from None
+        raise file_error(path, "root attribute config_toml", f"is not valid TOML ({err})", expected) from None
     except ConfigError as err:
-        raise file_error(path, "root attribute config_toml", f"is not a valid config: {err}",
-                         expected) from None
+        raise file_error(path, "root attribute config_toml", f"is not a valid config: {err}", expected) from None
     seed = read_attr(f, "/", "seed", kind="int", low=0, meaning="the RVE's random seed")
     if seed != config.rve.seed:
-        raise file_error(path, "root attribute seed", f"= {seed} disagrees with the stored "
-                         f"config's rve.seed = {config.rve.seed}", "the two to be equal")
+        raise file_error(
+            path,
+            "root attribute seed",
+            f"= {seed} disagrees with the stored config's rve.seed = {config.rve.seed}",
+            "the two to be equal",
+        )
     return config
 
 
@@ -271,26 +277,59 @@ def read_dataset(
     if not _shape_matches(ds.shape, shape):
         raise file_error(path, f"dataset {name}", f"has shape {ds.shape}", expected)
     if ds.size * ds.dtype.itemsize > MAX_DATASET_BYTES:
-        raise file_error(path, f"dataset {name}", f"declares {ds.size * ds.dtype.itemsize:,} bytes, more than "
-                         f"the {MAX_DATASET_BYTES:,} an espin file holds", expected)
+        raise file_error(
+            path,
+            f"dataset {name}",
+            f"declares {ds.size * ds.dtype.itemsize:,} bytes, more than the {MAX_DATASET_BYTES:,} an espin file holds",
+            expected,
+        )
     try:
         raw = np.asarray(ds[()])
     except (OSError, RuntimeError, ValueError, TypeError) as err:
-        raise file_error(path, f"dataset {name}", f"cannot be read: damaged file? ({err})",
-                         expected) from None
+        raise file_error(path, f"dataset {name}", f"cannot be read: damaged file? ({err})", expected) from None
     _check_values(raw, path, f"dataset {name}", expected, kind, low, high, positive, finite)
     return raw.astype(_CAST[kind])
 
 
 @overload
-def read_attr(f: h5py.File, group: str, name: str, *, kind: Literal["int"], meaning: str, low: float | None = None,
-              high: float | None = None, positive: bool = False, finite: bool = True) -> int: ...
+def read_attr(
+    f: h5py.File,
+    group: str,
+    name: str,
+    *,
+    kind: Literal["int"],
+    meaning: str,
+    low: float | None = None,
+    high: float | None = None,
+    positive: bool = False,
+    finite: bool = True,
+) -> int: ...
 @overload
-def read_attr(f: h5py.File, group: str, name: str, *, kind: Literal["float"], meaning: str, low: float | None = None,
-              high: float | None = None, positive: bool = False, finite: bool = True) -> float: ...
+def read_attr(
+    f: h5py.File,
+    group: str,
+    name: str,
+    *,
+    kind: Literal["float"],
+    meaning: str,
+    low: float | None = None,
+    high: float | None = None,
+    positive: bool = False,
+    finite: bool = True,
+) -> float: ...
 @overload
-def read_attr(f: h5py.File, group: str, name: str, *, kind: Kind, meaning: str, low: float | None = None,
-              high: float | None = None, positive: bool = False, finite: bool = True) -> float | int | bool: ...
+def read_attr(
+    f: h5py.File,
+    group: str,
+    name: str,
+    *,
+    kind: Kind,
+    meaning: str,
+    low: float | None = None,
+    high: float | None = None,
+    positive: bool = False,
+    finite: bool = True,
+) -> float | int | bool: ...
 
 
 def read_attr(
@@ -323,8 +362,7 @@ def read_attr(
     expected = _expected(meaning, kind, (), low, high, positive, finite)
     owner = f.get(group)
     if owner is None:
-        raise file_error(path, where, f"is missing (no group {group}: an incomplete file)",
-                         expected)
+        raise file_error(path, where, f"is missing (no group {group}: an incomplete file)", expected)
     try:
         value = owner.attrs.get(name)
     except (OSError, RuntimeError, TypeError, ValueError) as err:
@@ -339,13 +377,24 @@ def read_attr(
 
 
 def _shape_matches(found: tuple[int, ...] | None, shape: tuple[int | None, ...]) -> bool:
-    return found is not None and len(found) == len(shape) and all(
-        want is None or want == got for got, want in zip(found, shape)
+    return (
+        found is not None
+        and len(found) == len(shape)
+        and all(want is None or want == got for got, want in zip(found, shape))
     )
 
 
-def _check_values(raw: np.ndarray, path: str, where: str, expected: str, kind: Kind,
-                  low: float | None, high: float | None, positive: bool, finite: bool) -> None:
+def _check_values(
+    raw: np.ndarray,
+    path: str,
+    where: str,
+    expected: str,
+    kind: Kind,
+    low: float | None,
+    high: float | None,
+    positive: bool,
+    finite: bool,
+) -> None:
     """Raise naming the first value that breaks a rule, and its index."""
     if kind == "bool" or raw.size == 0:
         return
@@ -362,12 +411,18 @@ def _check_values(raw: np.ndarray, path: str, where: str, expected: str, kind: K
         if np.any(bad):
             index = tuple(int(i) for i in np.argwhere(bad)[0])
             at = f" at [{', '.join(map(str, index))}]" if index else ""
-            raise file_error(path, where, f"holds {raw[index].item()!r}{at}, which {problem}",
-                             expected)
+            raise file_error(path, where, f"holds {raw[index].item()!r}{at}, which {problem}", expected)
 
 
-def _expected(meaning: str, kind: Kind, shape: tuple[int | None, ...], low: float | None,
-              high: float | None, positive: bool, finite: bool) -> str:
+def _expected(
+    meaning: str,
+    kind: Kind,
+    shape: tuple[int | None, ...],
+    low: float | None,
+    high: float | None,
+    positive: bool,
+    finite: bool,
+) -> str:
     """The expected format, as messages state it."""
     values = ("finite " if finite and kind == "float" else "") + _KIND_TEXT[kind]
     if shape:
@@ -389,5 +444,6 @@ def _expected(meaning: str, kind: Kind, shape: tuple[int | None, ...], low: floa
 def _dtype_text(dtype: np.dtype) -> str:
     if dtype.kind in "OSUT" or h5py.check_string_dtype(dtype) is not None:
         return "strings"
-    return {"f": "floats", "i": "integers", "u": "integers", "b": "booleans",
-            "c": "complex numbers"}.get(dtype.kind, f"values of type {dtype}")
+    return {"f": "floats", "i": "integers", "u": "integers", "b": "booleans", "c": "complex numbers"}.get(
+        dtype.kind, f"values of type {dtype}"
+    )

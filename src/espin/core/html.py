@@ -27,7 +27,9 @@ def html_table(caption: str, rows: Sequence[tuple[str, str]]) -> str:
     str
         ``<table>...</table>``.
     """
-    body = "".join(f'<tr><th style="text-align:left">{escape(name)}</th>'
-                   f'<td style="text-align:left">{escape(_MICROMETRE.sub("µm", value))}</td></tr>'
-                   for name, value in rows)
+    body = "".join(
+        f'<tr><th style="text-align:left">{escape(name)}</th>'
+        f'<td style="text-align:left">{escape(_MICROMETRE.sub("µm", value))}</td></tr>'
+        for name, value in rows
+    )
     return f"<table><caption>{escape(caption)}</caption>{body}</table>"

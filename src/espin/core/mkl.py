@@ -56,7 +56,23 @@ def load_mkl() -> MKL:
     int_p = ctypes.POINTER(ctypes.c_int32)  # MKL_INT of the default LP64 interface
     void_p = ctypes.c_void_p
     # pt maxfct mnum mtype phase n a ia ja perm nrhs iparm msglvl b x error
-    pardiso.argtypes = [void_p, int_p, int_p, int_p, int_p, int_p, void_p, int_p, int_p,
-                        int_p, int_p, int_p, int_p, void_p, void_p, int_p]
+    pardiso.argtypes = [
+        void_p,
+        int_p,
+        int_p,
+        int_p,
+        int_p,
+        int_p,
+        void_p,
+        int_p,
+        int_p,
+        int_p,
+        int_p,
+        int_p,
+        int_p,
+        void_p,
+        void_p,
+        int_p,
+    ]
     pardiso.restype = None
     return MKL(pardiso, library.MKL_Set_Num_Threads_Local, library.MKL_Get_Max_Threads)

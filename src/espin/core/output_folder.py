@@ -138,8 +138,9 @@ def read_manifest(folder: str | Path) -> RunManifest | None:
             raise TypeError  # an --overwrite removes these: only patterns inside the folder
         return manifest
     except (OSError, UnicodeDecodeError, ValueError, TypeError):
-        raise ConfigError(f"{path} is not an espin run manifest (JSON with run_id, command, "
-                          "config_hash, status ...)") from None
+        raise ConfigError(
+            f"{path} is not an espin run manifest (JSON with run_id, command, config_hash, status ...)"
+        ) from None
 
 
 class OutputFolder:
@@ -149,8 +150,9 @@ class OutputFolder:
     context manager, which finishes it ``complete``, or ``failed`` on an exception.
     """
 
-    def __init__(self, path: Path, manifest: RunManifest, created: bool = False,
-                 lock: tuple[int, int] | None = None) -> None:
+    def __init__(
+        self, path: Path, manifest: RunManifest, created: bool = False, lock: tuple[int, int] | None = None
+    ) -> None:
         self.path = path
         self.manifest = manifest
         self._created = created
@@ -163,9 +165,17 @@ class OutputFolder:
         return self.manifest.run_id
 
     @classmethod
-    def claim(cls, path: str | Path, command: str, digest: str, outputs: Sequence[str], *,
-              overwrite: bool = False, resume: Literal["same-inputs", "same-command"] | None = None,
-              inputs: Sequence[str | Path] = ()) -> OutputFolder:
+    def claim(
+        cls,
+        path: str | Path,
+        command: str,
+        digest: str,
+        outputs: Sequence[str],
+        *,
+        overwrite: bool = False,
+        resume: Literal["same-inputs", "same-command"] | None = None,
+        inputs: Sequence[str | Path] = (),
+    ) -> OutputFolder:
         """Check ``path`` against the policy and write a ``running`` manifest there.
 
         Parameters
@@ -203,8 +213,9 @@ class OutputFolder:
             raise ConfigError(f"output folder {path} exists and is not a folder")
         for name in inputs:
             if Path(name).resolve().parent == path.resolve():
-                raise ConfigError(f"output folder {path} holds the input {Path(name).name} of this run: "
-                                  "choose another folder (--out)")
+                raise ConfigError(
+                    f"output folder {path} holds the input {Path(name).name} of this run: choose another folder (--out)"
+                )
         created = not path.exists()
         try:
             path.mkdir(parents=True, exist_ok=True)
@@ -221,8 +232,17 @@ class OutputFolder:
         return folder
 
     @classmethod
-    def _claim_locked(cls, path: Path, command: str, digest: str, outputs: Sequence[str], overwrite: bool,
-                      resume: str | None, created: bool, lock: tuple[int, int]) -> OutputFolder:
+    def _claim_locked(
+        cls,
+        path: Path,
+        command: str,
+        digest: str,
+        outputs: Sequence[str],
+        overwrite: bool,
+        resume: str | None,
+        created: bool,
+        lock: tuple[int, int],
+    ) -> OutputFolder:
         """:meth:`claim` once the folder exists and this process holds its lock."""
         try:
             previous = read_manifest(path)
@@ -239,21 +259,31 @@ class OutputFolder:
             reuse = resume == "same-command" and (previous.command == command if previous else bool(found))
         if reuse and not overwrite:
             manifest = previous or RunManifest(uuid.uuid4().hex, command, digest, __version__, "running", _utc_now())
-            folder = cls(path, replace(manifest, config_hash=digest, status="running", finished_utc=None,
-                                       outputs=list(outputs)), lock=lock)
+            folder = cls(
+                path,
+                replace(manifest, config_hash=digest, status="running", finished_utc=None, outputs=list(outputs)),
+                lock=lock,
+            )
             folder._write()
             return folder
         if (found or previous is not None) and not overwrite:
-            owner = ("files" if previous is None else
-                     f"the results of another {previous.command} run ({previous.status}, started "
-                     f"{previous.started_utc})")
+            owner = (
+                "files"
+                if previous is None
+                else f"the results of another {previous.command} run ({previous.status}, started "
+                f"{previous.started_utc})"
+            )
             shown = ", ".join(found[:4]) + (" ..." if len(found) > 4 else "")
             raise ConfigError(
                 f"output folder {path} already holds {owner}{': ' + shown if shown else ''}; "
                 "pass --overwrite (overwrite=True in Python) to replace them, or choose another folder"
             )
-        folder = cls(path, RunManifest(uuid.uuid4().hex, command, digest, __version__, "running", _utc_now(),
-                                       outputs=list(outputs)), created=created, lock=lock)
+        folder = cls(
+            path,
+            RunManifest(uuid.uuid4().hex, command, digest, __version__, "running", _utc_now(), outputs=list(outputs)),
+            created=created,
+            lock=lock,
+        )
         folder._write()  # first, so that a kill while clearing leaves a folder marked partial
         for name in [*found, *(p.relative_to(path).as_posix() for p in path.rglob(_TEMPORARY))]:
             (path / name).unlink(missing_ok=True)
@@ -325,10 +355,14 @@ def _lock(path: Path) -> tuple[int, int]:
             other = read_manifest(path)
         except ConfigError:
             other = None
-        who = (f"another {other.command} run (started {other.started_utc})" if other is not None
-               else "another espin run, starting at the same moment")
-        raise ConfigError(f"output folder {path} is being written by {who}: wait for it to finish, or choose "
-                          "another folder") from None
+        who = (
+            f"another {other.command} run (started {other.started_utc})"
+            if other is not None
+            else "another espin run, starting at the same moment"
+        )
+        raise ConfigError(
+            f"output folder {path} is being written by {who}: wait for it to finish, or choose another folder"
+        ) from None
     except OSError:  # a file system without locks (some network mounts): claims are not exclusive there
         os.close(fd)
         fd = -1
@@ -347,8 +381,12 @@ def _unlock(key: tuple[int, int]) -> None:
 
 def _inside(pattern: object) -> bool:
     """Whether ``pattern`` is a glob pattern relative to a folder that stays inside it."""
-    return (isinstance(pattern, str) and bool(pattern) and not Path(pattern).is_absolute()
-            and ".." not in Path(pattern).parts)
+    return (
+        isinstance(pattern, str)
+        and bool(pattern)
+        and not Path(pattern).is_absolute()
+        and ".." not in Path(pattern).parts
+    )
 
 
 def _existing(path: Path, outputs: Sequence[str]) -> list[str]:
@@ -357,8 +395,15 @@ def _existing(path: Path, outputs: Sequence[str]) -> list[str]:
     if not path.is_dir():
         return []
     root = path.resolve()
-    return sorted({p.relative_to(path).as_posix() for pattern in outputs if _inside(pattern)
-                   for p in path.glob(pattern) if p.is_file() and p.resolve().is_relative_to(root)})
+    return sorted(
+        {
+            p.relative_to(path).as_posix()
+            for pattern in outputs
+            if _inside(pattern)
+            for p in path.glob(pattern)
+            if p.is_file() and p.resolve().is_relative_to(root)
+        }
+    )
 
 
 def _utc_now() -> str:

@@ -95,8 +95,7 @@ def _start_worker(blas_threads: int | None, parent_pid: int) -> None:
     if blas_threads is not None:
         for variable in THREAD_VARIABLES:
             os.environ[variable] = str(blas_threads)
-    threading.Thread(target=_exit_with_parent, args=(parent_pid,), name="espin-parent-watchdog",
-                     daemon=True).start()
+    threading.Thread(target=_exit_with_parent, args=(parent_pid,), name="espin-parent-watchdog", daemon=True).start()
 
 
 def _exit_with_parent(parent_pid: int) -> None:
@@ -214,12 +213,15 @@ def check_scheduler(scheduler: Any, security: Any = None) -> None:
     elif scheduler is None or hasattr(scheduler, "get_executor"):
         scheme = None
     else:
-        raise ConfigError(f"scheduler: expected {_ADDRESS_FORMS} or a distributed.Client "
-                          f"(got a {type(scheduler).__name__})")
+        raise ConfigError(
+            f"scheduler: expected {_ADDRESS_FORMS} or a distributed.Client (got a {type(scheduler).__name__})"
+        )
     if scheme == "tls" and security is None:
-        raise ConfigError(f"scheduler {scheduler}: a tls:// address needs the TLS files (--tls-ca-file and "
-                          "--tls-cert, with --tls-key unless the certificate file holds the key; in Python "
-                          "security=espin.core.cluster.tls_security(...))")
+        raise ConfigError(
+            f"scheduler {scheduler}: a tls:// address needs the TLS files (--tls-ca-file and "
+            "--tls-cert, with --tls-key unless the certificate file holds the key; in Python "
+            "security=espin.core.cluster.tls_security(...))"
+        )
     if security is not None:
         _check_security(security, scheme)
 
@@ -231,8 +233,10 @@ def _check_security(security: Any, scheme: str | None) -> None:
     if not isinstance(security, Security):
         raise ConfigError(f"security: expected a distributed.security.Security (got a {type(security).__name__})")
     if scheme != "tls":
-        raise ConfigError("security: the TLS options need a tls://host:port scheduler address (a Client "
-                          "brings its own security; local processes and 'local' need none)")
+        raise ConfigError(
+            "security: the TLS options need a tls://host:port scheduler address (a Client "
+            "brings its own security; local processes and 'local' need none)"
+        )
 
 
 @dataclass(frozen=True)
@@ -285,10 +289,12 @@ def _warn_if_unencrypted(scheduler: Any) -> None:
     """Log a warning for a ``tcp://`` address of another machine."""
     found = _ADDRESS.match(scheduler) if isinstance(scheduler, str) else None
     if found is not None and found["scheme"] == "tcp" and not _is_loopback(found["host"]):
-        log.warning("scheduler %s: tcp:// is unencrypted and unauthenticated, and the scheduler and its "
-                    "workers run whatever task they are sent (pickles): use only a scheduler you trust "
-                    "on a network you trust, or tls:// with --tls-ca-file, --tls-cert and --tls-key",
-                    scheduler)
+        log.warning(
+            "scheduler %s: tcp:// is unencrypted and unauthenticated, and the scheduler and its "
+            "workers run whatever task they are sent (pickles): use only a scheduler you trust "
+            "on a network you trust, or tls:// with --tls-ca-file, --tls-cert and --tls-key",
+            scheduler,
+        )
 
 
 class TaskPool:
@@ -316,8 +322,9 @@ class TaskPool:
         For an invalid option (see :func:`check_scheduler`); nothing is started.
     """
 
-    def __init__(self, workers: int | None = None, scheduler: Any = None, blas_threads: int | None = 1,
-                 security: Any = None):
+    def __init__(
+        self, workers: int | None = None, scheduler: Any = None, blas_threads: int | None = 1, security: Any = None
+    ):
         check_pool(workers, scheduler, blas_threads, security)
         _warn_if_unencrypted(scheduler)
         self.workers = workers if workers is not None else default_workers()
@@ -379,16 +386,19 @@ class TaskPool:
             if client == "local":
                 from distributed import LocalCluster
 
-                cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                       dashboard_address=None)
+                cluster = LocalCluster(
+                    n_workers=self.workers, threads_per_worker=1, processes=True, dashboard_address=None
+                )
                 self._closers.append(cluster.close)
                 client = Client(cluster)
             else:
                 try:
                     client = Client(client, security=self.security)
                 except (OSError, TimeoutError) as err:
-                    raise ConfigError(f"scheduler {client}: cannot connect ({err}); check the address and "
-                                      "that the scheduler is running and reachable") from None
+                    raise ConfigError(
+                        f"scheduler {client}: cannot connect ({err}); check the address and "
+                        "that the scheduler is running and reachable"
+                    ) from None
             self._closers.insert(0, client.close)
         return client.get_executor(pure=False)
 
@@ -411,8 +421,7 @@ class TaskPool:
         try:
             yield from self._run_pooled(fn, items, suspects)
             if suspects:
-                log.warning("a worker process died; running its %d unfinished task(s) one process each",
-                            len(suspects))
+                log.warning("a worker process died; running its %d unfinished task(s) one process each", len(suspects))
                 yield from self._run_isolated(fn, items, suspects)
         except BaseException:
             self._abort()
@@ -450,8 +459,9 @@ class TaskPool:
             while queue or running:
                 while queue and len(running) < self.workers:
                     index = queue.pop(0)
-                    solo = ProcessPoolExecutor(1, mp_context=context, initializer=_start_worker,
-                                               initargs=(self.blas_threads, os.getpid()))
+                    solo = ProcessPoolExecutor(
+                        1, mp_context=context, initializer=_start_worker, initargs=(self.blas_threads, os.getpid())
+                    )
                     running[solo.submit(_call_in_worker, fn, items[index], self.blas_threads)] = (index, solo)
                 done, _ = wait(running, return_when=FIRST_COMPLETED)
                 for future in done:
@@ -476,7 +486,7 @@ class TaskPool:
 
 WORKER_DIED = (
     "worker process died while running this task (killed, or out of memory?); in a script, "
-    "start studies under `if __name__ == \"__main__\":` (worker processes import the script)"
+    'start studies under `if __name__ == "__main__":` (worker processes import the script)'
 )
 
 

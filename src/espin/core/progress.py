@@ -60,9 +60,11 @@ class NotebookProgress:
         if self.total is None:
             return f"<code>{escape(self.what)} {done}  {escape(info)}  {clock(elapsed)} elapsed</code>"
         left = f", about {clock(elapsed / done * (self.total - done))} left" if 0 < done < self.total else ""
-        return (f'<progress value="{done}" max="{self.total}" style="width:40%"></progress> '
-                f"<code>{escape(self.what)} {done}/{self.total}  {escape(info)}  "
-                f"{clock(elapsed)} elapsed{left}</code>")
+        return (
+            f'<progress value="{done}" max="{self.total}" style="width:40%"></progress> '
+            f"<code>{escape(self.what)} {done}/{self.total}  {escape(info)}  "
+            f"{clock(elapsed)} elapsed{left}</code>"
+        )
 
     def update(self, done: int, info: str = "") -> None:
         """Show ``done`` units finished, with a short text (e.g. the strain reached)."""
@@ -70,8 +72,12 @@ class NotebookProgress:
         self._handle.update(self._html(self._render(done, info)))
 
 
-def with_progress(on_step: Callable[[Step], None] | None, total: int, progress: bool | None,
-                  describe: Callable[[Step], tuple[int, str]]) -> Callable[[Step], None] | None:
+def with_progress(
+    on_step: Callable[[Step], None] | None,
+    total: int,
+    progress: bool | None,
+    describe: Callable[[Step], tuple[int, str]],
+) -> Callable[[Step], None] | None:
     """``on_step`` followed by a display of the steps done: in a notebook a bar updated in place,
     elsewhere a line per step on stderr; by default (``progress`` None) in a notebook only.
     ``describe(step)`` gives the step's number and a short text (the strain reached ...)."""

@@ -26,8 +26,21 @@ from pathlib import Path
 
 from espin.core.errors import InputError
 
-__all__ = ["TextFormat", "SHOWN_CHARS", "check_file", "read_bytes", "decode", "read_text",
-           "text_lines", "too_large", "showable", "shown", "shown_names", "parse_number", "missing"]
+__all__ = [
+    "TextFormat",
+    "SHOWN_CHARS",
+    "check_file",
+    "read_bytes",
+    "decode",
+    "read_text",
+    "text_lines",
+    "too_large",
+    "showable",
+    "shown",
+    "shown_names",
+    "parse_number",
+    "missing",
+]
 
 SHOWN_CHARS = 20
 """Longest field of a file a message quotes [characters]; longer ones are named by length."""
@@ -188,11 +201,13 @@ def decode(path: Path, data: bytes, fmt: TextFormat) -> str:
         try:
             text = data.decode("utf-16")
         except UnicodeDecodeError:
-            raise fmt.fail(path, f"starts with a UTF-16 byte-order mark but is not UTF-16; "
-                                 f"{fmt.expected}") from None
+            raise fmt.fail(path, f"starts with a UTF-16 byte-order mark but is not UTF-16; {fmt.expected}") from None
     elif b"\x00" in data:
-        raise fmt.fail(path, "not a text file (it holds NUL bytes: an image or other binary file, "
-                             f"or UTF-16 without a byte-order mark?); {fmt.expected}")
+        raise fmt.fail(
+            path,
+            "not a text file (it holds NUL bytes: an image or other binary file, "
+            f"or UTF-16 without a byte-order mark?); {fmt.expected}",
+        )
     else:
         try:
             text = data.decode("utf-8-sig")
@@ -202,8 +217,9 @@ def decode(path: Path, data: bytes, fmt: TextFormat) -> str:
     control = _CONTROL.search(text)
     if control:
         line = text.count("\n", 0, control.start()) + 1
-        raise fmt.fail(path, f"a control character (code {ord(control.group()):#04x}), so not "
-                             f"a text file; {fmt.expected}", line)
+        raise fmt.fail(
+            path, f"a control character (code {ord(control.group()):#04x}), so not a text file; {fmt.expected}", line
+        )
     return text
 
 
@@ -229,6 +245,9 @@ def text_lines(path: Path, text: str, fmt: TextFormat, *, skip_rows: int = 0) ->
         line = line.rstrip("\n")
         if len(line) > fmt.max_line_chars:
             hint = f": {fmt.line_hint}" if fmt.line_hint else ""
-            raise fmt.fail(path, f"{len(line):,} characters, over the limit of {fmt.max_line_chars} "
-                                 f"for a line of a {fmt.what}{hint}", number)
+            raise fmt.fail(
+                path,
+                f"{len(line):,} characters, over the limit of {fmt.max_line_chars} for a line of a {fmt.what}{hint}",
+                number,
+            )
         yield number, line

@@ -22,8 +22,18 @@ from espin.design.search import DesignRun, Evaluation, prepare_design, run_desig
 from espin.design.targets import DesignTargets, PropertyTarget, RatioTarget, parse_targets
 from espin.design.variables import Constraint, DesignVariable
 
-__all__ = ["design", "DesignResult", "DesignTargets", "PropertyTarget", "RatioTarget", "DesignVariable",
-           "Constraint", "Evaluation", "DESIGN_OUTPUTS", "parse_targets"]
+__all__ = [
+    "design",
+    "DesignResult",
+    "DesignTargets",
+    "PropertyTarget",
+    "RatioTarget",
+    "DesignVariable",
+    "Constraint",
+    "Evaluation",
+    "DESIGN_OUTPUTS",
+    "parse_targets",
+]
 
 
 def design(
@@ -111,19 +121,37 @@ def design(
     from espin.core.parallel import TaskPlace
 
     place = TaskPlace(workers, scheduler, blas_threads, security)
-    counts: dict[str, Any] = dict(budget=budget, batch=batch, initial=initial, replicates=replicates, verify=verify,
-                                  seed=seed, realizations=realizations)
+    counts: dict[str, Any] = dict(
+        budget=budget,
+        batch=batch,
+        initial=initial,
+        replicates=replicates,
+        verify=verify,
+        seed=seed,
+        realizations=realizations,
+    )
     # every input is checked before the folder is claimed (a refused input never touches it)
     problem = prepare_design(targets, variables, base=base, constraints=constraints, **counts, **overrides)
     targets, space = problem.targets, problem.space
-    options: dict[str, Any] = dict(base=space.base, constraints=space.constraints, place=place, **counts,
-                   on_batch=on_batch or _notebook_bar(budget, len(targets.directions)))
+    options: dict[str, Any] = dict(
+        base=space.base,
+        constraints=space.constraints,
+        place=place,
+        **counts,
+        on_batch=on_batch or _notebook_bar(budget, len(targets.directions)),
+    )
     if folder is None:
         return design_result(run_design(targets, space.variables, folder=None, **options))
     # A rerun with the same inputs resumes (its finished tests are read back), with any workers;
     # other inputs are refused.
-    digest = inputs_digest([], config_digest(space.base), [repr(t) for t in targets.targets],
-                           [repr(v) for v in space.variables], [str(c) for c in space.constraints], counts)
+    digest = inputs_digest(
+        [],
+        config_digest(space.base),
+        [repr(t) for t in targets.targets],
+        [repr(v) for v in space.variables],
+        [str(c) for c in space.constraints],
+        counts,
+    )
     with OutputFolder.claim(folder, "design", digest, DESIGN_OUTPUTS, overwrite=overwrite, resume="same-inputs"):
         result = design_result(run_design(targets, space.variables, folder=Path(folder), **options))
         result.write(folder)
@@ -145,8 +173,9 @@ def _notebook_bar(budget: int, directions: int) -> Callable[[list[Evaluation], E
     def show(evaluations: list[Evaluation], best: Evaluation) -> None:
         nonlocal done
         done += len(evaluations) * directions
-        bar.update(done, "best so far: " + ", ".join(f"{k.removeprefix('rve.')} {v:.4g}"
-                                                      for k, v in best.values.items()))
+        bar.update(
+            done, "best so far: " + ", ".join(f"{k.removeprefix('rve.')} {v:.4g}" for k, v in best.values.items())
+        )
 
     return show
 

@@ -15,8 +15,12 @@ from espin.design.targets import STRESS_AT, CurveTarget, RatioTarget
 
 __all__ = ["plot_convergence", "plot_maps", "plot_verification", "plot_pareto", "PROPERTY_SYMBOLS"]
 
-PROPERTY_SYMBOLS = {"modulus_MPa": ("$E$", "MPa"), "yield_stress_MPa": (r"$\sigma_y$", "MPa"),
-                    "post_yield_modulus_MPa": ("$H$", "MPa"), "yield_strain": (r"$\varepsilon_y$", "")}
+PROPERTY_SYMBOLS = {
+    "modulus_MPa": ("$E$", "MPa"),
+    "yield_stress_MPa": (r"$\sigma_y$", "MPa"),
+    "post_yield_modulus_MPa": ("$H$", "MPa"),
+    "yield_strain": (r"$\varepsilon_y$", ""),
+}
 """Symbol and unit of each property in the figures."""
 
 
@@ -94,8 +98,7 @@ def plot_maps(run: DesignRun, path: str | Path) -> Path:
     fig = Figure(figsize=(max(3.2 * n_cols + 0.6, 7.0), 2.6 * n_rows + 1.2))
     axes = fig.subplots(n_rows, n_cols, squeeze=False)
     grid = np.linspace(0.0, 1.0, 101)
-    target_of = {(t.name, t.direction_deg): t for t in targets.targets
-                 if not isinstance(t, (RatioTarget, CurveTarget))}
+    target_of = {(t.name, t.direction_deg): t for t in targets.targets if not isinstance(t, (RatioTarget, CurveTarget))}
     for i, output in enumerate(outputs):
         surrogate = run.surrogates[output]
         for j, variable in enumerate(space.variables):
@@ -103,19 +106,41 @@ def plot_maps(run: DesignRun, path: str | Path) -> Path:
             unit = np.repeat(run.best.unit[None, :], len(grid), axis=0)
             unit[:, j] = grid
             mean, sd = surrogate.predict(unit)
-            x = np.asarray(variable.value(grid), dtype=float) if not variable.integer else \
-                variable.low + grid * (variable.high - variable.low)
-            ax.fill_between(x, surrogate.to_property(mean - 1.96 * sd), surrogate.to_property(mean + 1.96 * sd),
-                            color="C0", alpha=0.2, lw=0, label="surrogate 95 %")
+            x = (
+                np.asarray(variable.value(grid), dtype=float)
+                if not variable.integer
+                else variable.low + grid * (variable.high - variable.low)
+            )
+            ax.fill_between(
+                x,
+                surrogate.to_property(mean - 1.96 * sd),
+                surrogate.to_property(mean + 1.96 * sd),
+                color="C0",
+                alpha=0.2,
+                lw=0,
+                label="surrogate 95 %",
+            )
             ax.plot(x, surrogate.to_property(mean), "C0-", lw=1.2, label="surrogate median")
-            ax.plot([e.values[variable.key] for e in evaluated], [e.outputs.get(output, math.nan) for e in evaluated],
-                    "k.", ms=4, label="evaluated (projected)")
-            ax.plot(run.best.values[variable.key], run.best.outputs.get(output, math.nan), "r*", ms=10,
-                    label="best design")
+            ax.plot(
+                [e.values[variable.key] for e in evaluated],
+                [e.outputs.get(output, math.nan) for e in evaluated],
+                "k.",
+                ms=4,
+                label="evaluated (projected)",
+            )
+            ax.plot(
+                run.best.values[variable.key], run.best.outputs.get(output, math.nan), "r*", ms=10, label="best design"
+            )
             target = target_of.get(output)
             if target is not None:
-                ax.axhspan(target.value * (1 - target.tolerance), target.value * (1 + target.tolerance),
-                           color="C2", alpha=0.25, lw=0, label="target ± tolerance")
+                ax.axhspan(
+                    target.value * (1 - target.tolerance),
+                    target.value * (1 + target.tolerance),
+                    color="C2",
+                    alpha=0.25,
+                    lw=0,
+                    label="target ± tolerance",
+                )
             if i == n_rows - 1:
                 ax.set_xlabel(parameter_label(variable.key))
             if j == 0:
@@ -140,8 +165,14 @@ def plot_verification(run: DesignRun, path: str | Path) -> Path:
         for k, e in enumerate(run.verification):
             if direction in e.curves:
                 strain, stress = e.curves[direction]
-                ax.plot(100 * np.asarray(strain), stress, color="C0", lw=1, alpha=0.8,
-                        label=f"best design, {len(run.verification)} fresh seeds" if k == 0 else None)
+                ax.plot(
+                    100 * np.asarray(strain),
+                    stress,
+                    color="C0",
+                    lw=1,
+                    alpha=0.8,
+                    label=f"best design, {len(run.verification)} fresh seeds" if k == 0 else None,
+                )
         for t in run.targets.targets:
             if isinstance(t, RatioTarget) or t.direction_deg != direction:
                 continue

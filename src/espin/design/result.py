@@ -34,8 +34,18 @@ from espin.design.variables import constraint_value
 
 __all__ = ["DesignResult", "DESIGN_OUTPUTS", "design_result"]
 
-DESIGN_OUTPUTS = ("design.toml", "design.json", "evaluations.csv", "convergence.png", "maps.png",
-                  "verification.png", "pareto.png", "runs/tasks/*.json", "runs/failed/*.json", "runs/results.csv")
+DESIGN_OUTPUTS = (
+    "design.toml",
+    "design.json",
+    "evaluations.csv",
+    "convergence.png",
+    "maps.png",
+    "verification.png",
+    "pareto.png",
+    "runs/tasks/*.json",
+    "runs/failed/*.json",
+    "runs/results.csv",
+)
 """The files a design run writes (glob patterns relative to its folder)."""
 PI_DRAWS = 4000
 """Monte Carlo draws of the prediction interval."""
@@ -98,9 +108,14 @@ class DesignResult:
 
         rows = [(k, f"{v:.4g}") for k, v in self.values.items()]
         for label, t in self.targets.items():
-            rows.append((label, f"target {t['target']:.4g} ± {100 * t['tolerance']:.0f} %, predicted "
-                                f"{t['predicted']:.4g} [{t['low']:.4g}, {t['high']:.4g}], verified "
-                                f"{t['verified']:.4g} ± {t['verified_sd']:.2g}"))
+            rows.append(
+                (
+                    label,
+                    f"target {t['target']:.4g} ± {100 * t['tolerance']:.0f} %, predicted "
+                    f"{t['predicted']:.4g} [{t['low']:.4g}, {t['high']:.4g}], verified "
+                    f"{t['verified']:.4g} ± {t['verified_sd']:.2g}",
+                )
+            )
         rows.append(("result", self.message))
         return html_table("DesignResult", rows)
 
@@ -111,13 +126,17 @@ class DesignResult:
         n = len(self.run.verification)
         lines.append(f"targets (predicted: 95 % interval of the mean of {n} fresh seeds; verified: their mean ± sd)")
         for label, t in self.targets.items():
-            lines.append(f"  {label:<36} target {t['target']:<9.4g} ± {100 * t['tolerance']:.3g} %  predicted "
-                         f"{t['predicted']:<9.4g} [{t['low']:.4g}, {t['high']:.4g}]  verified {t['verified']:.4g} "
-                         f"± {t['verified_sd']:.2g}  {'met' if t['met'] else 'NOT met'}"
-                         f"{'' if t['inside'] else '  (outside the interval)'}")
+            lines.append(
+                f"  {label:<36} target {t['target']:<9.4g} ± {100 * t['tolerance']:.3g} %  predicted "
+                f"{t['predicted']:<9.4g} [{t['low']:.4g}, {t['high']:.4g}]  verified {t['verified']:.4g} "
+                f"± {t['verified_sd']:.2g}  {'met' if t['met'] else 'NOT met'}"
+                f"{'' if t['inside'] else '  (outside the interval)'}"
+            )
         lines.append(self.message)
-        lines.append(f"{self.tests} tensile tests of a budget of {self.budget} (+ {self.run.checks} to replicate and "
-                     f"verify the best), {self.seconds:.0f} s")
+        lines.append(
+            f"{self.tests} tensile tests of a budget of {self.budget} (+ {self.run.checks} to replicate and "
+            f"verify the best), {self.seconds:.0f} s"
+        )
         return "\n".join(lines)
 
     def write(self, folder: str | Path) -> dict[str, Path]:
@@ -128,11 +147,15 @@ class DesignResult:
 
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
-        files = {"config": write_config(self.config, folder / "design.toml"),
-                 "evaluations": atomic_write(folder / "evaluations.csv",
-                                             lambda tmp: self.evaluations.to_csv(tmp, index=False)),
-                 "report": atomic_write_bytes(folder / "design.json",
-                                              json.dumps(self.report(), indent=1, default=_jsonable).encode())}
+        files = {
+            "config": write_config(self.config, folder / "design.toml"),
+            "evaluations": atomic_write(
+                folder / "evaluations.csv", lambda tmp: self.evaluations.to_csv(tmp, index=False)
+            ),
+            "report": atomic_write_bytes(
+                folder / "design.json", json.dumps(self.report(), indent=1, default=_jsonable).encode()
+            ),
+        }
         files["convergence"] = plot_convergence(self.run, self.evaluations, folder / "convergence.png")
         files["maps"] = plot_maps(self.run, folder / "maps.png")
         files["verification"] = plot_verification(self.run, folder / "verification.png")
@@ -146,12 +169,23 @@ class DesignResult:
         from espin.core.version import __version__
 
         space = self.run.space
-        return {"espin_version": __version__, "reached": self.reached, "message": self.message,
-                "binding": self.binding, "values": self.values, "targets": self.targets,
-                "variables": [{"key": v.key, "low": v.low, "high": v.high, "integer": v.integer, "log": v.log}
-                              for v in space.variables],
-                "constraints": [str(c) for c in space.constraints], "tests": self.tests, "budget": self.budget,
-                "verification_seeds": [e.seed for e in self.run.verification], "seconds": self.seconds}
+        return {
+            "espin_version": __version__,
+            "reached": self.reached,
+            "message": self.message,
+            "binding": self.binding,
+            "values": self.values,
+            "targets": self.targets,
+            "variables": [
+                {"key": v.key, "low": v.low, "high": v.high, "integer": v.integer, "log": v.log}
+                for v in space.variables
+            ],
+            "constraints": [str(c) for c in space.constraints],
+            "tests": self.tests,
+            "budget": self.budget,
+            "verification_seeds": [e.seed for e in self.run.verification],
+            "seconds": self.seconds,
+        }
 
 
 def _jsonable(value: Any) -> Any:
@@ -183,8 +217,11 @@ def _interval(run: DesignRun) -> dict[str, tuple[float, float, float]]:
     out = {}
     for t in targets.targets:
         samples = t.achieved(draws)
-        out[t.label] = (float(t.achieved(median)), float(np.quantile(samples, 0.025)),
-                        float(np.quantile(samples, 0.975)))
+        out[t.label] = (
+            float(t.achieved(median)),
+            float(np.quantile(samples, 0.025)),
+            float(np.quantile(samples, 0.975)),
+        )
     return out
 
 
@@ -265,33 +302,65 @@ def design_result(run: DesignRun) -> DesignResult:
         mean = float(t.achieved(mean_outputs))
         sd = float(achieved.std(ddof=1)) if len(achieved) > 1 else math.nan
         predicted, low, high = interval[t.label]
-        rows[t.label] = {"target": t.value, "tolerance": t.tolerance, "predicted": predicted, "low": low,
-                         "high": high, "verified": mean, "verified_sd": sd, "n_verified": int(len(achieved)),
-                         "inside": bool(low <= mean <= high), "met": t.meets(mean),
-                         "ratio": isinstance(t, RatioTarget)}
+        rows[t.label] = {
+            "target": t.value,
+            "tolerance": t.tolerance,
+            "predicted": predicted,
+            "low": low,
+            "high": high,
+            "verified": mean,
+            "verified_sd": sd,
+            "n_verified": int(len(achieved)),
+            "inside": bool(low <= mean <= high),
+            "met": t.meets(mean),
+            "ratio": isinstance(t, RatioTarget),
+        }
     reached = all(r["met"] for r in rows.values())
     binding = _binding(run)
     if reached:
-        message = (f"all {len(rows)} targets met by the mean of {len(run.verification)} fresh seeds "
-                   f"(seeds from {run.best.seed + VERIFY_SEED_OFFSET}, never used by the search)")
+        message = (
+            f"all {len(rows)} targets met by the mean of {len(run.verification)} fresh seeds "
+            f"(seeds from {run.best.seed + VERIFY_SEED_OFFSET}, never used by the search)"
+        )
     else:
         missed = [label for label, r in rows.items() if not r["met"]]
         if run.met:
-            scatter = ", ".join(f"{name}@{d:g} {100 * s:.2g} %" for (name, d), (s, _) in run.realization_sd.items()
-                                if math.isfinite(s))
-            message = (f"target(s) {', '.join(missed)} not met by the fresh seeds' mean although the search seed's "
-                       f"mat met them: one realization differs from the seeds' mean (scatter between seeds: "
-                       f"{scatter}); give a larger budget (the search then aims at the tolerance's middle), "
-                       f"{_remedy(run)}, or a wider tolerance")
+            scatter = ", ".join(
+                f"{name}@{d:g} {100 * s:.2g} %" for (name, d), (s, _) in run.realization_sd.items() if math.isfinite(s)
+            )
+            message = (
+                f"target(s) {', '.join(missed)} not met by the fresh seeds' mean although the search seed's "
+                f"mat met them: one realization differs from the seeds' mean (scatter between seeds: "
+                f"{scatter}); give a larger budget (the search then aims at the tolerance's middle), "
+                f"{_remedy(run)}, or a wider tolerance"
+            )
         else:
-            where = ("; it presses against " + ", ".join(binding)) if binding else \
-                "; no bound or constraint is active: a larger budget may get closer"
-            message = (f"target(s) {', '.join(missed)} not met: this is the nearest design found within the bounds"
-                       f"{where}")
+            where = (
+                ("; it presses against " + ", ".join(binding))
+                if binding
+                else "; no bound or constraint is active: a larger budget may get closer"
+            )
+            message = (
+                f"target(s) {', '.join(missed)} not met: this is the nearest design found within the bounds{where}"
+            )
         noisy = _noisy(run)
         if noisy:
-            message += (f". The realization scatter is comparable to the tolerance ({noisy}): use {_remedy(run)}, or "
-                        "widen the tolerance")
+            message += (
+                f". The realization scatter is comparable to the tolerance ({noisy}): use {_remedy(run)}, or "
+                "widen the tolerance"
+            )
     config = run.space.config(run.best.unit)
-    return DesignResult(config, dict(run.best.values), rows, reached, message, binding, _table(run), run.tests,
-                        run.budget, run.seconds, run, {})
+    return DesignResult(
+        config,
+        dict(run.best.values),
+        rows,
+        reached,
+        message,
+        binding,
+        _table(run),
+        run.tests,
+        run.budget,
+        run.seconds,
+        run,
+        {},
+    )

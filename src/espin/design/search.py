@@ -150,25 +150,32 @@ def _snap(space: DesignSpace, unit: np.ndarray) -> np.ndarray:
 
 def _tasks(space: DesignSpace, directions: Sequence[float], evaluation: Evaluation) -> list[TensileTask]:
     overrides = space.overrides(evaluation.values)
-    return [task for direction in directions
-            for task in plan_tasks(space.base, [overrides | {"loading.direction_deg": float(direction)}],
-                                   [evaluation.seed])]
+    return [
+        task
+        for direction in directions
+        for task in plan_tasks(space.base, [overrides | {"loading.direction_deg": float(direction)}], [evaluation.seed])
+    ]
 
 
 Evaluator = Callable[[DesignSpace, DesignTargets, Sequence[Evaluation], Path | None, TaskPlace], None]
 """Fills the outputs of evaluations: (space, targets, evaluations, folder, where tasks run) -> None."""
 
 
-def _evaluate(space: DesignSpace, targets: DesignTargets, evaluations: Sequence[Evaluation],
-              folder: Path | None, place: TaskPlace) -> None:
+def _evaluate(
+    space: DesignSpace, targets: DesignTargets, evaluations: Sequence[Evaluation], folder: Path | None, place: TaskPlace
+) -> None:
     """Run the tensile tests of ``evaluations`` (every direction) together and fill their outputs."""
     directions = targets.directions
-    planned = [(evaluation, direction, task) for evaluation in evaluations
-               for direction, task in zip(directions, _tasks(space, directions, evaluation))]
+    planned = [
+        (evaluation, direction, task)
+        for evaluation in evaluations
+        for direction, task in zip(directions, _tasks(space, directions, evaluation))
+    ]
     unique = list({task.key: task for _, _, task in planned}.values())
     # no bar per batch: the design shows its own progress (espin.design.design)
-    ensemble = run_ensemble(unique, None if folder is None else folder / "runs", place=place,
-                            on_outcome=lambda outcome, task: None)
+    ensemble = run_ensemble(
+        unique, None if folder is None else folder / "runs", place=place, on_outcome=lambda outcome, task: None
+    )
     records = {r["key"]: r for r in ensemble.records}
     failures = {f["key"]: f for f in ensemble.failures}
     for evaluation, direction, task in planned:
@@ -220,9 +227,19 @@ def _designs(targets: DesignTargets, evaluations: Sequence[Evaluation]) -> list[
                 means[output] = float(np.exp(np.mean(np.log(values))))
             else:
                 means[output] = float(np.mean(values))
-        out.append(Evaluation(first.id, first.stage, first.unit, dict(first.values), first.seed, means,
-                              sum(e.seconds for e in group), "; ".join(e.error for e in group if e.error),
-                              dict(first.curves)))
+        out.append(
+            Evaluation(
+                first.id,
+                first.stage,
+                first.unit,
+                dict(first.values),
+                first.seed,
+                means,
+                sum(e.seconds for e in group),
+                "; ".join(e.error for e in group if e.error),
+                dict(first.curves),
+            )
+        )
     return out
 
 
@@ -235,10 +252,15 @@ def _fit(targets: DesignTargets, evaluations: Sequence[Evaluation], seed: int) -
         rows = [(u, y) for u, y in rows if math.isfinite(y)]
         if len(rows) < 3:
             failed = [e.error for e in evaluations if e.error]
-            why = (f"{len(failed)} tensile tests failed, the first: {failed[0]}" if failed else
-                   "the curves show no such property (no yield?)")
-            raise SolverError(f"design: only {len(rows)} designs give {output[0]} at {output[1]:g} deg: {why}; "
-                              "narrow the bounds, or see the tests' errors in the folder's runs/failed/")
+            why = (
+                f"{len(failed)} tensile tests failed, the first: {failed[0]}"
+                if failed
+                else "the curves show no such property (no yield?)"
+            )
+            raise SolverError(
+                f"design: only {len(rows)} designs give {output[0]} at {output[1]:g} deg: {why}; "
+                "narrow the bounds, or see the tests' errors in the folder's runs/failed/"
+            )
         surrogates[output] = fit_surrogate(np.array([u for u, _ in rows]), np.array([y for _, y in rows]), seed=seed)
     return surrogates
 
@@ -248,8 +270,9 @@ def _draws(n_outputs: int, seed: int) -> np.ndarray:
     return np.random.default_rng([seed, 7]).standard_normal((MC_DRAWS, n_outputs))
 
 
-def _objective_samples(targets: DesignTargets, surrogates: Mapping[tuple[str, float], PropertySurrogate],
-                       unit: np.ndarray, z: np.ndarray) -> np.ndarray:
+def _objective_samples(
+    targets: DesignTargets, surrogates: Mapping[tuple[str, float], PropertySurrogate], unit: np.ndarray, z: np.ndarray
+) -> np.ndarray:
     """Objective draws (n, MC_DRAWS) at the rows of ``unit`` through the surrogates' latent sd."""
     props = {}
     for j, output in enumerate(targets.outputs):
@@ -258,8 +281,9 @@ def _objective_samples(targets: DesignTargets, surrogates: Mapping[tuple[str, fl
     return targets.objective(props)
 
 
-def predicted_objective(targets: DesignTargets, surrogates: Mapping[tuple[str, float], PropertySurrogate],
-                        unit: np.ndarray) -> np.ndarray:
+def predicted_objective(
+    targets: DesignTargets, surrogates: Mapping[tuple[str, float], PropertySurrogate], unit: np.ndarray
+) -> np.ndarray:
     """The objective of the surrogates' median properties at the rows of ``unit``."""
     return targets.objective({o: surrogates[o].median(unit) for o in targets.outputs})
 
@@ -286,8 +310,14 @@ def _believed(surrogates: dict[Output, PropertySurrogate], x: np.ndarray) -> dic
     return out
 
 
-def _propose(space: DesignSpace, targets: DesignTargets, evaluations: Sequence[Evaluation],
-             surrogates: dict[tuple[str, float], PropertySurrogate], batch: int, seed: int) -> list[np.ndarray]:
+def _propose(
+    space: DesignSpace,
+    targets: DesignTargets,
+    evaluations: Sequence[Evaluation],
+    surrogates: dict[tuple[str, float], PropertySurrogate],
+    batch: int,
+    seed: int,
+) -> list[np.ndarray]:
     """``batch`` proposals by expected improvement with the kriging believer."""
     evaluated = np.array([e.unit for e in _designs(targets, evaluations)])
     z = _draws(len(targets.outputs), seed)
@@ -297,7 +327,7 @@ def _propose(space: DesignSpace, targets: DesignTargets, evaluations: Sequence[E
         # the believed proposals count as data: no improvement is expected right beside them
         known = np.vstack([evaluated, *proposals]) if proposals else evaluated
         incumbent = predicted_objective(targets, current, known)
-        order = np.argsort(incumbent[:len(evaluated)], kind="stable")[:3]
+        order = np.argsort(incumbent[: len(evaluated)], kind="stable")[:3]
         candidates = _candidates(space, evaluated[order], seed * 1000 + k)
         taken = np.vstack([evaluated, *proposals]) if proposals else evaluated
         distance = np.min(np.linalg.norm(candidates[:, None, :] - taken[None, :, :], axis=-1), axis=1)
@@ -317,8 +347,11 @@ def _initial(space: DesignSpace, n: int, seed: int) -> np.ndarray:
     draw = _snap(space, _sobol(space.dimension, 4096, seed))
     feasible = draw[space.feasible(draw)]
     if len(feasible) == 0:
-        raise ConfigError("constraints: no point inside the variables' bounds meets them ("
-                          + ", ".join(map(str, space.constraints)) + "); widen the bounds or relax a constraint")
+        raise ConfigError(
+            "constraints: no point inside the variables' bounds meets them ("
+            + ", ".join(map(str, space.constraints))
+            + "); widen the bounds or relax a constraint"
+        )
     unique = np.unique(feasible, axis=0, return_index=True)[1]
     return feasible[np.sort(unique)][:n]
 
@@ -390,17 +423,23 @@ def prepare_design(
     targets = parse_targets(targets)
     base = resolve_config(base, **overrides)
     if base.loading.test != "uniaxial" or base.loading.program is not None:
-        raise ConfigError("design: the targets are properties of a uniaxial tensile test; the base config's "
-                          f"loading must be loading.test = 'uniaxial' without a program (got {base.loading.test!r})")
+        raise ConfigError(
+            "design: the targets are properties of a uniaxial tensile test; the base config's "
+            f"loading must be loading.test = 'uniaxial' without a program (got {base.loading.test!r})"
+        )
     for target in targets.targets:
         if target.name == "yield_strain" and target.value * (1 + target.tolerance) >= base.loading.max_strain:
-            raise ConfigError(f"target yield_strain {target.value:g}: the tests stop at loading.max_strain = "
-                              f"{base.loading.max_strain:g}, before such a yield could show; raise loading.max_strain "
-                              "to a few times the target")
+            raise ConfigError(
+                f"target yield_strain {target.value:g}: the tests stop at loading.max_strain = "
+                f"{base.loading.max_strain:g}, before such a yield could show; raise loading.max_strain "
+                "to a few times the target"
+            )
         if isinstance(target, CurveTarget) and max(target.strain) > base.loading.max_strain * (1 + 1e-9):
-            raise ConfigError(f"curve target {target.source}: it reaches strain {max(target.strain):g} but the tests "
-                              f"stop at loading.max_strain = {base.loading.max_strain:g}; raise it "
-                              f"(--set loading.max_strain={max(target.strain):g}) or narrow the curve's strain range")
+            raise ConfigError(
+                f"curve target {target.source}: it reaches strain {max(target.strain):g} but the tests "
+                f"stop at loading.max_strain = {base.loading.max_strain:g}; raise it "
+                f"(--set loading.max_strain={max(target.strain):g}) or narrow the curve's strain range"
+            )
     space = DesignSpace.build(base, variables, constraints)
     budget, batch = _count("budget", budget, 1), _count("batch", batch, 1)
     replicates, verify, seed = _count("replicates", replicates, 2), _count("verify", verify, 2), _count("seed", seed, 0)
@@ -409,14 +448,18 @@ def prepare_design(
     realizations = _count("realizations", realizations, 1)
     needed = (n_initial * realizations + replicates - 1) * n_dir
     if budget < needed + n_dir * realizations:
-        raise ConfigError(f"budget: {budget} tensile tests cannot hold the initial design ({n_initial} designs x "
-                          f"{realizations} realization(s) + {replicates - 1} replicates) x {n_dir} direction(s) = "
-                          f"{needed} tests and one proposal; give at least {needed + n_dir * realizations}")
+        raise ConfigError(
+            f"budget: {budget} tensile tests cannot hold the initial design ({n_initial} designs x "
+            f"{realizations} realization(s) + {replicates - 1} replicates) x {n_dir} direction(s) = "
+            f"{needed} tests and one proposal; give at least {needed + n_dir * realizations}"
+        )
     first = _initial(space, n_initial, seed)
     if len(first) < 3:
         what = "bounds and constraints leave" if space.constraints else "bounds leave"
-        raise ConfigError(f"variables: the {what} only {len(first)} distinct design(s) (integer keys such as layers "
-                          "are rounded); widen the bounds" + (" or relax a constraint" if space.constraints else ""))
+        raise ConfigError(
+            f"variables: the {what} only {len(first)} distinct design(s) (integer keys such as layers "
+            "are rounded); widen the bounds" + (" or relax a constraint" if space.constraints else "")
+        )
     return DesignProblem(targets, space, first, realizations)
 
 
@@ -447,9 +490,20 @@ def run_design(
     function to check the optimizer).
     """
     start = time.perf_counter()
-    problem = prepare_design(targets, variables, base=base, constraints=constraints, budget=budget, batch=batch,
-                             initial=initial, replicates=replicates, verify=verify, seed=seed,
-                             realizations=realizations, **overrides)
+    problem = prepare_design(
+        targets,
+        variables,
+        base=base,
+        constraints=constraints,
+        budget=budget,
+        batch=batch,
+        initial=initial,
+        replicates=replicates,
+        verify=verify,
+        seed=seed,
+        realizations=realizations,
+        **overrides,
+    )
     targets, space, base, first = problem.targets, problem.space, problem.space.base, problem.first
     n_dir = len(targets.directions)
     cost = n_dir * realizations  # tensile tests per proposed design
@@ -496,22 +550,41 @@ def run_design(
     again = [new("replicate", best.unit, spare + replicates - 1 + k) for k in range(1, replicates)]
     evaluate(space, targets, again, folder, place)
     sd = _realization_sd(targets, evaluations)
-    verification = [Evaluation(len(evaluations) + k, "verify", best.unit, dict(best.values),
-                               search_seed + VERIFY_SEED_OFFSET + k) for k in range(verify)]
+    verification = [
+        Evaluation(len(evaluations) + k, "verify", best.unit, dict(best.values), search_seed + VERIFY_SEED_OFFSET + k)
+        for k in range(verify)
+    ]
     evaluate(space, targets, verification, folder, place)
     checks = (len(again) + len(verification)) * n_dir
-    return DesignRun(targets, space, evaluations, surrogates, best, sd, verification, tests, budget, checks,
-                     time.perf_counter() - start, _meets(targets, best), folder, realizations)
+    return DesignRun(
+        targets,
+        space,
+        evaluations,
+        surrogates,
+        best,
+        sd,
+        verification,
+        tests,
+        budget,
+        checks,
+        time.perf_counter() - start,
+        _meets(targets, best),
+        folder,
+        realizations,
+    )
 
 
-def _best(targets: DesignTargets, evaluations: Sequence[Evaluation],
-          surrogates: Mapping[tuple[str, float], PropertySurrogate]) -> Evaluation:
+def _best(
+    targets: DesignTargets, evaluations: Sequence[Evaluation], surrogates: Mapping[tuple[str, float], PropertySurrogate]
+) -> Evaluation:
     """The searched design whose surrogate-predicted objective is least (ties: lowest id), with
     its seed-mean outputs."""
     usable = [e for e in _designs(targets, evaluations) if np.all(np.isfinite(e.output_array(targets.outputs)))]
     if not usable:
-        raise SolverError("design: no evaluated design gave every targeted property; the curves show no yield or "
-                          "the tests fail in this design space: narrow the bounds")
+        raise SolverError(
+            "design: no evaluated design gave every targeted property; the curves show no yield or "
+            "the tests fail in this design space: narrow the bounds"
+        )
     predicted = predicted_objective(targets, surrogates, np.array([e.unit for e in usable]))
     return usable[int(np.argmin(predicted))]
 
@@ -525,8 +598,9 @@ def _target_scatter(target: Any, scatter: Mapping[Output, tuple[float, int]]) ->
     return math.sqrt(sum(s * s for s in sds if math.isfinite(s)))
 
 
-def _confident(targets: DesignTargets, best: Evaluation, scatter: Mapping[Output, tuple[float, int]],
-               realizations: int = 1) -> bool:
+def _confident(
+    targets: DesignTargets, best: Evaluation, scatter: Mapping[Output, tuple[float, int]], realizations: int = 1
+) -> bool:
     """Whether the search may stop: the best design's own errors within :data:`STOP_FRACTION`
     of every tolerance and, with one sd of the scatter between seeds added, within the
     tolerance (a target that scatters by more than its tolerance never stops the search early)."""

@@ -82,10 +82,12 @@ def fit_surrogate(unit: np.ndarray, values: np.ndarray, *, seed: int = 0) -> Pro
     log = bool(np.all(values > 0.0))
     y = np.log(values) if log else values
     d = unit.shape[1]
-    kernel = (ConstantKernel(1.0, (1e-3, 1e3)) * Matern(np.full(d, 0.5), (1e-2, 1e2), nu=2.5)
-              + WhiteKernel(1e-4, NOISE_BOUNDS))
-    model = GaussianProcessRegressor(kernel, normalize_y=True, n_restarts_optimizer=RESTARTS,
-                                     random_state=np.random.RandomState(seed))
+    kernel = ConstantKernel(1.0, (1e-3, 1e3)) * Matern(np.full(d, 0.5), (1e-2, 1e2), nu=2.5) + WhiteKernel(
+        1e-4, NOISE_BOUNDS
+    )
+    model = GaussianProcessRegressor(
+        kernel, normalize_y=True, n_restarts_optimizer=RESTARTS, random_state=np.random.RandomState(seed)
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)  # a bound reached is a fit, not a failure
         model.fit(unit, y)

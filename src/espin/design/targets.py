@@ -28,9 +28,18 @@ from numpy.typing import ArrayLike
 
 from espin.core.errors import ConfigError
 
-__all__ = ["PROPERTY_NAMES", "SYMBOLS", "DEFAULT_TOLERANCE", "STRESS_AT", "PropertyTarget", "RatioTarget",
-           "CurveTarget", "DesignTargets",
-           "parse_target", "parse_targets"]
+__all__ = [
+    "PROPERTY_NAMES",
+    "SYMBOLS",
+    "DEFAULT_TOLERANCE",
+    "STRESS_AT",
+    "PropertyTarget",
+    "RatioTarget",
+    "CurveTarget",
+    "DesignTargets",
+    "parse_target",
+    "parse_targets",
+]
 
 PROPERTY_NAMES = ("modulus_MPa", "yield_stress_MPa", "post_yield_modulus_MPa", "yield_strain")
 """The properties a design can target (columns of the bilinear fit)."""
@@ -43,8 +52,9 @@ DEFAULT_TOLERANCE = 0.05
 def _property(name: str) -> str:
     name = SYMBOLS.get(name, name)
     if name not in PROPERTY_NAMES:
-        raise ConfigError(f"target: unknown property {name!r}; one of {', '.join(PROPERTY_NAMES)} "
-                          f"or {', '.join(SYMBOLS)}")
+        raise ConfigError(
+            f"target: unknown property {name!r}; one of {', '.join(PROPERTY_NAMES)} or {', '.join(SYMBOLS)}"
+        )
     return name
 
 
@@ -140,13 +150,15 @@ class RatioTarget:
     def __post_init__(self) -> None:
         object.__setattr__(self, "name", _property(self.name))
         object.__setattr__(self, "value", _check_number(f"ratio target {self.name}", self.value, 0.0, math.inf))
-        object.__setattr__(self, "tolerance",
-                           _check_number(f"ratio target {self.name} tolerance", self.tolerance, 0.0, 1.0))
+        object.__setattr__(
+            self, "tolerance", _check_number(f"ratio target {self.name} tolerance", self.tolerance, 0.0, 1.0)
+        )
         object.__setattr__(self, "direction_deg", _direction(self.direction_deg))
         object.__setattr__(self, "over_direction_deg", _direction(self.over_direction_deg))
         if self.direction_deg == self.over_direction_deg:
-            raise ConfigError(f"ratio target {self.name}: the two directions must differ "
-                              f"(got {self.direction_deg:g} twice)")
+            raise ConfigError(
+                f"ratio target {self.name}: the two directions must differ (got {self.direction_deg:g} twice)"
+            )
 
     @property
     def label(self) -> str:
@@ -160,8 +172,9 @@ class RatioTarget:
 
     def achieved(self, properties: Mapping[tuple[str, float], ArrayLike]) -> np.ndarray:
         """The ratio achieved, from (name, direction) -> values (any shape)."""
-        return (np.asarray(properties[(self.name, self.direction_deg)], dtype=float)
-                / np.asarray(properties[(self.name, self.over_direction_deg)], dtype=float))
+        return np.asarray(properties[(self.name, self.direction_deg)], dtype=float) / np.asarray(
+            properties[(self.name, self.over_direction_deg)], dtype=float
+        )
 
     def error(self, properties: Mapping[tuple[str, float], np.ndarray]) -> np.ndarray:
         """Normalized error (achieved - target) / (tolerance target)."""
@@ -211,18 +224,29 @@ class CurveTarget:
         if not (np.all(np.isfinite(strain)) and np.all(strain > 0) and np.all(np.diff(strain) > 0)):
             raise ConfigError(f"curve target {self.source}: strains must be positive and increasing")
         if not (np.all(np.isfinite(stress)) and np.all(stress > 0)):
-            raise ConfigError(f"curve target {self.source}: stresses must be positive at the compared strains "
-                              "(leave out the toe's zero stresses with a strain range)")
+            raise ConfigError(
+                f"curve target {self.source}: stresses must be positive at the compared strains "
+                "(leave out the toe's zero stresses with a strain range)"
+            )
         object.__setattr__(self, "strain", tuple(map(float, strain)))
         object.__setattr__(self, "stress_MPa", tuple(map(float, stress)))
-        object.__setattr__(self, "tolerance", _check_number(f"curve target {self.source} tolerance", self.tolerance,
-                                                            0.0, 1.0))
+        object.__setattr__(
+            self, "tolerance", _check_number(f"curve target {self.source} tolerance", self.tolerance, 0.0, 1.0)
+        )
         object.__setattr__(self, "direction_deg", _direction(self.direction_deg))
 
     @classmethod
-    def from_curve(cls, strain: ArrayLike, stress_MPa: ArrayLike, *, points: int = 12,
-                   strain_range: tuple[float, float] | None = None, tolerance: float = DEFAULT_TOLERANCE,
-                   direction_deg: float = 0.0, source: str = "curve") -> CurveTarget:
+    def from_curve(
+        cls,
+        strain: ArrayLike,
+        stress_MPa: ArrayLike,
+        *,
+        points: int = 12,
+        strain_range: tuple[float, float] | None = None,
+        tolerance: float = DEFAULT_TOLERANCE,
+        direction_deg: float = 0.0,
+        source: str = "curve",
+    ) -> CurveTarget:
         """A target from a measured or wanted curve, interpolated at ``points`` evenly spaced
         strains over ``strain_range`` (default: from a ``points``-th of the last strain to it)."""
         x, y = np.asarray(strain, dtype=float), np.asarray(stress_MPa, dtype=float)
@@ -231,8 +255,10 @@ class CurveTarget:
         high = float(x.max())
         low, high = strain_range if strain_range is not None else (high / points, high)
         if not (0.0 < low < high <= x.max() + 1e-12):
-            raise ConfigError(f"curve target {source}: strain range {low:g}:{high:g} must lie in (0, "
-                              f"{x.max():g}], the curve's strains")
+            raise ConfigError(
+                f"curve target {source}: strain range {low:g}:{high:g} must lie in (0, "
+                f"{x.max():g}], the curve's strains"
+            )
         grid = np.linspace(low, high, int(points))
         return cls(tuple(grid), tuple(np.interp(grid, x, y)), tolerance, direction_deg, source)
 
@@ -316,7 +342,8 @@ _NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _SIDE = rf"(?P<{{p}}name>[A-Za-z_]+)(?:@(?P<{{p}}dir>{_NUMBER}))?"
 _TARGET = re.compile(
     rf"^\s*{_SIDE.format(p='a')}\s*(?:/\s*{_SIDE.format(p='b')}\s*)?=\s*(?P<value>{_NUMBER})\s*"
-    rf"(?:(?:\+-|±|\+/-)\s*(?P<tol>{_NUMBER})\s*%)?\s*$")
+    rf"(?:(?:\+-|±|\+/-)\s*(?P<tol>{_NUMBER})\s*%)?\s*$"
+)
 
 
 def parse_target(text: str) -> Target:
@@ -329,8 +356,10 @@ def parse_target(text: str) -> Target:
     """
     match = _TARGET.match(text)
     if match is None:
-        raise ConfigError(f"target {text!r}: write NAME[@DIR]=VALUE[+-TOL%] (E=200, sigma_y@90=4+-3%) or "
-                          "NAME@DIR/NAME@DIR=VALUE (E@0/E@90=3)")
+        raise ConfigError(
+            f"target {text!r}: write NAME[@DIR]=VALUE[+-TOL%] (E=200, sigma_y@90=4+-3%) or "
+            "NAME@DIR/NAME@DIR=VALUE (E@0/E@90=3)"
+        )
     tolerance = DEFAULT_TOLERANCE if match["tol"] is None else float(match["tol"]) / 100.0
     value = float(match["value"])
     if match["bname"] is None:

@@ -31,8 +31,17 @@ import numpy as np
 from espin.core.config import Config, apply_overrides
 from espin.core.errors import ConfigError
 
-__all__ = ["SHORT_NAMES", "DERIVED_KEYS", "CONSTRAINT_QUANTITIES", "DesignVariable", "Constraint", "DesignSpace",
-           "parse_variable", "parse_constraint", "constraint_value"]
+__all__ = [
+    "SHORT_NAMES",
+    "DERIVED_KEYS",
+    "CONSTRAINT_QUANTITIES",
+    "DesignVariable",
+    "Constraint",
+    "DesignSpace",
+    "parse_variable",
+    "parse_constraint",
+    "constraint_value",
+]
 
 SHORT_NAMES = {
     "eta": "rve.volume_fraction",
@@ -50,11 +59,21 @@ SHORT_NAMES = {
 DERIVED_KEYS = {"diameter_cv": "coefficient of variation of the fiber diameter, sd / mean"}
 """Variables that are not config keys themselves (see :meth:`DesignSpace.overrides`)."""
 _INTEGER_KEYS = {"rve.layers"}
-_FIBER_SYMBOLS = {"E_t", "E_b", "a_p", "b_p", "c_p", "taut_modulus_MPa", "slack_modulus_MPa", "flow_rate_per_s",
-                  "flow_resistance_MPa", "hardening_exponent"}
+_FIBER_SYMBOLS = {
+    "E_t",
+    "E_b",
+    "a_p",
+    "b_p",
+    "c_p",
+    "taut_modulus_MPa",
+    "slack_modulus_MPa",
+    "flow_rate_per_s",
+    "flow_resistance_MPa",
+    "hardening_exponent",
+}
 _NOT_VARIABLES = {
     "rve.diameter_um": "the fiber diameter does not change the stresses (every length scales with it); "
-                       "bound it with a constraint instead",
+    "bound it with a constraint instead",
     "rve.seed": "realizations are chosen by the design run",
     "rve.size_ratio": "the RVE size is a numerical choice, not a property of the mat",
     "rve.size_um": "the RVE size is a numerical choice, not a property of the mat",
@@ -86,8 +105,9 @@ class DesignVariable:
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.low) and math.isfinite(self.high) and self.low < self.high):
-            raise ConfigError(f"variable {self.key}: bounds must be finite with low < high "
-                              f"(got {self.low:g}, {self.high:g})")
+            raise ConfigError(
+                f"variable {self.key}: bounds must be finite with low < high (got {self.low:g}, {self.high:g})"
+            )
         if self.log and self.low <= 0.0:
             raise ConfigError(f"variable {self.key}: a log scale needs positive bounds (got low {self.low:g})")
 
@@ -129,9 +149,14 @@ def constraint_value(base: Config, values: Mapping[str, float], name: str) -> fl
     rve = base.rve
     eta = values.get("rve.volume_fraction", rve.volume_fraction)
     cv = values.get("diameter_cv", rve.diameter_sd_um / rve.diameter_um)
-    return {"porosity": 1.0 - eta, "volume_fraction": eta, "diameter_um": rve.diameter_um,
-            "diameter_sd_um": cv * rve.diameter_um, "diameter_cv": cv,
-            "layers": float(values.get("rve.layers", rve.layers))}[name]
+    return {
+        "porosity": 1.0 - eta,
+        "volume_fraction": eta,
+        "diameter_um": rve.diameter_um,
+        "diameter_sd_um": cv * rve.diameter_um,
+        "diameter_cv": cv,
+        "layers": float(values.get("rve.layers", rve.layers)),
+    }[name]
 
 
 @dataclass(frozen=True)
@@ -154,8 +179,9 @@ class Constraint:
 
     def __post_init__(self) -> None:
         if self.quantity not in CONSTRAINT_QUANTITIES:
-            raise ConfigError(f"constraint: unknown quantity {self.quantity!r}; one of "
-                              f"{', '.join(CONSTRAINT_QUANTITIES)}")
+            raise ConfigError(
+                f"constraint: unknown quantity {self.quantity!r}; one of {', '.join(CONSTRAINT_QUANTITIES)}"
+            )
         if self.op not in _OPS:
             raise ConfigError(f"constraint {self.quantity}: the operator is >= or <= (got {self.op!r})")
         if not math.isfinite(self.bound):
@@ -184,13 +210,17 @@ def parse_variable(text: str | tuple[str, float, float]) -> DesignVariable:
         name, low, high = text
         log = False
     if name in _FIBER_SYMBOLS or name.startswith("fiber."):
-        raise ConfigError(f"variable {name}: the fiber law is the material's, not the microstructure's: fit it to "
-                          "your tensile tests with espin fit and give its fitted.toml as the base config")
+        raise ConfigError(
+            f"variable {name}: the fiber law is the material's, not the microstructure's: fit it to "
+            "your tensile tests with espin fit and give its fitted.toml as the base config"
+        )
     key = SHORT_NAMES.get(name, name if "." in name or name in DERIVED_KEYS else f"rve.{name}")
     if not (key.startswith("rve.") or key in DERIVED_KEYS):
-        raise ConfigError(f"variable {name}: a design variable is a key of the mat, [rve] (or "
-                          f"{', '.join(DERIVED_KEYS)}); the loading and the solver are the test's, set them in the "
-                          "base config")
+        raise ConfigError(
+            f"variable {name}: a design variable is a key of the mat, [rve] (or "
+            f"{', '.join(DERIVED_KEYS)}); the loading and the solver are the test's, set them in the "
+            "base config"
+        )
     if key in _NOT_VARIABLES:
         raise ConfigError(f"variable {name}: not a design variable: {_NOT_VARIABLES[key]}")
     return DesignVariable(key, float(low), float(high), integer=key in _INTEGER_KEYS, log=log)
@@ -202,8 +232,10 @@ def parse_constraint(text: str | Constraint) -> Constraint:
         return text
     match = re.fullmatch(rf"\s*(\w+)\s*(>=|<=)\s*({_NUMBER})\s*", text)
     if match is None:
-        raise ConfigError(f"constraint {text!r}: write QUANTITY>=BOUND or QUANTITY<=BOUND, QUANTITY one of "
-                          f"{', '.join(CONSTRAINT_QUANTITIES)}")
+        raise ConfigError(
+            f"constraint {text!r}: write QUANTITY>=BOUND or QUANTITY<=BOUND, QUANTITY one of "
+            f"{', '.join(CONSTRAINT_QUANTITIES)}"
+        )
     return Constraint(match[1], match[2], float(match[3]))
 
 
@@ -225,8 +257,12 @@ class DesignSpace:
     constraints: tuple[Constraint, ...] = ()
 
     @classmethod
-    def build(cls, base: Config, variables: Iterable[str | tuple[str, float, float] | DesignVariable]
-              | Mapping[str, tuple[float, float]], constraints: Iterable[str | Constraint] = ()) -> DesignSpace:
+    def build(
+        cls,
+        base: Config,
+        variables: Iterable[str | tuple[str, float, float] | DesignVariable] | Mapping[str, tuple[float, float]],
+        constraints: Iterable[str | Constraint] = (),
+    ) -> DesignSpace:
         """Parse and check the variables and constraints against ``base`` (both bounds of every
         variable must give a valid config) before any work."""
         if isinstance(variables, Mapping):
@@ -250,8 +286,9 @@ class DesignSpace:
                 try:
                     space.config(unit)
                 except ConfigError as err:
-                    raise ConfigError(f"variable {variable.key}: bound {variable.value(end):g} is not allowed: "
-                                      f"{err}") from None
+                    raise ConfigError(
+                        f"variable {variable.key}: bound {variable.value(end):g} is not allowed: {err}"
+                    ) from None
         return space
 
     @property

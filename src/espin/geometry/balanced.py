@@ -78,7 +78,7 @@ class BalancedSampler:
         while self._used + n > len(self._points):
             # Doubling keeps the drawn count a power of 2 (the sequence's balanced blocks).
             self._points = np.vstack([self._points, self._sobol.random(len(self._points))])
-        return self._points[self._used:self._used + n]
+        return self._points[self._used : self._used + n]
 
     def herd(self, contents: np.ndarray) -> np.ndarray:
         """Choose, fiber after fiber, one variant of its walk.

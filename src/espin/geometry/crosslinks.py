@@ -170,9 +170,7 @@ def find_crosslinks(mat: FiberMat, cell_size: float | None = None) -> Crosslinks
     # One layer pair (k, k+1) at a time keeps the working arrays in cache.
     for k in range(mat.n_layers):
         rows = slice(bounds[k], bounds[min(k + 2, mat.n_layers)])
-        a, b, t, u = _crossings_in_bins(
-            seg[rows], cell[rows], lo, seg_fiber, seg_layer, k, n_cells, p, q
-        )
+        a, b, t, u = _crossings_in_bins(seg[rows], cell[rows], lo, seg_fiber, seg_layer, k, n_cells, p, q)
         found_a.append(a)
         found_b.append(b)
         found_t.append(t)

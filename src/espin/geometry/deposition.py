@@ -82,8 +82,7 @@ def _border_points(s: np.ndarray, side: float) -> tuple[np.ndarray, np.ndarray]:
     return start, edge
 
 
-def _inward(rng: np.random.Generator, theta: np.ndarray, edge: np.ndarray,
-            dist: OrientationDistribution) -> np.ndarray:
+def _inward(rng: np.random.Generator, theta: np.ndarray, edge: np.ndarray, dist: OrientationDistribution) -> np.ndarray:
     """The sense of the axes ``theta`` [rad] that points into the square from ``edge``
     (axes parallel to the edge drawn again)."""
     normal = _INWARD[edge]
@@ -158,8 +157,7 @@ class _PaperTurns:
     def __init__(self, max_turn: float) -> None:
         self.max_turn = max_turn
 
-    def start(self, rng: np.random.Generator, start: np.ndarray, theta: np.ndarray,
-              side: float) -> np.ndarray:
+    def start(self, rng: np.random.Generator, start: np.ndarray, theta: np.ndarray, side: float) -> np.ndarray:
         return theta.copy()
 
     @staticmethod
@@ -179,8 +177,9 @@ class _PaperTurns:
         """Steps per block of turns: the mean chord pi L / 4 in ``n_blocks`` parts."""
         return int(np.ceil(np.pi * side / 4.0 / segment / n_blocks))
 
-    def directions(self, rng: np.random.Generator, state: np.ndarray, n_steps: int,
-                   first: bool) -> tuple[np.ndarray, np.ndarray]:
+    def directions(
+        self, rng: np.random.Generator, state: np.ndarray, n_steps: int, first: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
         turns = rng.uniform(-self.max_turn, self.max_turn, (len(state), n_steps))
         if first:
             turns[:, 0] = 0.0  # the first segment follows the drawn axis
@@ -215,8 +214,9 @@ class _SmoothDeviation:
         phi = self.coupling * psi + np.sqrt(1.0 - self.coupling**2) * rng.normal(0.0, 1.0, n)
         return psi, phi
 
-    def start(self, rng: np.random.Generator, start: np.ndarray, theta: np.ndarray,
-              side: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def start(
+        self, rng: np.random.Generator, start: np.ndarray, theta: np.ndarray, side: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         # The first state is drawn from the stationary law, again while the first segment
         # would point out of the square (then the drawn axis itself, which points in).
         psi, phi = self._stationary(rng, len(theta))
@@ -229,8 +229,9 @@ class _SmoothDeviation:
             psi[out], phi[out] = 0.0, 0.0
         return theta, psi, phi
 
-    def mirrorable(self, start: np.ndarray, state: tuple[np.ndarray, np.ndarray, np.ndarray],
-                   side: float) -> np.ndarray:
+    def mirrorable(
+        self, start: np.ndarray, state: tuple[np.ndarray, np.ndarray, np.ndarray], side: float
+    ) -> np.ndarray:
         """Fibers whose mirror image also starts into the square: on that set, symmetric in
         the deviation, the image has the walk's law."""
         theta, _, phi = state
@@ -252,9 +253,9 @@ class _SmoothDeviation:
         ahead = start + 1e-9 * side * np.c_[np.cos(direction), np.sin(direction)]
         return ((ahead <= 0.0) | (ahead >= side)).any(axis=1)
 
-    def directions(self, rng: np.random.Generator, state: tuple[np.ndarray, np.ndarray, np.ndarray],
-                   n_steps: int, first: bool
-                   ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    def directions(
+        self, rng: np.random.Generator, state: tuple[np.ndarray, np.ndarray, np.ndarray], n_steps: int, first: bool
+    ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
         from scipy.signal import lfilter
 
         mean, psi, phi = state
@@ -268,8 +269,9 @@ class _SmoothDeviation:
         return mean[:, None] + self.rms * phi_k, (mean, psi_k[:, -1], phi_k[:, -1])
 
     @staticmethod
-    def keep(state: tuple[np.ndarray, np.ndarray, np.ndarray],
-             going: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def keep(
+        state: tuple[np.ndarray, np.ndarray, np.ndarray], going: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return state[0][going], state[1][going], state[2][going]
 
 
@@ -277,8 +279,11 @@ def _walk_model(rve: RVEConfig) -> _PaperTurns | _SmoothDeviation:
     """The direction model of ``rve.walk`` (docs/model.md section 1)."""
     if rve.walk == "smooth":
         # The config fills the keys of its walk (WALK_DEFAULTS).
-        return _SmoothDeviation(np.radians(cast(float, rve.waviness_deg)),
-                                cast(float, rve.waviness_length_ratio) * rve.diameter_um, rve.segment_length_um)
+        return _SmoothDeviation(
+            np.radians(cast(float, rve.waviness_deg)),
+            cast(float, rve.waviness_length_ratio) * rve.diameter_um,
+            rve.segment_length_um,
+        )
     return _PaperTurns(np.radians(cast(float, rve.max_deviation_deg)))
 
 
@@ -320,8 +325,7 @@ def _walk(
     drawn = np.arange(n)  # fibers whose directions are still drawn (a variant is inside)
     state: Any = model.start(rng, start, theta, side)  # the model's own, passed back to it
     if len(signs) > 1:
-        row_signs = np.where(model.mirrorable(start, state, side)[drawn_for, None],
-                             np.repeat(signs, n, axis=0), 1.0)
+        row_signs = np.where(model.mirrorable(start, state, side)[drawn_for, None], np.repeat(signs, n, axis=0), 1.0)
         block = max(model.block_steps(side, segment, signs.shape[1]), 1)
         drawn_last = theta.copy()  # direction before the next drawn segment
         row_last = theta[drawn_for]
@@ -336,7 +340,8 @@ def _walk(
             turns = np.diff(np.c_[drawn_last, drawn_angles], axis=1)[np.searchsorted(drawn, drawn_for[active[turned]])]
             blocks = np.minimum((step + np.arange(chunk)) // block, signs.shape[1] - 1)
             angles[turned] = row_last[active[turned], None] + np.cumsum(
-                row_signs[active[turned]][:, blocks] * turns, axis=1)
+                row_signs[active[turned]][:, blocks] * turns, axis=1
+            )
             row_last[active] = angles[:, -1]
             drawn_last = drawn_angles[:, -1]
         step += chunk
@@ -379,8 +384,9 @@ def _diameters(rng: np.random.Generator, n: int, rve: RVEConfig) -> np.ndarray:
     # more than the draws of a layer (the geometry calibration deposits ~1e5 layers).
     if rve.diameter_distribution == "normal":
         lower = (cast(float, rve.diameter_min_um) - rve.diameter_um) / rve.diameter_sd_um
-        return stats.truncnorm.rvs(lower, np.inf, loc=rve.diameter_um, scale=rve.diameter_sd_um,
-                                   size=n, random_state=rng)
+        return stats.truncnorm.rvs(
+            lower, np.inf, loc=rve.diameter_um, scale=rve.diameter_sd_um, size=n, random_state=rng
+        )
     return _diameter_quantiles(rve, rng.uniform(0.0, 1.0, n))
 
 
@@ -401,7 +407,7 @@ def _diameter_quantiles(rve: RVEConfig, u: np.ndarray) -> np.ndarray:
 def _lognormal_parameters(mean_um: float, sd_um: float) -> tuple[float, float]:
     """sigma of ln D and the median [um] of the lognormal of this mean and sd."""
     sigma = float(np.sqrt(np.log1p((sd_um / mean_um) ** 2)))
-    return sigma, mean_um * float(np.exp(-sigma**2 / 2.0))
+    return sigma, mean_um * float(np.exp(-(sigma**2) / 2.0))
 
 
 def lognormal_diameters(mean_um: float, sd_um: float) -> Any:
@@ -411,9 +417,7 @@ def lognormal_diameters(mean_um: float, sd_um: float) -> Any:
     return stats.lognorm(s=sigma, scale=median)
 
 
-def deposit_layer(
-    rve: RVEConfig, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def deposit_layer(rve: RVEConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Deposit one layer of random sampling until its volume fraction reaches
     ``rve.volume_fraction``.
 
@@ -470,8 +474,9 @@ def _fiber_volumes(vertices: np.ndarray, counts: np.ndarray, diameter: np.ndarra
     return np.pi * diameter**2 / 4.0 * (cum[ends - 1] - cum[ends - counts])
 
 
-def _balanced_layers(rve: RVEConfig, progress: Callable[[int, int], None] | None
-                     ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+def _balanced_layers(
+    rve: RVEConfig, progress: Callable[[int, int], None] | None
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """All layers of a mat of balanced sampling, deposited together: fiber after fiber, the
     sampler's next fiber goes to a layer drawn uniformly among those not yet full, until
     every layer reaches ``rve.volume_fraction`` (the fiber that crosses it is kept).
@@ -504,7 +509,7 @@ def _balanced_layers(rve: RVEConfig, progress: Callable[[int, int], None] | None
         n_keep = batch
         for j in range(batch):
             layer = open_layers[int(chooser.integers(len(open_layers)))]
-            kept[layer].append((vertices[ends[j]:ends[j + 1]], diameter[j]))
+            kept[layer].append((vertices[ends[j] : ends[j + 1]], diameter[j]))
             volume[layer] += fiber_volume[j]
             if volume[layer] >= target:
                 open_layers.remove(layer)
@@ -513,15 +518,26 @@ def _balanced_layers(rve: RVEConfig, progress: Callable[[int, int], None] | None
                     break
         if progress is not None:
             # The layers fill together: report the fiber volume laid, in layers' worth.
-            progress(rve.layers - len(open_layers) if not open_layers
-                     else min(int(np.minimum(volume, target).sum() / target), rve.layers - 1), rve.layers)
+            progress(
+                rve.layers - len(open_layers)
+                if not open_layers
+                else min(int(np.minimum(volume, target).sum() / target), rve.layers - 1),
+                rve.layers,
+            )
         sampler.accept(n_keep)
-    return [(np.concatenate([v for v, _ in fibers]), np.array([len(v) for v, _ in fibers]),
-             np.array([d for _, d in fibers])) for fibers in kept]
+    return [
+        (
+            np.concatenate([v for v, _ in fibers]),
+            np.array([len(v) for v, _ in fibers]),
+            np.array([d for _, d in fibers]),
+        )
+        for fibers in kept
+    ]
 
 
-def _random_fibers(rve: RVEConfig, rng: np.random.Generator, n: int, dist: OrientationDistribution
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _random_fibers(
+    rve: RVEConfig, rng: np.random.Generator, n: int, dist: OrientationDistribution
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``n`` candidate fibers drawn independently (the paper): vertices, counts, diameters."""
     seed_fibers = _border_starts if rve.seeding == "border" else _line_starts
     start, theta = seed_fibers(rng, n, rve.side_um, dist)
@@ -530,8 +546,9 @@ def _random_fibers(rve: RVEConfig, rng: np.random.Generator, n: int, dist: Orien
     return vertices, counts, diameter
 
 
-def _balanced_fibers(rve: RVEConfig, rng: np.random.Generator, n: int, dist: OrientationDistribution,
-                     sampler: BalancedSampler) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _balanced_fibers(
+    rve: RVEConfig, rng: np.random.Generator, n: int, dist: OrientationDistribution, sampler: BalancedSampler
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``n`` candidate fibers of balanced sampling (geometry/balanced.py): axis, start and
     diameter at the sampler's next points, each walk's variant (turns negated in part or in
     whole, ``model.variants``) chosen by herding."""

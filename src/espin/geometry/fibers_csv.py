@@ -24,15 +24,21 @@ import pandas as pd
 from espin.core.atomic import atomic_write
 from espin.core.errors import SEMError
 
-__all__ = ["FIBER_COLUMNS", "EDGE_COLUMNS", "EDGE_NAMES", "VISIBLE_COLUMN", "parse_flags", "read_fibers_csv",
-           "write_fibers_csv"]
+__all__ = [
+    "FIBER_COLUMNS",
+    "EDGE_COLUMNS",
+    "EDGE_NAMES",
+    "VISIBLE_COLUMN",
+    "parse_flags",
+    "read_fibers_csv",
+    "write_fibers_csv",
+]
 
 EDGE_COLUMNS = ("start_edge", "end_edge")
 """Text columns: the image edge each end of a fiber lies on (empty: inside the image)."""
 EDGE_NAMES = ("bottom", "right", "top", "left")
 """Edge names, in the order of :func:`espin.geometry.pieces.border_edges` (0 = bottom)."""
-_NUMBER_COLUMNS = ("diameter_um", "orientation_deg", "tortuosity", "contour_length_um",
-                   "end_to_end_um")
+_NUMBER_COLUMNS = ("diameter_um", "orientation_deg", "tortuosity", "contour_length_um", "end_to_end_um")
 VISIBLE_COLUMN = "visible"
 """Boolean column: a fully visible top fiber (True) or a partly hidden deeper one (False)."""
 FIBER_COLUMNS = ("fiber", *_NUMBER_COLUMNS, *EDGE_COLUMNS, VISIBLE_COLUMN)
@@ -87,8 +93,10 @@ def read_fibers_csv(path: str | Path) -> pd.DataFrame:
         raise SEMError(f"fibers table {str(path)!r} is not a readable CSV file ({err})") from err
     raw.columns = [str(c).strip() for c in raw.columns]
     if not any(c in raw.columns for c in _MEASURED):
-        raise SEMError(f"fibers table {str(path)!r} needs at least one of the columns "
-                       f"{', '.join(_MEASURED)}; found {', '.join(raw.columns) or 'none'}")
+        raise SEMError(
+            f"fibers table {str(path)!r} needs at least one of the columns "
+            f"{', '.join(_MEASURED)}; found {', '.join(raw.columns) or 'none'}"
+        )
     out = pd.DataFrame(index=raw.index)
     for column in _NUMBER_COLUMNS:
         if column in raw.columns:
@@ -110,8 +118,9 @@ def _checked(values: pd.Series, column: str, path: Path) -> pd.Series:
     bad = numbers.isna() & values.notna() & (values.astype(str).str.strip() != "")
     if bad.any():
         row = int(np.flatnonzero(bad.to_numpy())[0])
-        raise SEMError(f"fibers table {str(path)!r}: column {column}, data row {row + 1}: "
-                       f"{values.iloc[row]!r} is not a number")
+        raise SEMError(
+            f"fibers table {str(path)!r}: column {column}, data row {row + 1}: {values.iloc[row]!r} is not a number"
+        )
     test, allowed = _RANGES[column]
     present = numbers.notna().to_numpy()
     x = numbers.to_numpy()
@@ -119,8 +128,7 @@ def _checked(values: pd.Series, column: str, path: Path) -> pd.Series:
     wrong |= present & ~np.isfinite(np.where(present, x, 0.0))
     if wrong.any():
         row = int(np.flatnonzero(wrong)[0])
-        raise SEMError(f"fibers table {str(path)!r}: column {column}, data row {row + 1}: "
-                       f"{x[row]:g} is not {allowed}")
+        raise SEMError(f"fibers table {str(path)!r}: column {column}, data row {row + 1}: {x[row]:g} is not {allowed}")
     return numbers
 
 
@@ -129,8 +137,10 @@ def _checked_edges(values: pd.Series, column: str, path: Path) -> pd.Series:
     bad = ~names.isin(("", *EDGE_NAMES))
     if bad.any():
         row = int(np.flatnonzero(bad.to_numpy())[0])
-        raise SEMError(f"fibers table {str(path)!r}: column {column}, data row {row + 1}: "
-                       f"{values.iloc[row]!r} is not an edge ({', '.join(EDGE_NAMES)} or empty)")
+        raise SEMError(
+            f"fibers table {str(path)!r}: column {column}, data row {row + 1}: "
+            f"{values.iloc[row]!r} is not an edge ({', '.join(EDGE_NAMES)} or empty)"
+        )
     return names
 
 
@@ -147,8 +157,10 @@ def parse_flags(values: Any) -> tuple[np.ndarray, int | None]:
 def _checked_flags(values: pd.Series, path: Path) -> pd.Series:
     flags, bad = parse_flags(values)
     if bad is not None:
-        raise SEMError(f"fibers table {str(path)!r}: column {VISIBLE_COLUMN}, data row {bad + 1}: "
-                       f"{values.iloc[bad]!r} is not True or False")
+        raise SEMError(
+            f"fibers table {str(path)!r}: column {VISIBLE_COLUMN}, data row {bad + 1}: "
+            f"{values.iloc[bad]!r} is not True or False"
+        )
     return pd.Series(flags, index=values.index)
 
 

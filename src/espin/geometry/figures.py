@@ -92,9 +92,17 @@ def plot_mat(
     ax.add_collection(lc)
     if window is not None:
         ax.add_patch(
-            Rectangle(tuple(window.origin), window.side, window.side, fill=False, edgecolor="red",
-                      linewidth=1.8, linestyle="--", zorder=5,
-                      label=f"observation window ({window.side:.3g} µm)")
+            Rectangle(
+                tuple(window.origin),
+                window.side,
+                window.side,
+                fill=False,
+                edgecolor="red",
+                linewidth=1.8,
+                linestyle="--",
+                zorder=5,
+                label=f"observation window ({window.side:.3g} µm)",
+            )
         )
         ax.legend(loc="upper right", fontsize="small")
     ax.set_xlim(0.0, mat.size)
@@ -102,8 +110,7 @@ def plot_mat(
     ax.set_aspect("equal")
     ax.set_xlabel("x [µm]")
     ax.set_ylabel("y [µm]")
-    ax.set_title(title or f"{mat.n_fibers:,} fibers in {mat.n_layers} layers, "
-                          f"L = {mat.size:g} µm")
+    ax.set_title(title or f"{mat.n_fibers:,} fibers in {mat.n_layers} layers, L = {mat.size:g} µm")
     ticks = np.arange(0, n_layers, -(-n_layers // 10))  # at most 10 evenly spaced layers
     fig.colorbar(lc, ax=ax, label="layer", ticks=ticks, shrink=0.85)
     return save_figure(fig, path, dpi)
@@ -113,8 +120,16 @@ def _hist(ax, sample: np.ndarray, bins: np.ndarray, label: str, color: str = "C0
     sample = np.asarray(sample, dtype=float)
     sample = sample[np.isfinite(sample)]
     if len(sample):
-        ax.hist(sample, bins=bins, density=True, color=color, alpha=0.6, edgecolor="white",
-                linewidth=0.4, label=f"{label} (n = {len(sample):,})")
+        ax.hist(
+            sample,
+            bins=bins,
+            density=True,
+            color=color,
+            alpha=0.6,
+            edgecolor="white",
+            linewidth=0.4,
+            label=f"{label} (n = {len(sample):,})",
+        )
     else:
         ax.text(0.5, 0.5, "no data", transform=ax.transAxes, ha="center")
 
@@ -167,12 +182,16 @@ def _against_target(ax, values: np.ndarray, target: Target | None, label: str, f
         ax.plot([], [], " ", label="no measured target in the config")
     elif target.law is not None:
         x = np.linspace(lo, hi, 400)
-        ax.plot(x, target.law.pdf(x), color="k",
-                label=f"measured {_typeset(target.label)}, mean {target.mean:.4g}")
+        ax.plot(x, target.law.pdf(x), color="k", label=f"measured {_typeset(target.label)}, mean {target.mean:.4g}")
     else:
-        ax.hist(np.clip(cast(np.ndarray, target.sample), lo, hi),  # a target without a law has a sample
-                bins=bins, density=True, histtype="step",
-                color="k", label=f"measured {_typeset(target.label)}, mean {target.mean:.4g}")
+        ax.hist(
+            np.clip(cast(np.ndarray, target.sample), lo, hi),  # a target without a law has a sample
+            bins=bins,
+            density=True,
+            histtype="step",
+            color="k",
+            label=f"measured {_typeset(target.label)}, mean {target.mean:.4g}",
+        )
     ax.legend(fontsize="small")
 
 
@@ -219,10 +238,17 @@ def plot_statistics(stats: NetworkStatistics, path: str | Path, *, dpi: float = 
         edge = along_an_edge(sample) if sample is stats.fiber_orientation else np.zeros(len(sample), bool)
         if edge.any():  # their share of the same density, drawn over the bars of 0 and 90 deg
             width = edges[1] - edges[0]
-            ax.hist(np.degrees(sample[edge]), bins=edges, weights=np.full(edge.sum(), 1.0 / (len(sample) * width)),
-                    color="C3", alpha=0.8, edgecolor="white", linewidth=0.4,
-                    label=f"of which {edge.sum():,} ({edge.mean():.1%}) enter and leave through one edge:\n"
-                          "their chord lies along it (a boundary artefact, not alignment)")
+            ax.hist(
+                np.degrees(sample[edge]),
+                bins=edges,
+                weights=np.full(edge.sum(), 1.0 / (len(sample) * width)),
+                color="C3",
+                alpha=0.8,
+                edgecolor="white",
+                linewidth=0.4,
+                label=f"of which {edge.sum():,} ({edge.mean():.1%}) enter and leave through one edge:\n"
+                "their chord lies along it (a boundary artefact, not alignment)",
+            )
         ax.plot(grid, pdf_deg, color="k", label=f"target: {target.label}")
         ax.set_xlim(0.0, 180.0)
         ax.set_xticks(np.arange(0, 181, 30))
@@ -278,8 +304,9 @@ def plot_statistics(stats: NetworkStatistics, path: str | Path, *, dpi: float = 
     el = el[np.isfinite(el) & (el > 0)]
     if len(el):
         bins = np.geomspace(el.min(), max(el.max(), el.min() * 1.0001), 41)
-        ax.hist(el, bins=bins, color="C3", alpha=0.6, edgecolor="white", linewidth=0.4,
-                label=f"elements (n = {len(el):,})")
+        ax.hist(
+            el, bins=bins, color="C3", alpha=0.6, edgecolor="white", linewidth=0.4, label=f"elements (n = {len(el):,})"
+        )
         ax.set_xscale("log")
         ax.axvline(np.mean(el), color="k", linestyle="--", label=f"mean {np.mean(el):.3g} µm")
         ax.legend(fontsize="small")

@@ -187,8 +187,9 @@ def build_network(mat: FiberMat, crosslinks: Crosslinks, tolerance: float) -> Ne
         n_clusters = label.max() + 1 if n_cand else 0
         border = np.bincount(label, weights=is_end, minlength=n_clusters) > 0
         weight = np.bincount(label, minlength=n_clusters)
-        centre: np.ndarray = np.stack([np.bincount(label, weights=position[:, i], minlength=n_clusters)
-                                       for i in (0, 1)], 1)
+        centre: np.ndarray = np.stack(
+            [np.bincount(label, weights=position[:, i], minlength=n_clusters) for i in (0, 1)], 1
+        )
         centre /= weight[:, None]
         ends = np.flatnonzero(is_end)
         centre[label[ends]] = position[ends]

@@ -77,9 +77,19 @@ def is_network_file(path: str | Path) -> bool:
     return head.startswith("*Parametros")
 
 
-def network_from_segments(position: np.ndarray, border: np.ndarray, nodes: np.ndarray, diameter: np.ndarray,
-                          tortuosity: np.ndarray, plastic_stretch: np.ndarray, *, size: float, thickness: float,
-                          n_layers: int, what: str) -> Network:
+def network_from_segments(
+    position: np.ndarray,
+    border: np.ndarray,
+    nodes: np.ndarray,
+    diameter: np.ndarray,
+    tortuosity: np.ndarray,
+    plastic_stretch: np.ndarray,
+    *,
+    size: float,
+    thickness: float,
+    n_layers: int,
+    what: str,
+) -> Network:
     """A :class:`Network` from nodes and segments (inner nodes are numbered first).
 
     Parameters
@@ -108,25 +118,33 @@ def network_from_segments(position: np.ndarray, border: np.ndarray, nodes: np.nd
     """
     n = len(position)
     if not (size > 0 and thickness > 0 and n_layers >= 1):
-        raise InputError(f"{what}: side {size:g} um, thickness {thickness:g} um and {n_layers} layers: the side "
-                         "and thickness must be > 0 and the layers >= 1")
+        raise InputError(
+            f"{what}: side {size:g} um, thickness {thickness:g} um and {n_layers} layers: the side "
+            "and thickness must be > 0 and the layers >= 1"
+        )
     bad = np.flatnonzero((nodes < 0).any(1) | (nodes >= n).any(1) | (nodes[:, 0] == nodes[:, 1]))
     if bad.size:
-        raise InputError(f"{what}: segment {bad[0]} joins nodes {nodes[bad[0]].tolist()}; a segment joins two "
-                         f"different nodes among the {n}")
+        raise InputError(
+            f"{what}: segment {bad[0]} joins nodes {nodes[bad[0]].tolist()}; a segment joins two "
+            f"different nodes among the {n}"
+        )
     for name, values, low in (("diameter", diameter, 0.0), ("plastic stretch", plastic_stretch, 0.0)):
         bad = np.flatnonzero(~(values > low))
         if bad.size:
             raise InputError(f"{what}: segment {bad[0]} has {name} {values[bad[0]]:.6g}; it must be > {low:g}")
     bad = np.flatnonzero(~(tortuosity >= 1.0))
     if bad.size:
-        raise InputError(f"{what}: segment {bad[0]} has tortuosity {tortuosity[bad[0]]:.6g}; it must be >= 1 "
-                         "(contour over end-to-end length)")
+        raise InputError(
+            f"{what}: segment {bad[0]} has tortuosity {tortuosity[bad[0]]:.6g}; it must be >= 1 "
+            "(contour over end-to-end length)"
+        )
     slack = _LENGTH_RTOL * size
     outside = np.flatnonzero(~np.all((position >= -slack) & (position <= size + slack), axis=1))
     if outside.size:
-        raise InputError(f"{what}: node {outside[0]} lies at {position[outside[0]].tolist()} um, outside the "
-                         f"square of side {size:g} um")
+        raise InputError(
+            f"{what}: node {outside[0]} lies at {position[outside[0]].tolist()} um, outside the "
+            f"square of side {size:g} um"
+        )
     used = np.bincount(nodes.ravel(), minlength=n) > 0
     if not used.all():
         raise InputError(f"{what}: node {int(np.argmin(used))} belongs to no segment")
@@ -167,8 +185,10 @@ def _sections(path: Path, text: str) -> dict[str, list[str]]:
             sections[current].append(stripped)
     for name in ("Parametros", "Coordenadas", "Fibras"):
         if name not in sections:
-            raise InputError(f"{path}: no *{name} section; expected the authors' mesh format (the *Parametros, "
-                             "*Coordenadas and *Fibras sections, docs/mechanics.md)")
+            raise InputError(
+                f"{path}: no *{name} section; expected the authors' mesh format (the *Parametros, "
+                "*Coordenadas and *Fibras sections, docs/mechanics.md)"
+            )
     return sections
 
 
@@ -178,7 +198,7 @@ def _table(path: Path, section: str, lines: list[str], columns: int) -> list[lis
         count = int(lines[0])
     except (IndexError, ValueError):
         raise InputError(f"{path}: *{section} must start with the number of records") from None
-    records = [line.split() for line in lines[1:1 + count]]
+    records = [line.split() for line in lines[1 : 1 + count]]
     if len(records) < count:
         raise InputError(f"{path}: *{section} announces {count} records but holds {len(records)}")
     short = next((k for k, r in enumerate(records) if len(r) < columns), None)
@@ -189,8 +209,9 @@ def _table(path: Path, section: str, lines: list[str], columns: int) -> list[lis
 
 def _numbers(path: Path, section: str, records: list[list[str]], columns: list[int]) -> np.ndarray:
     try:
-        values = np.array([[float(r[c]) for c in columns] for r in records], dtype=float).reshape(len(records),
-                                                                                                 len(columns))
+        values = np.array([[float(r[c]) for c in columns] for r in records], dtype=float).reshape(
+            len(records), len(columns)
+        )
     except ValueError:
         raise InputError(f"{path}: *{section} holds a field that is not a number") from None
     if not np.all(np.isfinite(values)):
@@ -206,8 +227,9 @@ def _read_authors(path: Path) -> Network:
     try:
         size, thickness, n_layers = float(parameters[0]), float(parameters[1]), int(parameters[2])
     except (IndexError, ValueError):
-        raise InputError(f"{path}: *Parametros must hold the side [um], the diameter [um] and the number of "
-                         "layers, one per line") from None
+        raise InputError(
+            f"{path}: *Parametros must hold the side [um], the diameter [um] and the number of layers, one per line"
+        ) from None
     node_records = _table(path, "Coordenadas", sections["Coordenadas"], 4)
     node = _numbers(path, "Coordenadas", node_records, [0, 1, 2, 3])
     if not np.array_equal(node[:, 0], np.arange(len(node))):
@@ -222,8 +244,18 @@ def _read_authors(path: Path) -> Network:
         raise InputError(f"{path}: *Fibras: segment {broken[0]} is marked broken; espin reads intact networks")
     nodes = segment[:, 4:6].astype(np.int64)
     position = node[:, 2:4] + size / 2.0
-    network = network_from_segments(position, kind == 1.0, nodes, segment[:, 0], segment[:, 2], segment[:, 3],
-                                    size=size, thickness=thickness, n_layers=n_layers, what=str(path))
+    network = network_from_segments(
+        position,
+        kind == 1.0,
+        nodes,
+        segment[:, 0],
+        segment[:, 2],
+        segment[:, 3],
+        size=size,
+        thickness=thickness,
+        n_layers=n_layers,
+        what=str(path),
+    )
     _check_l0(path, "*Fibras", segment[:, 1], position[nodes[:, 1]] - position[nodes[:, 0]], size)
     return network
 
@@ -256,8 +288,9 @@ def _read_plain(path: Path) -> Network:
             size, thickness = float(f.attrs["side_um"]), float(f.attrs["layer_thickness_um"])
             n_layers = int(f.attrs["layers"])
         except (KeyError, TypeError, ValueError):
-            raise InputError(f"{path}: the root needs the attributes side_um, layer_thickness_um and layers "
-                             "(numbers)") from None
+            raise InputError(
+                f"{path}: the root needs the attributes side_um, layer_thickness_um and layers (numbers)"
+            ) from None
         position = _dataset(f, path, "nodes/position_um", "float", 2, None)
         border = _dataset(f, path, "nodes/border", "bool", None, len(position))
         nodes = _dataset(f, path, "segments/nodes", "int", 2, None)
@@ -265,10 +298,23 @@ def _read_plain(path: Path) -> Network:
         diameter = _dataset(f, path, "segments/diameter_um", "float", None, m)
         l0 = _dataset(f, path, "segments/l0_um", "float", None, m)
         tortuosity = _dataset(f, path, "segments/tortuosity", "float", None, m)
-        plastic = (_dataset(f, path, "segments/plastic_stretch", "float", None, m)
-                   if "segments/plastic_stretch" in f else np.ones(m))
-    network = network_from_segments(position, border, nodes, diameter, tortuosity, plastic, size=size,
-                                    thickness=thickness, n_layers=n_layers, what=str(path))
+        plastic = (
+            _dataset(f, path, "segments/plastic_stretch", "float", None, m)
+            if "segments/plastic_stretch" in f
+            else np.ones(m)
+        )
+    network = network_from_segments(
+        position,
+        border,
+        nodes,
+        diameter,
+        tortuosity,
+        plastic,
+        size=size,
+        thickness=thickness,
+        n_layers=n_layers,
+        what=str(path),
+    )
     _check_l0(path, "/segments/l0_um", l0, position[nodes[:, 1]] - position[nodes[:, 0]], size)
     return network
 
@@ -279,8 +325,10 @@ def _check_l0(path: Path, where: str, l0: np.ndarray, vector: np.ndarray, size: 
     off = np.flatnonzero(~(np.abs(l0 - chord) <= _LENGTH_RTOL * chord + _POSITION_RTOL * size))
     if off.size:
         k = off[0]
-        raise InputError(f"{path}: {where}: segment {k} has l0 {l0[k]:.8g} um but its nodes lie "
-                         f"{chord[k]:.8g} um apart; l0 is the reference end-to-end length")
+        raise InputError(
+            f"{path}: {where}: segment {k} has l0 {l0[k]:.8g} um but its nodes lie "
+            f"{chord[k]:.8g} um apart; l0 is the reference end-to-end length"
+        )
 
 
 def read_network(path: str | Path) -> Network:

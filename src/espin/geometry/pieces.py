@@ -60,8 +60,7 @@ class WindowRuns:
         return self.arc[self.last]
 
 
-def window_runs(vertices: np.ndarray, fiber_offsets: np.ndarray, origin: np.ndarray,
-                side: float) -> WindowRuns:
+def window_runs(vertices: np.ndarray, fiber_offsets: np.ndarray, origin: np.ndarray, side: float) -> WindowRuns:
     """Polylines of the maximal fiber portions inside the closed square window.
 
     The portions are those of :func:`espin.geometry.statistics.window_tortuosity` (same clipping and
@@ -83,13 +82,18 @@ def window_runs(vertices: np.ndarray, fiber_offsets: np.ndarray, origin: np.ndar
     points[end_pos] = pieces.end
     step[end_pos] = pieces.length
     last = np.r_[first[1:] - 1, n_points - 1] if n_runs else first
-    return WindowRuns(points=points, arc=np.cumsum(step), first=first.astype(np.int64),
-                      last=np.asarray(last, dtype=np.int64),
-                      fiber=pieces.fiber[run_start])
+    return WindowRuns(
+        points=points,
+        arc=np.cumsum(step),
+        first=first.astype(np.int64),
+        last=np.asarray(last, dtype=np.int64),
+        fiber=pieces.fiber[run_start],
+    )
 
 
-def sample_pieces(runs: WindowRuns, lengths_um: np.ndarray, min_chord_um: float,
-                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def sample_pieces(
+    runs: WindowRuns, lengths_um: np.ndarray, min_chord_um: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Tortuosity, chord axis [rad] and fiber of pieces of the window portions with the
     contour lengths of a measured sample (:mod:`espin.imaging.geometry_calibration.virtual`).
 
@@ -193,8 +197,9 @@ class CrossingStatistics:
     straightness: float
 
 
-def crossing_statistics(first: np.ndarray, last: np.ndarray, contour: np.ndarray,
-                        lower: np.ndarray, upper: np.ndarray, tol: float) -> CrossingStatistics:
+def crossing_statistics(
+    first: np.ndarray, last: np.ndarray, contour: np.ndarray, lower: np.ndarray, upper: np.ndarray, tol: float
+) -> CrossingStatistics:
     """U-turn fraction and straightness of the portions that cross the window edge to edge.
 
     Parameters
@@ -215,17 +220,20 @@ def crossing_statistics(first: np.ndarray, last: np.ndarray, contour: np.ndarray
     if n == 0:
         return CrossingStatistics(0, float("nan"), float("nan"))
     chord = np.hypot(*(np.asarray(last) - np.asarray(first))[crossing].T)
-    return CrossingStatistics(n, float(np.mean(a[crossing] == b[crossing])),
-                              float(np.mean(chord / np.asarray(contour)[crossing])))
+    return CrossingStatistics(
+        n, float(np.mean(a[crossing] == b[crossing])), float(np.mean(chord / np.asarray(contour)[crossing]))
+    )
 
 
-def window_crossings(runs: WindowRuns, origin: np.ndarray, side: float,
-                     min_chord_um: float = 0.0) -> CrossingStatistics:
+def window_crossings(
+    runs: WindowRuns, origin: np.ndarray, side: float, min_chord_um: float = 0.0
+) -> CrossingStatistics:
     """:func:`crossing_statistics` of the whole window portions ``runs`` of the window
     [origin, origin + side]^2; portions with a chord below ``min_chord_um`` (corner stubs)
     are left out, as from every other window statistic."""
     first, last = runs.points[runs.first], runs.points[runs.last]
     keep = np.hypot(*(last - first).T) >= min_chord_um
     origin = np.asarray(origin, dtype=float)
-    return crossing_statistics(first[keep], last[keep], (runs.end - runs.start)[keep], origin,
-                               origin + side, 1e-9 * max(side, 1.0))
+    return crossing_statistics(
+        first[keep], last[keep], (runs.end - runs.start)[keep], origin, origin + side, 1e-9 * max(side, 1.0)
+    )

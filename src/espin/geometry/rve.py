@@ -63,9 +63,11 @@ class RVE:
         """One line: size (L/D, side L [um]), layers, fibers, cross-links, nodes, DOF,
         elements (segments), seed and sampling."""
         rve, network = self.config.rve, self.network
-        return (f"RVE(L/D {rve.side_um / rve.diameter_um:.4g}, side {rve.side_um:.4g} um, {self.mat.n_layers} layers, "
-                f"{self.mat.n_fibers} fibers, {self.crosslinks.n} cross-links, {network.n_nodes} nodes, "
-                f"{network.n_dof} DOF, {network.n_elements} elements, seed {rve.seed}, {rve.sampling} sampling)")
+        return (
+            f"RVE(L/D {rve.side_um / rve.diameter_um:.4g}, side {rve.side_um:.4g} um, {self.mat.n_layers} layers, "
+            f"{self.mat.n_fibers} fibers, {self.crosslinks.n} cross-links, {network.n_nodes} nodes, "
+            f"{network.n_dof} DOF, {network.n_elements} elements, seed {rve.seed}, {rve.sampling} sampling)"
+        )
 
     def _repr_html_(self) -> str:
         """The key numbers as an HTML table (Jupyter)."""
@@ -153,7 +155,11 @@ def generate(
         progress("network", 1, 1)
     log.info(
         "%d fibers, %d cross-links (%d merged), %d elements, %d DOF",
-        mat.n_fibers, crosslinks.n, network.n_merged, network.n_elements, network.n_dof,
+        mat.n_fibers,
+        crosslinks.n,
+        network.n_merged,
+        network.n_elements,
+        network.n_dof,
     )
     _check_generated(cfg, mat, network)
     return RVE(config=cfg, mat=mat, crosslinks=crosslinks, network=network)
@@ -171,6 +177,9 @@ def _check_generated(config: Config, mat: FiberMat, network: Network) -> None:
     achieved = float(np.mean(mat.layer_volume_fraction()))
     target = config.rve.volume_fraction
     if abs(achieved - target) > VOLUME_FRACTION_RTOL * target:
-        log.warning("the mat's volume fraction is %.3g against rve.volume_fraction = %.3g "
-                    "(few, thick fibers per layer): raise rve.size_ratio or lower rve.diameter_sd_um",
-                    achieved, target)
+        log.warning(
+            "the mat's volume fraction is %.3g against rve.volume_fraction = %.3g "
+            "(few, thick fibers per layer): raise rve.size_ratio or lower rve.diameter_sd_um",
+            achieved,
+            target,
+        )

@@ -147,29 +147,51 @@ def _read_positions(f: h5py.File, name: str, size: float, meaning: str) -> np.nd
     outside = np.argwhere((positions < -slack) | (positions > size + slack))
     if len(outside):
         i, j = (int(k) for k in outside[0])
-        raise file_error(f.filename, f"dataset {name}",
-                         f"holds {float(positions[i, j])!r} at [{i}, {j}], outside the layer",
-                         f"{meaning} in the square [0, L]^2, L = {size!r}")
+        raise file_error(
+            f.filename,
+            f"dataset {name}",
+            f"holds {float(positions[i, j])!r} at [{i}, {j}], outside the layer",
+            f"{meaning} in the square [0, L]^2, L = {size!r}",
+        )
     return positions
 
 
 def _read_mat(f: h5py.File) -> FiberMat:
     size = read_attr(f, "mat", "size_um", kind="float", positive=True, meaning="layer side L [um]")
-    thickness = read_attr(f, "mat", "thickness_um", kind="float", positive=True,
-                          meaning="layer thickness D [um]")
+    thickness = read_attr(f, "mat", "thickness_um", kind="float", positive=True, meaning="layer thickness D [um]")
     n_layers = read_attr(f, "mat", "n_layers", kind="int", low=1, meaning="number of layers")
     vertices = _read_positions(f, "mat/vertices", size, "(n_vertices, 2) vertex positions [um]")
-    offsets = read_dataset(f, "mat/fiber_offsets", kind="int", shape=(None,), low=0,
-                           high=len(vertices), meaning="(n_fibers + 1,) start of each fiber")
+    offsets = read_dataset(
+        f,
+        "mat/fiber_offsets",
+        kind="int",
+        shape=(None,),
+        low=0,
+        high=len(vertices),
+        meaning="(n_fibers + 1,) start of each fiber",
+    )
     _check_offsets(f.filename, offsets, len(vertices))
     n_fibers = len(offsets) - 1
     return FiberMat(
         vertices=vertices,
         fiber_offsets=offsets,
-        fiber_layer=read_dataset(f, "mat/fiber_layer", kind="int", shape=(n_fibers,), low=0,
-                                 high=n_layers - 1, meaning="(n_fibers,) layer of each fiber"),
-        fiber_diameter=read_dataset(f, "mat/fiber_diameter", kind="float", shape=(n_fibers,),
-                                    positive=True, meaning="(n_fibers,) fiber diameters [um]"),
+        fiber_layer=read_dataset(
+            f,
+            "mat/fiber_layer",
+            kind="int",
+            shape=(n_fibers,),
+            low=0,
+            high=n_layers - 1,
+            meaning="(n_fibers,) layer of each fiber",
+        ),
+        fiber_diameter=read_dataset(
+            f,
+            "mat/fiber_diameter",
+            kind="float",
+            shape=(n_fibers,),
+            positive=True,
+            meaning="(n_fibers,) fiber diameters [um]",
+        ),
         size=size,
         thickness=thickness,
         n_layers=n_layers,
@@ -177,16 +199,17 @@ def _read_mat(f: h5py.File) -> FiberMat:
 
 
 def _check_offsets(path: str, offsets: np.ndarray, n_vertices: int) -> None:
-    expected = (f"fiber_offsets[0] = 0, rising by at least 2 (a fiber has two vertices or "
-                f"more), fiber_offsets[-1] = n_vertices = {n_vertices}")
+    expected = (
+        f"fiber_offsets[0] = 0, rising by at least 2 (a fiber has two vertices or "
+        f"more), fiber_offsets[-1] = n_vertices = {n_vertices}"
+    )
     where = "dataset mat/fiber_offsets"
     if len(offsets) == 0 or offsets[0] != 0:
         raise file_error(path, where, "does not start with 0", expected)
     short = np.flatnonzero(np.diff(offsets) < 2)
     if short.size:
         i = int(short[0])
-        raise file_error(path, where, f"goes from {offsets[i]} to {offsets[i + 1]} at [{i}]",
-                         expected)
+        raise file_error(path, where, f"goes from {offsets[i]} to {offsets[i + 1]} at [{i}]", expected)
     if offsets[-1] != n_vertices:
         raise file_error(path, where, f"ends at {offsets[-1]}", expected)
 
@@ -196,49 +219,119 @@ def _read_crosslinks(f: h5py.File, mat: FiberMat) -> Crosslinks:
     n = len(point)
     crosslinks = Crosslinks(
         point=point,
-        segment=read_dataset(f, "crosslinks/segment", kind="int", shape=(n, 2), low=0,
-                             high=mat.n_segments - 1, meaning="(n, 2) segment indices"),
-        fiber=read_dataset(f, "crosslinks/fiber", kind="int", shape=(n, 2), low=0,
-                           high=mat.n_fibers - 1, meaning="(n, 2) fiber indices"),
-        layer=read_dataset(f, "crosslinks/layer", kind="int", shape=(n, 2), low=0,
-                           high=mat.n_layers - 1, meaning="(n, 2) layer indices"),
-        arc=read_dataset(f, "crosslinks/arc", kind="float", shape=(n, 2), low=0.0,
-                         meaning="(n, 2) arc lengths along the fibers [um]"),
+        segment=read_dataset(
+            f,
+            "crosslinks/segment",
+            kind="int",
+            shape=(n, 2),
+            low=0,
+            high=mat.n_segments - 1,
+            meaning="(n, 2) segment indices",
+        ),
+        fiber=read_dataset(
+            f,
+            "crosslinks/fiber",
+            kind="int",
+            shape=(n, 2),
+            low=0,
+            high=mat.n_fibers - 1,
+            meaning="(n, 2) fiber indices",
+        ),
+        layer=read_dataset(
+            f,
+            "crosslinks/layer",
+            kind="int",
+            shape=(n, 2),
+            low=0,
+            high=mat.n_layers - 1,
+            meaning="(n, 2) layer indices",
+        ),
+        arc=read_dataset(
+            f, "crosslinks/arc", kind="float", shape=(n, 2), low=0.0, meaning="(n, 2) arc lengths along the fibers [um]"
+        ),
     )
-    _check_same(f.filename, "crosslinks/fiber", crosslinks.fiber,
-                mat.segment_fiber[crosslinks.segment], "the fibers of crosslinks/segment")
-    _check_same(f.filename, "crosslinks/layer", crosslinks.layer,
-                mat.fiber_layer[crosslinks.fiber], "the layers of crosslinks/fiber")
+    _check_same(
+        f.filename,
+        "crosslinks/fiber",
+        crosslinks.fiber,
+        mat.segment_fiber[crosslinks.segment],
+        "the fibers of crosslinks/segment",
+    )
+    _check_same(
+        f.filename,
+        "crosslinks/layer",
+        crosslinks.layer,
+        mat.fiber_layer[crosslinks.fiber],
+        "the layers of crosslinks/fiber",
+    )
     return crosslinks
 
 
 def _read_network(f: h5py.File, mat: FiberMat) -> Network:
-    nodes = _read_positions(f, "network/node_position", mat.size,
-                            "(n_nodes, 2) node positions [um]")
-    elements = read_dataset(f, "network/element_nodes", kind="int", shape=(None, 2), low=0,
-                            high=len(nodes) - 1, meaning="(n_elements, 2) node indices")
+    nodes = _read_positions(f, "network/node_position", mat.size, "(n_nodes, 2) node positions [um]")
+    elements = read_dataset(
+        f,
+        "network/element_nodes",
+        kind="int",
+        shape=(None, 2),
+        low=0,
+        high=len(nodes) - 1,
+        meaning="(n_elements, 2) node indices",
+    )
     n_e = len(elements)
     network = Network(
         node_position=nodes,
-        n_inner=read_attr(f, "network", "n_inner", kind="int", low=1, high=len(nodes),
-                          meaning="number of inner nodes (the free ones: at least 1), at most n_nodes"),
+        n_inner=read_attr(
+            f,
+            "network",
+            "n_inner",
+            kind="int",
+            low=1,
+            high=len(nodes),
+            meaning="number of inner nodes (the free ones: at least 1), at most n_nodes",
+        ),
         element_nodes=elements,
         element_contour_length=read_dataset(
-            f, "network/element_contour_length", kind="float", shape=(n_e,), positive=True,
-            meaning="(n_elements,) contour lengths L0 [um]"),
-        element_diameter=read_dataset(f, "network/element_diameter", kind="float", shape=(n_e,),
-                                      positive=True, meaning="(n_elements,) diameters [um]"),
-        element_layer=read_dataset(f, "network/element_layer", kind="int", shape=(n_e,), low=0,
-                                   high=mat.n_layers - 1, meaning="(n_elements,) layer indices"),
-        element_fiber=read_dataset(f, "network/element_fiber", kind="int", shape=(n_e,), low=0,
-                                   high=mat.n_fibers - 1, meaning="(n_elements,) fiber indices"),
+            f,
+            "network/element_contour_length",
+            kind="float",
+            shape=(n_e,),
+            positive=True,
+            meaning="(n_elements,) contour lengths L0 [um]",
+        ),
+        element_diameter=read_dataset(
+            f,
+            "network/element_diameter",
+            kind="float",
+            shape=(n_e,),
+            positive=True,
+            meaning="(n_elements,) diameters [um]",
+        ),
+        element_layer=read_dataset(
+            f,
+            "network/element_layer",
+            kind="int",
+            shape=(n_e,),
+            low=0,
+            high=mat.n_layers - 1,
+            meaning="(n_elements,) layer indices",
+        ),
+        element_fiber=read_dataset(
+            f,
+            "network/element_fiber",
+            kind="int",
+            shape=(n_e,),
+            low=0,
+            high=mat.n_fibers - 1,
+            meaning="(n_elements,) fiber indices",
+        ),
         size=mat.size,
         thickness=mat.thickness,
         n_layers=mat.n_layers,
-        n_merged=read_attr(f, "network", "n_merged", kind="int", low=0,
-                           meaning="number of merged node candidates"),
-        merge_tolerance=read_attr(f, "network", "merge_tolerance_um", kind="float", positive=True,
-                                  meaning="merge tolerance [um]"),
+        n_merged=read_attr(f, "network", "n_merged", kind="int", low=0, meaning="number of merged node candidates"),
+        merge_tolerance=read_attr(
+            f, "network", "merge_tolerance_um", kind="float", positive=True, meaning="merge tolerance [um]"
+        ),
     )
     _check_elements(f.filename, network, mat)
     return network
@@ -247,25 +340,39 @@ def _read_network(f: h5py.File, mat: FiberMat) -> Network:
 def _check_elements(path: str, network: Network, mat: FiberMat) -> None:
     """Elements agree with their fibers, have l0 > 0 and L0 >= l0 (to rounding)."""
     fiber = network.element_fiber
-    _check_same(path, "network/element_layer", network.element_layer, mat.fiber_layer[fiber],
-                "the layers of network/element_fiber")
-    _check_same(path, "network/element_diameter", network.element_diameter,
-                mat.fiber_diameter[fiber], "the diameters of network/element_fiber")
+    _check_same(
+        path,
+        "network/element_layer",
+        network.element_layer,
+        mat.fiber_layer[fiber],
+        "the layers of network/element_fiber",
+    )
+    _check_same(
+        path,
+        "network/element_diameter",
+        network.element_diameter,
+        mat.fiber_diameter[fiber],
+        "the diameters of network/element_fiber",
+    )
     chord = network.element_length
     where = "dataset network/element_nodes"
     expected = "two distinct nodes at distinct positions for each element"
     zero = np.flatnonzero(chord <= 0)
     if zero.size:
         i = int(zero[0])
-        raise file_error(path, where, f"joins nodes {network.element_nodes[i].tolist()} at zero "
-                         f"distance at [{i}]", expected)
+        raise file_error(
+            path, where, f"joins nodes {network.element_nodes[i].tolist()} at zero distance at [{i}]", expected
+        )
     short = np.flatnonzero(network.element_contour_length < chord * (1.0 - _RTOL))
     if short.size:
         i = int(short[0])
-        raise file_error(path, "dataset network/element_contour_length",
-                         f"holds {float(network.element_contour_length[i])!r} at [{i}], shorter "
-                         f"than the distance {float(chord[i])!r} between the element's nodes",
-                         "contour lengths L0 >= the end-to-end length l0 (tortuosity >= 1)")
+        raise file_error(
+            path,
+            "dataset network/element_contour_length",
+            f"holds {float(network.element_contour_length[i])!r} at [{i}], shorter "
+            f"than the distance {float(chord[i])!r} between the element's nodes",
+            "contour lengths L0 >= the end-to-end length l0 (tortuosity >= 1)",
+        )
 
 
 def _check_same(path: str, name: str, found: np.ndarray, wanted: np.ndarray, what: str) -> None:
@@ -273,15 +380,17 @@ def _check_same(path: str, name: str, found: np.ndarray, wanted: np.ndarray, wha
     differ = np.argwhere(found != wanted)
     if len(differ):
         at = tuple(int(i) for i in differ[0])
-        raise file_error(path, f"dataset {name}", f"holds {found[at].item()!r} at "
-                         f"[{', '.join(map(str, at))}] where {what} give {wanted[at].item()!r}",
-                         f"{name} to agree with {what}")
+        raise file_error(
+            path,
+            f"dataset {name}",
+            f"holds {found[at].item()!r} at [{', '.join(map(str, at))}] where {what} give {wanted[at].item()!r}",
+            f"{name} to agree with {what}",
+        )
 
 
 def _fiber_volume_fraction(mat: FiberMat, fiber: int) -> float:
     """The share of its layer's volume (L^2 times the layer thickness) that one fiber fills."""
-    return float(np.pi * mat.fiber_diameter[fiber] ** 2 / 4 * mat.contour_length[fiber]
-                 / (mat.size**2 * mat.thickness))
+    return float(np.pi * mat.fiber_diameter[fiber] ** 2 / 4 * mat.contour_length[fiber] / (mat.size**2 * mat.thickness))
 
 
 def _check_config(path: Path, config: Config, mat: FiberMat, network: Network) -> None:
@@ -292,8 +401,12 @@ def _check_config(path: Path, config: Config, mat: FiberMat, network: Network) -
         ("rve.layers", rve.layers, "attribute n_layers of mat", mat.n_layers),
         (side_key, rve.side_um, "attribute size_um of mat", mat.size),
         ("rve.diameter_um", rve.diameter_um, "attribute thickness_um of mat", mat.thickness),
-        ("rve.merge_tolerance_ratio * rve.diameter_um", rve.merge_tolerance_um,
-         "attribute merge_tolerance_um of network", network.merge_tolerance),
+        (
+            "rve.merge_tolerance_ratio * rve.diameter_um",
+            rve.merge_tolerance_um,
+            "attribute merge_tolerance_um of network",
+            network.merge_tolerance,
+        ),
     )
     for key, stored, where, found in pairs:
         if not np.isclose(stored, found, rtol=_RTOL, atol=0.0):
@@ -301,20 +414,28 @@ def _check_config(path: Path, config: Config, mat: FiberMat, network: Network) -
     thinnest = float(mat.fiber_diameter.min(initial=np.inf))
     diameter_min = cast(float, rve.diameter_min_um)  # the config sets it when not given
     if thinnest < diameter_min * (1.0 - _RTOL):
-        raise _config_error(path, "rve.diameter_min_um", diameter_min,
-                            "the smallest of dataset mat/fiber_diameter", thinnest)
+        raise _config_error(
+            path, "rve.diameter_min_um", diameter_min, "the smallest of dataset mat/fiber_diameter", thinnest
+        )
     layer = mat.layer_volume_fraction()
     for k in range(mat.n_layers):  # deposition stops at the fiber that reaches the target
         in_layer = np.flatnonzero(mat.fiber_layer == k)
         last = in_layer[-1] if in_layer.size else None
         before = layer[k] - (0.0 if last is None else _fiber_volume_fraction(mat, last))
         if not (layer[k] >= rve.volume_fraction * (1 - _RTOL) and before < rve.volume_fraction * (1 + _RTOL)):
-            raise _config_error(path, "rve.volume_fraction", rve.volume_fraction,
-                                f"the volume fraction of layer {k} of mat (reached by its last fiber)", layer[k])
+            raise _config_error(
+                path,
+                "rve.volume_fraction",
+                rve.volume_fraction,
+                f"the volume fraction of layer {k} of mat (reached by its last fiber)",
+                layer[k],
+            )
 
 
 def _config_error(path: Path, key: str, stored: float, where: str, found: float) -> RVEFileError:
-    return file_error(path, f"stored config key {key}",
-                      f"= {stored!r} disagrees with the arrays: {where} = {found!r}",
-                      "the config the RVE was generated from: regenerate the RVE, or restore "
-                      "the root attribute config_toml")
+    return file_error(
+        path,
+        f"stored config key {key}",
+        f"= {stored!r} disagrees with the arrays: {where} = {found!r}",
+        "the config the RVE was generated from: regenerate the RVE, or restore the root attribute config_toml",
+    )

@@ -27,11 +27,26 @@ from espin.geometry.statistics import (
 )
 from espin.geometry.vtk import write_mat_vtu, write_network_vtu
 
-__all__ = ["RVEFolder", "write_rve_folder", "write_rve_files", "trace_window",
-           "rve_statistics", "RVE_OUTPUTS", "PIECE_SEED"]
+__all__ = [
+    "RVEFolder",
+    "write_rve_folder",
+    "write_rve_files",
+    "trace_window",
+    "rve_statistics",
+    "RVE_OUTPUTS",
+    "PIECE_SEED",
+]
 
-RVE_OUTPUTS = ("rve.h5", "config.toml", "statistics.json", "statistics.txt", "mat.png", "statistics.png",
-               "fibers.vtu", "network.vtu")
+RVE_OUTPUTS = (
+    "rve.h5",
+    "config.toml",
+    "statistics.json",
+    "statistics.txt",
+    "mat.png",
+    "statistics.png",
+    "fibers.vtu",
+    "network.vtu",
+)
 """The files an RVE folder may hold (glob patterns relative to it)."""
 PIECE_SEED = 20240
 """Seed of the draws of length-matched pieces (:func:`trace_window`): grading is deterministic."""
@@ -74,13 +89,11 @@ def trace_window(mat: FiberMat, config: Config) -> TracedWindow | None:
     traced: dict = {}
     if pieces:
         rng = np.random.default_rng(PIECE_SEED)
-        tortuosity, orientation, _ = sample_pieces(runs, np.asarray(targets.contour_length_um),
-                                                   min_chord, rng)
+        tortuosity, orientation, _ = sample_pieces(runs, np.asarray(targets.contour_length_um), min_chord, rng)
         traced |= {"piece_tortuosity": tortuosity, "piece_orientation": orientation}
     if crossings:
         c = window_crossings(runs, origin, side, min_chord)
-        traced |= {"n_crossing": c.n_crossing, "u_turn_fraction": c.u_turn_fraction,
-                   "straightness": c.straightness}
+        traced |= {"n_crossing": c.n_crossing, "u_turn_fraction": c.u_turn_fraction, "straightness": c.straightness}
     return TracedWindow(**traced)
 
 
@@ -91,7 +104,11 @@ def rve_statistics(rve: RVE) -> NetworkStatistics:
 
 
 def write_rve_folder(
-    rve: RVE, folder: str | Path, *, figures: bool | None = None, vtk: bool | None = None,
+    rve: RVE,
+    folder: str | Path,
+    *,
+    figures: bool | None = None,
+    vtk: bool | None = None,
     overwrite: bool = False,
 ) -> RVEFolder:
     """Write an RVE's folder, with its ``run.json`` manifest (:mod:`espin.core.output_folder`).
@@ -117,13 +134,16 @@ def write_rve_folder(
     ConfigError
         If ``folder`` holds another run's results and ``overwrite`` is False.
     """
-    with OutputFolder.claim(folder, "generate", config_digest(rve.config), RVE_OUTPUTS,
-                            overwrite=overwrite) as claimed:
+    with OutputFolder.claim(folder, "generate", config_digest(rve.config), RVE_OUTPUTS, overwrite=overwrite) as claimed:
         return write_rve_files(rve, folder, figures=figures, vtk=vtk, run_id=claimed.run_id)
 
 
 def write_rve_files(
-    rve: RVE, folder: str | Path, *, figures: bool | None = None, vtk: bool | None = None,
+    rve: RVE,
+    folder: str | Path,
+    *,
+    figures: bool | None = None,
+    vtk: bool | None = None,
     run_id: str | None = None,
 ) -> RVEFolder:
     """Write ``rve.h5``, ``config.toml``, ``statistics.json``, ``statistics.txt``, and

@@ -81,9 +81,11 @@ class SizeEstimate:
 
     def describe(self) -> str:
         """One line: the counts and the memory, rounded."""
-        return (f"about {self.fibers:,.0f} fibers, {self.segments:,.0f} segments, "
-                f"{self.crosslinks:,.0f} cross-links, {self.dof:,.0f} DOF, "
-                f"{_gib(self.memory_bytes)} of memory")
+        return (
+            f"about {self.fibers:,.0f} fibers, {self.segments:,.0f} segments, "
+            f"{self.crosslinks:,.0f} cross-links, {self.dof:,.0f} DOF, "
+            f"{_gib(self.memory_bytes)} of memory"
+        )
 
 
 def estimate_size(config: Config) -> SizeEstimate:
@@ -142,9 +144,11 @@ def check_size(config: Config, *, allow_large: bool = False, available: int | No
     """
     size = estimate_size(config)
     rve = config.rve
-    where = (f"rve.volume_fraction = {rve.volume_fraction:g}, layer side {rve.side_um:g} um "
-             f"(rve.size_ratio = {rve.side_um / rve.diameter_um:g}), rve.diameter_um = {rve.diameter_um:g}, "
-             f"rve.diameter_sd_um = {rve.diameter_sd_um:g}")
+    where = (
+        f"rve.volume_fraction = {rve.volume_fraction:g}, layer side {rve.side_um:g} um "
+        f"(rve.size_ratio = {rve.side_um / rve.diameter_um:g}), rve.diameter_um = {rve.diameter_um:g}, "
+        f"rve.diameter_sd_um = {rve.diameter_sd_um:g}"
+    )
     if size.fibers_per_layer < MIN_FIBERS_PER_LAYER:
         raise ConfigError(
             f"a layer would hold about {size.fibers_per_layer:.2g} fibers ({where}); at least "

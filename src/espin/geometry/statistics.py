@@ -194,8 +194,7 @@ class WindowPieces:
     run: np.ndarray
 
 
-def clip_to_window(vertices: np.ndarray, fiber_offsets: np.ndarray, origin: np.ndarray,
-                   side: float) -> WindowPieces:
+def clip_to_window(vertices: np.ndarray, fiber_offsets: np.ndarray, origin: np.ndarray, side: float) -> WindowPieces:
     """Clip every fiber segment to the square [origin, origin + side]^2 at once (Liang-Barsky)
     and group the inside pieces into runs (see :class:`WindowPieces`)."""
     v = np.asarray(vertices, dtype=float).reshape(-1, 2)
@@ -220,8 +219,14 @@ def clip_to_window(vertices: np.ndarray, fiber_offsets: np.ndarray, origin: np.n
     run_start = np.ones(len(idx), dtype=bool)
     if len(idx) > 1:
         run_start[1:] = ~((seg[idx[1:]] == seg[idx[:-1]] + 1) & vertex_in[seg[idx[1:]]])
-    return WindowPieces(fiber=vertex_fiber[seg[idx]].astype(np.int64), start=a[idx], end=b[idx],
-                        length=piece[idx], run_start=run_start, run=np.cumsum(run_start) - 1)
+    return WindowPieces(
+        fiber=vertex_fiber[seg[idx]].astype(np.int64),
+        start=a[idx],
+        end=b[idx],
+        length=piece[idx],
+        run_start=run_start,
+        run=np.cumsum(run_start) - 1,
+    )
 
 
 def window_tortuosity(
@@ -497,8 +502,9 @@ class TargetGrading:
     straightness: float = math.nan
 
 
-def grade(targets: TargetsConfig | None, window: VisibleFibers, diameter_um: np.ndarray,
-          traced: TracedWindow | None = None) -> TargetGrading:
+def grade(
+    targets: TargetsConfig | None, window: VisibleFibers, diameter_um: np.ndarray, traced: TracedWindow | None = None
+) -> TargetGrading:
     """Grade a mat against measured ``targets``.
 
     Parameters
@@ -534,8 +540,9 @@ def grade(targets: TargetsConfig | None, window: VisibleFibers, diameter_um: np.
         tortuosity=graded_tortuosity,
         tortuosity_sampling=None if graded_tortuosity is None else sampling,
         diameter=_graded(diameter_target(targets), diameter_um),
-        orientation=None if targets.orientation_deg is None else _graded(
-            _sample_target(targets.orientation_deg, math.pi / 180.0), orientation),
+        orientation=None
+        if targets.orientation_deg is None
+        else _graded(_sample_target(targets.orientation_deg, math.pi / 180.0), orientation),
         n_crossing=traced.n_crossing if crossings else None,
         u_turn_fraction=traced.u_turn_fraction if crossings else math.nan,
         straightness=traced.straightness if crossings else math.nan,
@@ -724,18 +731,24 @@ class NetworkStatistics:
         phi = self.segment_orientation
         w = self.segment_length_um / np.sum(self.segment_length_um)
         c, s = np.cos(phi), np.sin(phi)
-        mat = {"cos2": float(np.sum(w * c * c)), "cos4": float(np.sum(w * c**4)),
-               "tensor_12": float(np.sum(w * c * s))}
+        mat = {"cos2": float(np.sum(w * c * c)), "cos4": float(np.sum(w * c**4)), "tensor_12": float(np.sum(w * c * s))}
         theta = (np.arange(_MOMENT_POINTS) + 0.5) * np.pi / _MOMENT_POINTS
         density = self.orientation_target.pdf(theta)
         density = density / np.sum(density)
         ct, st = np.cos(theta), np.sin(theta)
-        target = {"cos2": float(np.sum(density * ct * ct)), "cos4": float(np.sum(density * ct**4)),
-                  "tensor_12": float(np.sum(density * ct * st))}
+        target = {
+            "cos2": float(np.sum(density * ct * ct)),
+            "cos4": float(np.sum(density * ct**4)),
+            "tensor_12": float(np.sum(density * ct * st)),
+        }
         d11, d12 = mat["cos2"] - target["cos2"], mat["tensor_12"] - target["tensor_12"]
-        return {**mat, "tensor_11": mat["cos2"],
-                **{f"target_{k}": v for k, v in target.items()}, "target_tensor_11": target["cos2"],
-                "tensor_deviation": float(np.sqrt(2.0 * d11 * d11 + 2.0 * d12 * d12))}
+        return {
+            **mat,
+            "tensor_11": mat["cos2"],
+            **{f"target_{k}": v for k, v in target.items()},
+            "target_tensor_11": target["cos2"],
+            "tensor_deviation": float(np.sqrt(2.0 * d11 * d11 + 2.0 * d12 * d12)),
+        }
 
     @property
     def n_crosslinks(self) -> int:
@@ -834,36 +847,93 @@ class NetworkStatistics:
         """Plain-text table of :meth:`summary` for the command line."""
         s = self.summary()
         groups = [
-            ("counts", ["n_fibers", "n_segments", "n_elements", "n_inner_nodes",
-                        "n_border_nodes", "n_merged_nodes", "n_dof", "n_layers"]),
-            ("geometry", ["size_um", "thickness_um", "total_fiber_length_um",
-                          "volume_fraction_target", "volume_fraction_mean",
-                          "volume_fraction_min", "volume_fraction_max",
-                          "length_density_mean_per_um", "length_density_nominal_per_um"]),
-            ("cross-links", ["n_crosslinks", "n_crosslinks_within_layer",
-                             "n_crosslinks_between_layers", "crosslink_density_per_um",
-                             "crosslink_spacing_um", "crosslink_density_per_um2",
-                             "expected_crosslinks", "expected_crosslinks_within_layer",
-                             "expected_crosslinks_between_layers",
-                             "crosslink_ratio_to_expected", "expected_crosslinks_distinct",
-                             "expected_crosslinks_within_layer_distinct",
-                             "crosslink_ratio_to_expected_distinct"]),
-            ("fibers and elements", ["fiber_orientation_order", "fiber_orientation_director_deg",
-                                     "fiber_tortuosity_mean", "fiber_tortuosity_max",
-                                     "element_tortuosity_mean", "element_tortuosity_max",
-                                     "element_length_mean_um", "element_length_min_um",
-                                     "diameter_mean_um", "diameter_sd_um"]),
-            ("observation window (as SEM)", ["window_side_um", "window_min_chord_um",
-                                            "window_n_portions", "window_tortuosity_mean",
-                                            "window_tortuosity_sd"]),
-            ("against the config's orientation distribution (KS statistic: 0 same, 1 disjoint)",
-             ["orientation_target", "ks_fiber_orientation", "ks_window_orientation"]),
-            ("length-weighted orientation moments of the segments, x the 0 deg axis (and the target's)",
-             ["orientation_cos2", "orientation_target_cos2", "orientation_cos4",
-              "orientation_target_cos4", "orientation_tensor_12", "orientation_target_tensor_12",
-              "orientation_tensor_deviation"]),
-            ("against measured targets (KS statistic: 0 same, 1 disjoint)",
-             _graded_keys(self.grading)),
+            (
+                "counts",
+                [
+                    "n_fibers",
+                    "n_segments",
+                    "n_elements",
+                    "n_inner_nodes",
+                    "n_border_nodes",
+                    "n_merged_nodes",
+                    "n_dof",
+                    "n_layers",
+                ],
+            ),
+            (
+                "geometry",
+                [
+                    "size_um",
+                    "thickness_um",
+                    "total_fiber_length_um",
+                    "volume_fraction_target",
+                    "volume_fraction_mean",
+                    "volume_fraction_min",
+                    "volume_fraction_max",
+                    "length_density_mean_per_um",
+                    "length_density_nominal_per_um",
+                ],
+            ),
+            (
+                "cross-links",
+                [
+                    "n_crosslinks",
+                    "n_crosslinks_within_layer",
+                    "n_crosslinks_between_layers",
+                    "crosslink_density_per_um",
+                    "crosslink_spacing_um",
+                    "crosslink_density_per_um2",
+                    "expected_crosslinks",
+                    "expected_crosslinks_within_layer",
+                    "expected_crosslinks_between_layers",
+                    "crosslink_ratio_to_expected",
+                    "expected_crosslinks_distinct",
+                    "expected_crosslinks_within_layer_distinct",
+                    "crosslink_ratio_to_expected_distinct",
+                ],
+            ),
+            (
+                "fibers and elements",
+                [
+                    "fiber_orientation_order",
+                    "fiber_orientation_director_deg",
+                    "fiber_tortuosity_mean",
+                    "fiber_tortuosity_max",
+                    "element_tortuosity_mean",
+                    "element_tortuosity_max",
+                    "element_length_mean_um",
+                    "element_length_min_um",
+                    "diameter_mean_um",
+                    "diameter_sd_um",
+                ],
+            ),
+            (
+                "observation window (as SEM)",
+                [
+                    "window_side_um",
+                    "window_min_chord_um",
+                    "window_n_portions",
+                    "window_tortuosity_mean",
+                    "window_tortuosity_sd",
+                ],
+            ),
+            (
+                "against the config's orientation distribution (KS statistic: 0 same, 1 disjoint)",
+                ["orientation_target", "ks_fiber_orientation", "ks_window_orientation"],
+            ),
+            (
+                "length-weighted orientation moments of the segments, x the 0 deg axis (and the target's)",
+                [
+                    "orientation_cos2",
+                    "orientation_target_cos2",
+                    "orientation_cos4",
+                    "orientation_target_cos4",
+                    "orientation_tensor_12",
+                    "orientation_target_tensor_12",
+                    "orientation_tensor_deviation",
+                ],
+            ),
+            ("against measured targets (KS statistic: 0 same, 1 disjoint)", _graded_keys(self.grading)),
         ]
         width = max(len(k) for _, keys in groups for k in keys)
         lines: list[str] = []
@@ -916,12 +986,25 @@ def _graded_keys(g: TargetGrading) -> list[str]:
         return []
     keys = ["targets_source"] + ["target_window_um", "window_side_um"] * (t.window_um is not None)
     if g.tortuosity is not None:
-        keys += ["target_tortuosity", "tortuosity_sampling", "target_tortuosity_mean",
-                 "target_tortuosity_sd", "mat_tortuosity_n", "mat_tortuosity_mean",
-                 "mat_tortuosity_sd", "ks_window_tortuosity"]
+        keys += [
+            "target_tortuosity",
+            "tortuosity_sampling",
+            "target_tortuosity_mean",
+            "target_tortuosity_sd",
+            "mat_tortuosity_n",
+            "mat_tortuosity_mean",
+            "mat_tortuosity_sd",
+            "ks_window_tortuosity",
+        ]
     if g.diameter is not None:
-        keys += ["target_diameter", "target_diameter_mean_um", "target_diameter_sd_um",
-                 "diameter_mean_um", "diameter_sd_um", "ks_diameter"]
+        keys += [
+            "target_diameter",
+            "target_diameter_mean_um",
+            "target_diameter_sd_um",
+            "diameter_mean_um",
+            "diameter_sd_um",
+            "ks_diameter",
+        ]
     if g.orientation is not None:
         keys += ["target_orientation", "ks_measured_orientation"]
     if g.n_crossing is not None or t.u_turn_fraction is not None or t.straightness is not None:

@@ -64,8 +64,9 @@ def equivalent_square_side(width_um: float, height_um: float) -> float:
     return 2.0 * width_um * height_um / (width_um + height_um)
 
 
-def _sample(values: ArrayLike | None, name: str, low: float, high: float,
-            closed_high: bool = False) -> np.ndarray | None:
+def _sample(
+    values: ArrayLike | None, name: str, low: float, high: float, closed_high: bool = False
+) -> np.ndarray | None:
     """A validated 1-D float sample, or None. NaN entries are left out."""
     if values is None:
         return None
@@ -80,8 +81,7 @@ def _sample(values: ArrayLike | None, name: str, low: float, high: float,
         )
     if len(x) < MIN_SAMPLE_SIZE:
         raise MeasurementError(
-            f"{name}: {len(x)} measured values; at least {MIN_SAMPLE_SIZE} are needed to "
-            "calibrate a distribution"
+            f"{name}: {len(x)} measured values; at least {MIN_SAMPLE_SIZE} are needed to calibrate a distribution"
         )
     return x
 
@@ -98,15 +98,20 @@ def _visible_diameters(diameter: np.ndarray, visible: Any) -> tuple[np.ndarray, 
     narrower, docs/sem.md), and a note; all of them when no fiber is visible."""
     flags, bad = parse_flags(visible)
     if bad is not None:
-        raise MeasurementError(f"column {VISIBLE_COLUMN} must hold True or False, got "
-                               f"{np.asarray(visible, dtype=object).ravel()[bad]!r} (fiber {bad})")
+        raise MeasurementError(
+            f"column {VISIBLE_COLUMN} must hold True or False, got "
+            f"{np.asarray(visible, dtype=object).ravel()[bad]!r} (fiber {bad})"
+        )
     measured = np.isfinite(diameter)
     if not (flags & measured).any():
-        return diameter, (f"diameter: no fiber is marked {VISIBLE_COLUMN}; the diameters of all "
-                          f"{int(measured.sum())} fibers are the target")
+        return diameter, (
+            f"diameter: no fiber is marked {VISIBLE_COLUMN}; the diameters of all "
+            f"{int(measured.sum())} fibers are the target"
+        )
     return np.where(flags, diameter, np.nan), (
         f"diameter: the {int((flags & measured).sum())} fully visible fibers of "
-        f"{int(measured.sum())} measured (column {VISIBLE_COLUMN})")
+        f"{int(measured.sum())} measured (column {VISIBLE_COLUMN})"
+    )
 
 
 def _field_of_view(value: Any) -> tuple[float, float]:
@@ -126,8 +131,7 @@ def _field_of_view(value: Any) -> tuple[float, float]:
 _CROSSING_KEYS = ("n_crossing", "u_turn_fraction", "straightness")
 
 
-def _crossing(n_crossing: Any = None, u_turn_fraction: Any = None,
-              straightness: Any = None) -> dict[str, Any]:
+def _crossing(n_crossing: Any = None, u_turn_fraction: Any = None, straightness: Any = None) -> dict[str, Any]:
     """Checked edge-to-edge statistics: a count >= 0, a fraction in [0, 1], a straightness in
     (0, 1]. A fraction or straightness of NaN (no fiber crossed) becomes None."""
     out: dict[str, Any] = {"n_crossing": None, "u_turn_fraction": None, "straightness": None}
@@ -136,8 +140,7 @@ def _crossing(n_crossing: Any = None, u_turn_fraction: Any = None,
         if not (count >= 0 and count == int(count)):
             raise MeasurementError(f"n_crossing must be an integer >= 0, got {n_crossing!r}")
         out["n_crossing"] = int(count)
-    for name, value, low in (("u_turn_fraction", u_turn_fraction, "["),
-                             ("straightness", straightness, "(")):
+    for name, value, low in (("u_turn_fraction", u_turn_fraction, "["), ("straightness", straightness, "(")):
         number = None if value is None else _number(value, name)
         if number is None or math.isnan(number):
             continue
@@ -254,37 +257,30 @@ class GeometryTargets:
     def _check_typed(self) -> None:
         both = [
             ("diameter", self.diameter_um, self.diameter_mean_um is not None or self.diameter_sd_um is not None),
-            ("orientation", self.orientation_deg, self.orientation_uniform
-             or self.orientation_mean_deg is not None or self.orientation_kappa is not None),
+            (
+                "orientation",
+                self.orientation_deg,
+                self.orientation_uniform or self.orientation_mean_deg is not None or self.orientation_kappa is not None,
+            ),
             ("tortuosity", self.tortuosity, self.tortuosity_scale is not None),
         ]
         for name, sample, typed in both:
             if sample is not None and typed:
-                raise MeasurementError(
-                    f"the {name} is both measured (a column of the sample) and typed in: give one"
-                )
+                raise MeasurementError(f"the {name} is both measured (a column of the sample) and typed in: give one")
         if self.diameter_sd_um is not None and self.diameter_mean_um is None:
             raise MeasurementError("diameter_sd_um needs diameter_mean_um (the mean diameter)")
         _positive(self.diameter_mean_um, "diameter_mean_um")
         _positive(self.diameter_sd_um, "diameter_sd_um", allow_zero=True)
-        if self.orientation_uniform and (
-            self.orientation_mean_deg is not None or self.orientation_kappa is not None
-        ):
+        if self.orientation_uniform and (self.orientation_mean_deg is not None or self.orientation_kappa is not None):
             raise MeasurementError(
                 "orientation: give uniform, or orientation_mean_deg with orientation_kappa, not both"
             )
         if (self.orientation_mean_deg is None) != (self.orientation_kappa is None):
-            raise MeasurementError(
-                "a von Mises orientation needs both orientation_mean_deg and orientation_kappa"
-            )
+            raise MeasurementError("a von Mises orientation needs both orientation_mean_deg and orientation_kappa")
         if self.orientation_mean_deg is not None and not 0.0 <= self.orientation_mean_deg < 180.0:
-            raise MeasurementError(
-                f"orientation_mean_deg must be in [0, 180), got {self.orientation_mean_deg!r}"
-            )
+            raise MeasurementError(f"orientation_mean_deg must be in [0, 180), got {self.orientation_mean_deg!r}")
         if self.orientation_kappa is not None and not 0.0 <= self.orientation_kappa <= 700.0:
-            raise MeasurementError(
-                f"orientation_kappa must be in [0, 700], got {self.orientation_kappa!r}"
-            )
+            raise MeasurementError(f"orientation_kappa must be in [0, 700], got {self.orientation_kappa!r}")
         if self.tortuosity_scale is not None and not 0.0 < self.tortuosity_scale <= 10.0:
             raise MeasurementError(
                 f"tortuosity_scale (half-normal, loc 1) must be in (0, 10], got {self.tortuosity_scale!r}"
@@ -348,8 +344,7 @@ class GeometryTargets:
                 continue
             values[name] = column
         if "diameter_um" in values and VISIBLE_COLUMN in table.columns:
-            values["diameter_um"], note = _visible_diameters(values["diameter_um"],
-                                                             table[VISIBLE_COLUMN])
+            values["diameter_um"], note = _visible_diameters(values["diameter_um"], table[VISIBLE_COLUMN])
             notes.append(note)
         if "tortuosity" not in values and all(c in values for c in LENGTH_COLUMNS):
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -363,13 +358,14 @@ class GeometryTargets:
         if "end_to_end_um" in values and min_chord:
             short = values["end_to_end_um"] < min_chord
             if short.any():
-                notes.append(f"{int(short.sum())} rows with end_to_end_um < min_chord_um = "
-                             f"{min_chord:g} um left out (as the virtual measurement does)")
+                notes.append(
+                    f"{int(short.sum())} rows with end_to_end_um < min_chord_um = "
+                    f"{min_chord:g} um left out (as the virtual measurement does)"
+                )
                 values = {k: np.where(short, np.nan, v) for k, v in values.items()}
         if not any(k in values for k in SAMPLE_COLUMNS):
             raise MeasurementError(
-                f"{extra.get('source', 'the table')}: none of the columns "
-                f"{', '.join(SAMPLE_COLUMNS)} holds a value"
+                f"{extra.get('source', 'the table')}: none of the columns {', '.join(SAMPLE_COLUMNS)} holds a value"
             )
         lengths = None
         if "contour_length_um" in values and ("tortuosity" in values or "orientation_deg" in values):
@@ -388,9 +384,11 @@ class GeometryTargets:
         """Targets from an :class:`espin.imaging.measurement.SEMMeasurement`
         (``espin.imaging.measurement.measure(...)``): its fibers table, field of view, shortest
         chord and edge-to-edge statistics."""
-        found = {"field_of_view_um": tuple(measurement.field_of_view_um),
-                 "min_chord_um": float(measurement.min_chord_um),
-                 "source": f"espin measure of {getattr(measurement, 'source', 'an image')}"}
+        found = {
+            "field_of_view_um": tuple(measurement.field_of_view_um),
+            "min_chord_um": float(measurement.min_chord_um),
+            "source": f"espin measure of {getattr(measurement, 'source', 'an image')}",
+        }
         found |= {key: getattr(measurement, key, None) for key in _CROSSING_KEYS}
         return cls.from_table(measurement.fibers, **(found | extra))
 
@@ -401,9 +399,7 @@ class GeometryTargets:
         folder = Path(folder)
         toml_path = folder / "measurement.toml"
         if not (folder / "fibers.csv").is_file() or not toml_path.is_file():
-            raise MeasurementError(
-                f"{folder} must hold fibers.csv and measurement.toml (as written by espin measure)"
-            )
+            raise MeasurementError(f"{folder} must hold fibers.csv and measurement.toml (as written by espin measure)")
         try:
             meta = tomllib.loads(toml_path.read_text("utf-8"))
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
@@ -412,8 +408,7 @@ class GeometryTargets:
             if key not in meta:
                 raise MeasurementError(f"{toml_path}: missing key {key}")
         um_per_px = meta["um_per_px"]
-        if (isinstance(um_per_px, bool) or not isinstance(um_per_px, (int, float))
-                or not um_per_px > 0):
+        if isinstance(um_per_px, bool) or not isinstance(um_per_px, (int, float)) or not um_per_px > 0:
             raise MeasurementError(f"{toml_path}: um_per_px must be a number > 0, got {um_per_px!r}")
         try:
             found: dict[str, Any] = {"field_of_view_um": _field_of_view(meta["field_of_view_um"])}
@@ -464,8 +459,7 @@ class GeometryTargets:
     @property
     def has_orientation(self) -> bool:
         """An orientation distribution is targeted."""
-        return (self.orientation_deg is not None or self.orientation_uniform
-                or self.orientation_mean_deg is not None)
+        return self.orientation_deg is not None or self.orientation_uniform or self.orientation_mean_deg is not None
 
     @property
     def has_tortuosity(self) -> bool:

@@ -19,10 +19,17 @@ from espin.geometry.network import Network
 __all__ = ["write_mat_vtu", "write_network_vtu", "write_collection"]
 
 
-def _write(path: Path, points: np.ndarray, lines: np.ndarray, cell_data: dict[str, np.ndarray],
-           point_data: dict[str, np.ndarray] | None = None, field_data: dict[str, float] | None = None) -> Path:
-    mesh = meshio.Mesh(points, [("line", lines)], point_data=point_data or {},
-                       cell_data={k: [v] for k, v in cell_data.items()})
+def _write(
+    path: Path,
+    points: np.ndarray,
+    lines: np.ndarray,
+    cell_data: dict[str, np.ndarray],
+    point_data: dict[str, np.ndarray] | None = None,
+    field_data: dict[str, float] | None = None,
+) -> Path:
+    mesh = meshio.Mesh(
+        points, [("line", lines)], point_data=point_data or {}, cell_data={k: [v] for k, v in cell_data.items()}
+    )
 
     def write(tmp: Path) -> None:
         meshio.write(tmp, mesh, file_format="vtu")
@@ -42,13 +49,15 @@ def _add_field_data(path: Path, values: dict[str, float]) -> None:
     ValueError
         If the file has no UnstructuredGrid element (another writer's layout).
     """
-    arrays = "".join(f'<DataArray type="Float64" Name="{name}" NumberOfTuples="1" format="ascii">'
-                     f"{float(value)!r}</DataArray>\n" for name, value in values.items())
+    arrays = "".join(
+        f'<DataArray type="Float64" Name="{name}" NumberOfTuples="1" format="ascii">{float(value)!r}</DataArray>\n'
+        for name, value in values.items()
+    )
     text = path.read_text(encoding="utf-8")
     grid = re.search(r"<UnstructuredGrid\b[^>]*>", text)
     if grid is None:
         raise ValueError(f"{path}: no <UnstructuredGrid> element to add field data to")
-    path.write_text(f"{text[:grid.end()]}\n<FieldData>\n{arrays}</FieldData>{text[grid.end():]}", encoding="utf-8")
+    path.write_text(f"{text[: grid.end()]}\n<FieldData>\n{arrays}</FieldData>{text[grid.end() :]}", encoding="utf-8")
 
 
 def write_mat_vtu(mat: FiberMat, path: str | Path) -> Path:
@@ -130,9 +139,12 @@ def write_collection(path: str | Path, steps: list[tuple[float, str]]) -> Path:
     steps
         (time [s], file path relative to the ``.pvd``) of every step, in order.
     """
-    datasets = "".join(f'    <DataSet timestep="{float(time)!r}" group="" part="0" file="{file}"/>\n'
-                       for time, file in steps)
-    text = ('<?xml version="1.0"?>\n'
-            '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
-            f"  <Collection>\n{datasets}  </Collection>\n</VTKFile>\n")
+    datasets = "".join(
+        f'    <DataSet timestep="{float(time)!r}" group="" part="0" file="{file}"/>\n' for time, file in steps
+    )
+    text = (
+        '<?xml version="1.0"?>\n'
+        '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
+        f"  <Collection>\n{datasets}  </Collection>\n</VTKFile>\n"
+    )
     return atomic_write_bytes(path, text.encode("utf-8"))

@@ -45,9 +45,18 @@ from espin.core.output_folder import OutputFolder, inputs_digest
 from espin.imaging.measurement import MEASURE_OUTPUTS, SEMMeasurement, measure, measurement_digest
 from espin.imaging.pores import PoreStructure
 
-__all__ = ["BatchMeasurement", "measure_batch", "image_files", "pooled_statistics",
-           "IMAGE_SUFFIXES", "IMAGE_COLUMNS", "BATCH_OUTPUTS", "BATCH_SCHEMA", "BOOTSTRAP_RESAMPLES",
-           "BOOTSTRAP_SEED"]
+__all__ = [
+    "BatchMeasurement",
+    "measure_batch",
+    "image_files",
+    "pooled_statistics",
+    "IMAGE_SUFFIXES",
+    "IMAGE_COLUMNS",
+    "BATCH_OUTPUTS",
+    "BATCH_SCHEMA",
+    "BOOTSTRAP_RESAMPLES",
+    "BOOTSTRAP_SEED",
+]
 
 BATCH_SCHEMA = "espin.sem.batch/1"
 """Schema of ``pooled.toml``."""
@@ -60,12 +69,34 @@ BOOTSTRAP_RESAMPLES = 2000
 BOOTSTRAP_SEED = 0
 """Seed of the bootstrap's generator."""
 IMAGE_COLUMNS = (
-    "file", "status", "error", "folder", "um_per_px", "scale_source", "rows_analysed",
-    "n_fibers", "n_diameters", "diameter_mean_um", "diameter_sd_um", "diameter_median_um",
-    "orientation_model", "orientation_mean_deg", "orientation_kappa", "dominant_direction_deg",
-    "coherency", "tortuosity_mean", "porosity", "pore_diameter_median_um",
-    "pore_inscribed_median_um", "n_pores", "n_junctions", "intersection_density_per_um2",
-    "intersections_per_um_fiber", "n_crossing", "u_turn_fraction", "straightness",
+    "file",
+    "status",
+    "error",
+    "folder",
+    "um_per_px",
+    "scale_source",
+    "rows_analysed",
+    "n_fibers",
+    "n_diameters",
+    "diameter_mean_um",
+    "diameter_sd_um",
+    "diameter_median_um",
+    "orientation_model",
+    "orientation_mean_deg",
+    "orientation_kappa",
+    "dominant_direction_deg",
+    "coherency",
+    "tortuosity_mean",
+    "porosity",
+    "pore_diameter_median_um",
+    "pore_inscribed_median_um",
+    "n_pores",
+    "n_junctions",
+    "intersection_density_per_um2",
+    "intersections_per_um_fiber",
+    "n_crossing",
+    "u_turn_fraction",
+    "straightness",
 )
 """Columns of ``images.csv`` (``status``: ``ok`` or ``failed``, with the ``error``)."""
 _COUNT_COLUMNS = ("n_fibers", "n_diameters", "n_pores", "n_junctions", "n_crossing")
@@ -123,8 +154,7 @@ def image_files(paths: Sequence[str | Path]) -> list[Path]:
     files: list[Path] = []
     for path in map(Path, paths):
         if path.is_dir():
-            found = sorted(p for p in path.iterdir()
-                           if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
+            found = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and p.is_file())
             if not found:
                 raise ConfigError(f"folder {path} holds no image ({', '.join(IMAGE_SUFFIXES)})")
             files.extend(found)
@@ -133,9 +163,15 @@ def image_files(paths: Sequence[str | Path]) -> list[Path]:
     return list(dict.fromkeys(files))
 
 
-def measure_batch(images: Sequence[str | Path], out: str | Path, *, overwrite: bool = False,
-                  figures: bool = True, progress: Progress | None = None,
-                  **options: Any) -> BatchMeasurement:
+def measure_batch(
+    images: Sequence[str | Path],
+    out: str | Path,
+    *,
+    overwrite: bool = False,
+    figures: bool = True,
+    progress: Progress | None = None,
+    **options: Any,
+) -> BatchMeasurement:
     """Measure several SEM images with the same options (module notes).
 
     Parameters
@@ -181,8 +217,7 @@ def measure_batch(images: Sequence[str | Path], out: str | Path, *, overwrite: b
     names = _folder_names(files)
     digest = inputs_digest(files, sorted(options.items()), figures)
     rows, samples = [], []
-    with OutputFolder.claim(out, "measure-batch", digest, BATCH_OUTPUTS, overwrite=overwrite,
-                            inputs=files) as claimed:
+    with OutputFolder.claim(out, "measure-batch", digest, BATCH_OUTPUTS, overwrite=overwrite, inputs=files) as claimed:
         for i, (path, name) in enumerate(zip(files, names)):
             row, sample = _measure_one(path, out / name, digests[i], errors.get(i), figures, options)
             rows.append(row)
@@ -190,8 +225,7 @@ def measure_batch(images: Sequence[str | Path], out: str | Path, *, overwrite: b
                 samples.append(sample)
             if progress is not None:
                 progress(i + 1, len(files), row)
-        table = pd.DataFrame(rows, columns=list(IMAGE_COLUMNS)).astype(
-            {c: "Int64" for c in _COUNT_COLUMNS})
+        table = pd.DataFrame(rows, columns=list(IMAGE_COLUMNS)).astype({c: "Int64" for c in _COUNT_COLUMNS})
         pooled = pooled_statistics(samples) | {"n_images": len(files), "n_failed": len(files) - len(samples)}
         _write_table(table, out / "images.csv")
         _write_toml(pooled, out / "pooled.toml")
@@ -209,20 +243,23 @@ def _measure_options(options: dict[str, Any]) -> dict[str, Any]:
     """
     import inspect
 
-    defaults = {name: p.default for name, p in inspect.signature(measure).parameters.items()
-                if p.kind is inspect.Parameter.KEYWORD_ONLY}
+    defaults = {
+        name: p.default
+        for name, p in inspect.signature(measure).parameters.items()
+        if p.kind is inspect.Parameter.KEYWORD_ONLY
+    }
     unknown = sorted(set(options) - set(defaults))
     if unknown:
         raise ConfigError(f"measure has no option {', '.join(unknown)} (options: {', '.join(defaults)})")
     return defaults | options
 
 
-def _measure_one(path: Path, folder: Path, digest: str | None, error: str | None, figures: bool,
-                 options: dict[str, Any]) -> tuple[dict[str, Any], _Sample | None]:
+def _measure_one(
+    path: Path, folder: Path, digest: str | None, error: str | None, figures: bool, options: dict[str, Any]
+) -> tuple[dict[str, Any], _Sample | None]:
     """Measure one image into its folder: its row of ``images.csv`` and what the pooling
     needs (None when it failed)."""
-    row: dict[str, Any] = {"file": str(path), "status": "failed", "error": error or "",
-                           "folder": ""}
+    row: dict[str, Any] = {"file": str(path), "status": "failed", "error": error or "", "folder": ""}
     if error is not None:
         return row, None
     try:
@@ -242,38 +279,51 @@ def _measure_one(path: Path, folder: Path, digest: str | None, error: str | None
 
 def _sample(m: SEMMeasurement) -> _Sample:
     f = m.fibers
-    return _Sample(diameter_um=_finite(f["diameter_um"][f["visible"].to_numpy(dtype=bool)]),
-                   orientation_deg=_finite(f["orientation_deg"]),
-                   tortuosity=_finite(f["tortuosity"]), structure=m.pores,
-                   coherency=m.coherency, n_crossing=m.n_crossing,
-                   u_turn_fraction=m.u_turn_fraction)
+    return _Sample(
+        diameter_um=_finite(f["diameter_um"][f["visible"].to_numpy(dtype=bool)]),
+        orientation_deg=_finite(f["orientation_deg"]),
+        tortuosity=_finite(f["tortuosity"]),
+        structure=m.pores,
+        coherency=m.coherency,
+        n_crossing=m.n_crossing,
+        u_turn_fraction=m.u_turn_fraction,
+    )
 
 
 def _image_row(m: SEMMeasurement, s: _Sample) -> dict[str, Any]:
     """One measured image's values of :data:`IMAGE_COLUMNS`."""
     fits, st = m.fits, s.structure
     return {
-        "um_per_px": m.um_per_px, "scale_source": m.scale_source,
-        "rows_analysed": f"{m.rows[0]}:{m.rows[1]}", "n_fibers": len(m.fibers),
-        "n_diameters": len(s.diameter_um), "diameter_mean_um": _mean(s.diameter_um),
-        "diameter_sd_um": _sd(s.diameter_um, ddof=0), "diameter_median_um": _median(s.diameter_um),
+        "um_per_px": m.um_per_px,
+        "scale_source": m.scale_source,
+        "rows_analysed": f"{m.rows[0]}:{m.rows[1]}",
+        "n_fibers": len(m.fibers),
+        "n_diameters": len(s.diameter_um),
+        "diameter_mean_um": _mean(s.diameter_um),
+        "diameter_sd_um": _sd(s.diameter_um, ddof=0),
+        "diameter_median_um": _median(s.diameter_um),
         "orientation_model": fits.orientation_model,
         "orientation_mean_deg": fits.orientation_mean_deg,
         "orientation_kappa": fits.orientation_kappa,
-        "dominant_direction_deg": m.dominant_direction_deg, "coherency": m.coherency,
-        "tortuosity_mean": _mean(s.tortuosity), "porosity": st.porosity,
+        "dominant_direction_deg": m.dominant_direction_deg,
+        "coherency": m.coherency,
+        "tortuosity_mean": _mean(s.tortuosity),
+        "porosity": st.porosity,
         "pore_diameter_median_um": st.pore_diameter_median_um,
         "pore_inscribed_median_um": st.pore_inscribed_median_um,
-        "n_pores": len(st.pore_diameter_um), "n_junctions": st.n_junctions,
+        "n_pores": len(st.pore_diameter_um),
+        "n_junctions": st.n_junctions,
         "intersection_density_per_um2": st.intersection_density_per_um2,
         "intersections_per_um_fiber": st.intersections_per_um,
-        "n_crossing": m.n_crossing, "u_turn_fraction": m.u_turn_fraction,
+        "n_crossing": m.n_crossing,
+        "u_turn_fraction": m.u_turn_fraction,
         "straightness": m.straightness,
     }
 
 
-def pooled_statistics(samples: Sequence[_Sample], resamples: int = BOOTSTRAP_RESAMPLES,
-                      seed: int = BOOTSTRAP_SEED) -> dict[str, Any]:
+def pooled_statistics(
+    samples: Sequence[_Sample], resamples: int = BOOTSTRAP_RESAMPLES, seed: int = BOOTSTRAP_SEED
+) -> dict[str, Any]:
     """Pooled statistics over measured images, with per-image spread and cluster-bootstrap
     95 % confidence intervals (module notes); the content of ``pooled.toml``.
 
@@ -295,9 +345,12 @@ def pooled_statistics(samples: Sequence[_Sample], resamples: int = BOOTSTRAP_RES
     from espin.core.version import __version__
 
     n = len(samples)
-    head = {"schema": BATCH_SCHEMA, "espin_version": __version__, "n_measured": n,
-            "bootstrap": {"resamples": resamples, "seed": seed, "unit": "image",
-                          "interval": "percentile, 95 %"}}
+    head = {
+        "schema": BATCH_SCHEMA,
+        "espin_version": __version__,
+        "n_measured": n,
+        "bootstrap": {"resamples": resamples, "seed": seed, "unit": "image", "interval": "percentile, 95 %"},
+    }
     if n == 0:
         return head
     counts = _resample_counts(n, resamples, seed)
@@ -319,7 +372,8 @@ def pooled_statistics(samples: Sequence[_Sample], resamples: int = BOOTSTRAP_RES
             "sd_um": _sd(np.concatenate(d), ddof=1),
             "image_sd_of_mean_um": _sd([_mean(x) for x in d], ddof=1),
         },
-        "orientation": _orientation(samples, counts) | {
+        "orientation": _orientation(samples, counts)
+        | {
             **_stat("coherency_mean", *_ratio(coherency, np.ones(n), counts)),
             "image_sd_of_coherency": _sd(coherency, ddof=1),
         },
@@ -340,7 +394,8 @@ def pooled_statistics(samples: Sequence[_Sample], resamples: int = BOOTSTRAP_RES
             "image_sd_of_median_um": _sd([x.pore_diameter_median_um for x in st], ddof=1),
         },
         "intersections": {
-            "n_junctions": int(junctions.sum()), "area_um2": float(area.sum()),
+            "n_junctions": int(junctions.sum()),
+            "area_um2": float(area.sum()),
             **_stat("density_per_um2", *_ratio(junctions, area, counts)),
             "image_sd_of_density_per_um2": _sd(junctions / area, ddof=1),
         },
@@ -361,8 +416,7 @@ def _resample_counts(n: int, resamples: int, seed: int) -> np.ndarray:
 
 def _pooled_mean(values: list[np.ndarray], counts: np.ndarray) -> tuple[float, np.ndarray]:
     """Mean of the pooled values, and of each resample."""
-    return _ratio(np.array([x.sum() for x in values]), np.array([len(x) for x in values], float),
-                  counts)
+    return _ratio(np.array([x.sum() for x in values]), np.array([len(x) for x in values], float), counts)
 
 
 def _ratio(num: np.ndarray, den: np.ndarray, counts: np.ndarray) -> tuple[float, np.ndarray]:
@@ -373,8 +427,7 @@ def _ratio(num: np.ndarray, den: np.ndarray, counts: np.ndarray) -> tuple[float,
     return (float(num.sum()) / total if total > 0 else math.nan), boot
 
 
-def _pooled_median(values: list[np.ndarray], counts: np.ndarray,
-                   chunk: int = 200) -> tuple[float, np.ndarray]:
+def _pooled_median(values: list[np.ndarray], counts: np.ndarray, chunk: int = 200) -> tuple[float, np.ndarray]:
     """Median of the pooled values, and of each resample (each value weighted by how often
     its image is drawn; the lower weighted median), ``chunk`` resamples at a time."""
     pooled = np.concatenate(values)
@@ -385,10 +438,11 @@ def _pooled_median(values: list[np.ndarray], counts: np.ndarray,
     ordered, owner = pooled[order], image[order]
     boot = np.empty(len(counts))
     for start in range(0, len(counts), chunk):
-        weights = np.cumsum(counts[start:start + chunk][:, owner], axis=1)
+        weights = np.cumsum(counts[start : start + chunk][:, owner], axis=1)
         half = 0.5 * weights[:, -1:]
-        boot[start:start + chunk] = np.where(
-            weights[:, -1] > 0, ordered[np.argmax(weights >= half, axis=1)], math.nan)
+        boot[start : start + chunk] = np.where(
+            weights[:, -1] > 0, ordered[np.argmax(weights >= half, axis=1)], math.nan
+        )
     return float(np.median(pooled)), boot
 
 
@@ -404,9 +458,12 @@ def _orientation(samples: Sequence[_Sample], counts: np.ndarray) -> dict[str, An
     boot_direction = np.degrees(0.5 * np.arctan2(sb, cb))
     wrapped = (boot_direction - direction + 90.0) % 180.0 - 90.0
     lo, hi = _interval(wrapped)
-    return {"n_fibers": int(n.sum()), "axial_mean_deg": direction,
-            "ci95_axial_mean_deg": [direction + lo, direction + hi],
-            **_stat("resultant_length", math.hypot(c, s), np.hypot(cb, sb))}
+    return {
+        "n_fibers": int(n.sum()),
+        "axial_mean_deg": direction,
+        "ci95_axial_mean_deg": [direction + lo, direction + hi],
+        **_stat("resultant_length", math.hypot(c, s), np.hypot(cb, sb)),
+    }
 
 
 def _stat(key: str, estimate: float, boot: np.ndarray) -> dict[str, Any]:

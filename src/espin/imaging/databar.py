@@ -25,8 +25,17 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["DataBar", "detect_data_bar", "max_glyph_px", "UNIFORM_FRACTION", "MIN_BAND_FRACTION",
-           "MAX_BAR_FRACTION", "SATURATION_MARGIN", "MIN_GLYPHS", "GLYPH_CONTRAST"]
+__all__ = [
+    "DataBar",
+    "detect_data_bar",
+    "max_glyph_px",
+    "UNIFORM_FRACTION",
+    "MIN_BAND_FRACTION",
+    "MAX_BAR_FRACTION",
+    "SATURATION_MARGIN",
+    "MIN_GLYPHS",
+    "GLYPH_CONTRAST",
+]
 
 UNIFORM_FRACTION = 0.5
 """A row belongs to a separate band when at least this fraction of its pixels share one grey
@@ -114,8 +123,9 @@ def _separate_band(grey: np.ndarray, side: str) -> DataBar | None:
     the pixels share one grey level, if it is a plausible band."""
     n_rows, n_cols = grey.shape
     levels = np.clip(np.round(grey * 255.0), 0, 255).astype(np.int64)
-    counts = np.bincount((levels + 256 * np.arange(n_rows)[:, None]).ravel(),
-                         minlength=256 * n_rows).reshape(n_rows, 256)
+    counts = np.bincount((levels + 256 * np.arange(n_rows)[:, None]).ravel(), minlength=256 * n_rows).reshape(
+        n_rows, 256
+    )
     uniform = counts.max(axis=1) >= UNIFORM_FRACTION * n_cols
     from_edge = uniform[::-1] if side == "bottom" else uniform
     height = int(np.argmin(from_edge)) if not from_edge.all() else n_rows
@@ -168,8 +178,12 @@ def _aligned_glyphs(grey: np.ndarray, n_rows: int) -> tuple[np.ndarray, np.ndarr
     height = bottom - top
     ring = np.where(bright, 0, ndimage.grey_dilation(labels, size=(3, 3)))
     surround = np.asarray(ndimage.median(grey, ring, np.arange(1, n + 1)))
-    glyph = ((height >= MIN_GLYPH_PX) & (height <= max_glyph_px(n_rows))
-             & (width <= 1.5 * height + 4) & (surround <= level - GLYPH_CONTRAST))
+    glyph = (
+        (height >= MIN_GLYPH_PX)
+        & (height <= max_glyph_px(n_rows))
+        & (width <= 1.5 * height + 4)
+        & (surround <= level - GLYPH_CONTRAST)
+    )
     top, bottom = top[glyph], bottom[glyph]
     same = (np.abs(top[:, None] - top[None, :]) <= 1) & (np.abs(bottom[:, None] - bottom[None, :]) <= 1)
     aligned = same.sum(axis=1) >= MIN_GLYPHS

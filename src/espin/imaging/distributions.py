@@ -26,8 +26,16 @@ from typing import Any
 import numpy as np
 from scipy import special, stats
 
-__all__ = ["DiameterFits", "FittedDistributions", "NormalMixture", "fit_diameter_families",
-           "fit_distributions", "fit_normal_mixture", "DIAMETER_FAMILIES", "MIN_COMPONENT"]
+__all__ = [
+    "DiameterFits",
+    "FittedDistributions",
+    "NormalMixture",
+    "fit_diameter_families",
+    "fit_distributions",
+    "fit_normal_mixture",
+    "DIAMETER_FAMILIES",
+    "MIN_COMPONENT",
+]
 
 DIAMETER_FAMILIES = ("normal", "lognormal", "mixture")
 """The diameter families fitted, in the order of their number of parameters (2, 2, 5)."""
@@ -71,8 +79,7 @@ class NormalMixture:
         """(n, 2) ln of each component's weighted density at x."""
         x = np.asarray(x, dtype=float)[:, None]
         weights = np.array([self.weight, 1.0 - self.weight])
-        return (np.log(weights) + stats.norm.logpdf(x, [self.mean_1, self.mean_2],
-                                                     [self.sd_1, self.sd_2]))
+        return np.log(weights) + stats.norm.logpdf(x, [self.mean_1, self.mean_2], [self.sd_1, self.sd_2])
 
 
 @dataclass(frozen=True)
@@ -131,22 +138,38 @@ class DiameterFits:
         mixture = self.mixture
         lognormal_mean = math.exp(self.lognormal_mu + self.lognormal_sigma**2 / 2)
         out: dict[str, Any] = {
-            "n": self.n, "mean_um": self.mean_um, "sd_um": self.sd_um, "median_um": self.median_um,
-            "selection": "BIC", "distribution": self.chosen,
+            "n": self.n,
+            "mean_um": self.mean_um,
+            "sd_um": self.sd_um,
+            "median_um": self.median_um,
+            "selection": "BIC",
+            "distribution": self.chosen,
             "normal": {"mean_um": self.normal_mean_um, "sd_um": self.normal_sd_um},
-            "lognormal": {"mu_ln_um": self.lognormal_mu, "sigma": self.lognormal_sigma,
-                          "mean_um": lognormal_mean,
-                          "sd_um": lognormal_mean * math.sqrt(math.expm1(self.lognormal_sigma**2))},
-            "mixture": ({} if mixture is None else
-                        {"weight_1": mixture.weight, "mean_1_um": mixture.mean_1,
-                         "sd_1_um": mixture.sd_1, "mean_2_um": mixture.mean_2,
-                         "sd_2_um": mixture.sd_2}),
+            "lognormal": {
+                "mu_ln_um": self.lognormal_mu,
+                "sigma": self.lognormal_sigma,
+                "mean_um": lognormal_mean,
+                "sd_um": lognormal_mean * math.sqrt(math.expm1(self.lognormal_sigma**2)),
+            },
+            "mixture": (
+                {}
+                if mixture is None
+                else {
+                    "weight_1": mixture.weight,
+                    "mean_1_um": mixture.mean_1,
+                    "sd_1_um": mixture.sd_1,
+                    "mean_2_um": mixture.mean_2,
+                    "sd_2_um": mixture.sd_2,
+                }
+            ),
         }
         for family in DIAMETER_FAMILIES:
-            out[family] |= {"log_likelihood": self.log_likelihood[family],
-                            "aic": self.aic[family], "bic": self.bic[family]}
+            out[family] |= {
+                "log_likelihood": self.log_likelihood[family],
+                "aic": self.aic[family],
+                "bic": self.bic[family],
+            }
         return out
-
 
 
 @dataclass(frozen=True)
@@ -200,8 +223,9 @@ class FittedDistributions:
         return density * (np.pi / 180.0)
 
 
-def fit_distributions(diameter_um: np.ndarray, orientation_deg: np.ndarray,
-                      tortuosity: np.ndarray) -> FittedDistributions:
+def fit_distributions(
+    diameter_um: np.ndarray, orientation_deg: np.ndarray, tortuosity: np.ndarray
+) -> FittedDistributions:
     """Fit the three distributions of the module notes to per-fiber samples.
 
     Parameters
@@ -218,11 +242,18 @@ def fit_distributions(diameter_um: np.ndarray, orientation_deg: np.ndarray,
     model, mu, kappa, aic_u, aic_vm = _fit_orientation(np.radians(_finite(orientation_deg)))
     t = _finite(tortuosity)
     scale = float(np.sqrt(np.mean((t - 1.0) ** 2))) if len(t) else math.nan
-    return FittedDistributions(diameter_mean_um=diameter.normal_mean_um,
-                               diameter_sd_um=diameter.normal_sd_um, orientation_model=model,
-                               orientation_mean_deg=mu, orientation_kappa=kappa,
-                               orientation_aic_uniform=aic_u, orientation_aic_von_mises=aic_vm,
-                               tortuosity_loc=1.0, tortuosity_scale=scale, diameter=diameter)
+    return FittedDistributions(
+        diameter_mean_um=diameter.normal_mean_um,
+        diameter_sd_um=diameter.normal_sd_um,
+        orientation_model=model,
+        orientation_mean_deg=mu,
+        orientation_kappa=kappa,
+        orientation_aic_uniform=aic_u,
+        orientation_aic_von_mises=aic_vm,
+        tortuosity_loc=1.0,
+        tortuosity_scale=scale,
+        diameter=diameter,
+    )
 
 
 def fit_diameter_families(diameter_um: np.ndarray) -> DiameterFits:
@@ -244,24 +275,41 @@ def fit_diameter_families(diameter_um: np.ndarray) -> DiameterFits:
     nan_fits = {family: math.nan for family in DIAMETER_FAMILIES}
     if n < 2 or np.ptp(d) == 0:
         mean = float(np.mean(d)) if n else math.nan
-        return DiameterFits(n, mean, 0.0 if n else math.nan, float(np.median(d)) if n else math.nan,
-                            mean, 0.0 if n else math.nan, math.log(mean) if n else math.nan,
-                            0.0 if n else math.nan, None, nan_fits, nan_fits, nan_fits, "")
+        return DiameterFits(
+            n,
+            mean,
+            0.0 if n else math.nan,
+            float(np.median(d)) if n else math.nan,
+            mean,
+            0.0 if n else math.nan,
+            math.log(mean) if n else math.nan,
+            0.0 if n else math.nan,
+            None,
+            nan_fits,
+            nan_fits,
+            nan_fits,
+            "",
+        )
     mean, sd = float(np.mean(d)), float(np.std(d))
     log_d = np.log(d)
     mu, sigma = float(np.mean(log_d)), float(np.std(log_d))
     mixture = fit_normal_mixture(d) if n >= _MIN_MIXTURE else None
-    log_l = {"normal": float(np.sum(stats.norm.logpdf(d, mean, sd))),
-             "lognormal": float(np.sum(stats.norm.logpdf(log_d, mu, sigma)) - np.sum(log_d)),
-             "mixture": math.nan if mixture is None else mixture.log_likelihood}
+    log_l = {
+        "normal": float(np.sum(stats.norm.logpdf(d, mean, sd))),
+        "lognormal": float(np.sum(stats.norm.logpdf(log_d, mu, sigma)) - np.sum(log_d)),
+        "mixture": math.nan if mixture is None else mixture.log_likelihood,
+    }
     k = {"normal": 2, "lognormal": 2, "mixture": 5}
     aic = {f: 2.0 * k[f] - 2.0 * log_l[f] for f in DIAMETER_FAMILIES}
     bic = {f: k[f] * math.log(n) - 2.0 * log_l[f] for f in DIAMETER_FAMILIES}
-    eligible = [f for f in DIAMETER_FAMILIES if math.isfinite(bic[f])
-                and (f != "mixture" or (mixture is not None and mixture.smaller_share(n) >= MIN_COMPONENT))]
+    eligible = [
+        f
+        for f in DIAMETER_FAMILIES
+        if math.isfinite(bic[f])
+        and (f != "mixture" or (mixture is not None and mixture.smaller_share(n) >= MIN_COMPONENT))
+    ]
     chosen = min(eligible, key=bic.__getitem__)
-    return DiameterFits(n, mean, sd, float(np.median(d)), mean, sd, mu, sigma, mixture, log_l,
-                        aic, bic, chosen)
+    return DiameterFits(n, mean, sd, float(np.median(d)), mean, sd, mu, sigma, mixture, log_l, aic, bic, chosen)
 
 
 def fit_normal_mixture(x: np.ndarray) -> NormalMixture:
@@ -283,7 +331,7 @@ def fit_normal_mixture(x: np.ndarray) -> NormalMixture:
     """
     x = np.sort(np.asarray(x, dtype=float))
     floor = _SD_FLOOR * float(np.std(x))
-    low, high = x[: len(x) // 2], x[len(x) // 2:]
+    low, high = x[: len(x) // 2], x[len(x) // 2 :]
     weight = np.array([0.5, 0.5])
     mean = np.array([low.mean(), high.mean()])
     sd = np.maximum([low.std(), high.std()], floor)
@@ -296,17 +344,14 @@ def fit_normal_mixture(x: np.ndarray) -> NormalMixture:
         share = np.maximum(responsibility.sum(axis=0), 1e-12)
         weight = share / len(x)
         mean = (responsibility * x[:, None]).sum(axis=0) / share
-        sd = np.maximum(np.sqrt((responsibility * (x[:, None] - mean) ** 2).sum(axis=0) / share),
-                        floor)
+        sd = np.maximum(np.sqrt((responsibility * (x[:, None] - mean) ** 2).sum(axis=0) / share), floor)
         if log_l - previous < _EM_TOLERANCE * len(x):
             break
         previous = log_l
-    log_l = float(special.logsumexp(np.log(weight) + stats.norm.logpdf(x[:, None], mean, sd),
-                                    axis=1).sum())
+    log_l = float(special.logsumexp(np.log(weight) + stats.norm.logpdf(x[:, None], mean, sd), axis=1).sum())
     order = np.argsort(mean)
     weight, mean, sd = weight[order], mean[order], sd[order]
-    return NormalMixture(float(weight[0]), float(mean[0]), float(sd[0]), float(mean[1]),
-                         float(sd[1]), log_l)
+    return NormalMixture(float(weight[0]), float(mean[0]), float(sd[0]), float(mean[1]), float(sd[1]), log_l)
 
 
 def _fit_orientation(theta: np.ndarray) -> tuple[str, float, float, float, float]:

@@ -35,8 +35,7 @@ from espin.imaging.distributions import FittedDistributions
 from espin.imaging.orientation import local_orientation
 from espin.imaging.widths import WidthSamples
 
-__all__ = ["MeasuredImage", "save_histograms", "save_overlay", "save_orientation_map",
-           "scale_bar_um"]
+__all__ = ["MeasuredImage", "save_histograms", "save_overlay", "save_orientation_map", "scale_bar_um"]
 
 
 class MeasuredImage(Protocol):
@@ -67,6 +66,7 @@ class MeasuredImage(Protocol):
     @property
     def typical_width_px(self) -> float: ...
 
+
 _TICK_EVERY = 4  # width samples per drawn width tick
 _VISIBLE, _HIDDEN = "#ffb000", "#4fa3ff"  # centre lines of fully visible / partly hidden fibers
 _MIN_SIDE, _MAX_SIDE = 1000.0, 1600.0  # figure pixels of the image's longer side
@@ -87,28 +87,43 @@ def save_histograms(m: MeasuredImage, path: str | Path) -> Path:
         bins = np.linspace(0.0, 1.1 * top, 31)
         ax_d.hist(m.widths_um, bins=bins, density=True, color="0.85", label="local widths (all)")
         if len(hidden):
-            ax_d.hist(hidden, bins=bins, density=True, histtype="step", color="C0", lw=1.5,
-                      label=f"partly hidden fibers ({len(hidden)})")
+            ax_d.hist(
+                hidden,
+                bins=bins,
+                density=True,
+                histtype="step",
+                color="C0",
+                lw=1.5,
+                label=f"partly hidden fibers ({len(hidden)})",
+            )
         if len(d):
-            ax_d.hist(d, bins=bins, density=True, color="C1", alpha=0.75,
-                      label=f"fully visible fibers ({len(d)})")
+            ax_d.hist(d, bins=bins, density=True, color="C1", alpha=0.75, label=f"fully visible fibers ({len(d)})")
         chosen = fits.diameter.chosen
         if chosen:
             x = np.linspace(bins[1] / 10.0, bins[-1], 300)
-            ax_d.plot(x, fits.diameter.pdf(chosen, x), "k-",
-                      label=f"{chosen} fit, visible (BIC): {fits.diameter.mean_um:.3g} ± "
-                            f"{fits.diameter.sd_um:.2g} µm")
+            ax_d.plot(
+                x,
+                fits.diameter.pdf(chosen, x),
+                "k-",
+                label=f"{chosen} fit, visible (BIC): {fits.diameter.mean_um:.3g} ± {fits.diameter.sd_um:.2g} µm",
+            )
     ax_d.set(xlabel="diameter [µm]", ylabel="density [1/µm]")
 
     theta = _finite(f["orientation_deg"])
     ax_o.hist(theta, bins=np.linspace(0, 180, 19), density=True, alpha=0.7, label="fibers")
     grid = np.linspace(0, 180, 361)
-    label = ("uniform" if fits.orientation_model == "uniform" else
-             rf"von Mises $\mu$ = {fits.orientation_mean_deg:.0f} deg, $\kappa$ = {fits.orientation_kappa:.2g}")
+    label = (
+        "uniform"
+        if fits.orientation_model == "uniform"
+        else rf"von Mises $\mu$ = {fits.orientation_mean_deg:.0f} deg, $\kappa$ = {fits.orientation_kappa:.2g}"
+    )
     ax_o.plot(grid, fits.orientation_pdf(grid), "k-", label=f"{label} (AIC)")
-    ax_o.axvline(m.dominant_direction_deg, color="C3", ls="--",
-                 label=f"structure tensor {m.dominant_direction_deg:.0f} deg, "
-                       f"coherency {m.coherency:.2f}")
+    ax_o.axvline(
+        m.dominant_direction_deg,
+        color="C3",
+        ls="--",
+        label=f"structure tensor {m.dominant_direction_deg:.0f} deg, coherency {m.coherency:.2f}",
+    )
     ax_o.set(xlabel="orientation [deg]", ylabel="density [1/deg]", xlim=(0, 180))
 
     t = _finite(f["tortuosity"])
@@ -116,8 +131,12 @@ def save_histograms(m: MeasuredImage, path: str | Path) -> Path:
         ax_t.hist(t, bins="auto", density=True, alpha=0.7, label="fibers")
         x = np.linspace(1.0, max(t.max(), 1.0 + 3 * fits.tortuosity_scale) * 1.02, 200)
         if fits.tortuosity_scale > 0:
-            ax_t.plot(x, stats.halfnorm.pdf(x, 1.0, fits.tortuosity_scale), "k-",
-                      label=f"half-normal loc 1, scale {fits.tortuosity_scale:.3g}")
+            ax_t.plot(
+                x,
+                stats.halfnorm.pdf(x, 1.0, fits.tortuosity_scale),
+                "k-",
+                label=f"half-normal loc 1, scale {fits.tortuosity_scale:.3g}",
+            )
     ax_t.set(xlabel="tortuosity (contour / end-to-end)", ylabel="density")
     for ax in (ax_d, ax_o, ax_t):  # headroom, so that the legend sits above the bars
         ax.set_ylim(0.0, 1.45 * ax.get_ylim()[1])
@@ -148,14 +167,29 @@ def save_overlay(m: MeasuredImage, path: str | Path) -> Path:
     ax.set(xlim=(-0.5, cols - 0.5), ylim=(rows - 0.5, -0.5))
     ax.axis("off")
     _add_scale_bar(ax, m.um_per_px, cols, fontsize)
-    key = [Line2D([], [], color=_VISIBLE, lw=1.2, label=f"fully visible fiber ({visible.sum()}), "
-                                                          "its diameter is the primary one"),
-           Line2D([], [], color=_HIDDEN, lw=1.2, label=f"partly hidden fiber ({(~visible).sum()})"),
-           Line2D([], [], color="0.8", lw=2.4, label="thick: traced from edge to edge of the image"),
-           Line2D([], [], color="white", lw=1.2, label=f"measured width (every {_TICK_EVERY}th sample)"),
-           Line2D([], [], color="C3", ls="", marker=".", ms=6, label="junction (crossing)")]
-    ax_key.legend(handles=key, loc="center", ncol=2, frameon=False, labelcolor="white",
-                  fontsize=fontsize, handlelength=2.5, columnspacing=2.0)
+    key = [
+        Line2D(
+            [],
+            [],
+            color=_VISIBLE,
+            lw=1.2,
+            label=f"fully visible fiber ({visible.sum()}), its diameter is the primary one",
+        ),
+        Line2D([], [], color=_HIDDEN, lw=1.2, label=f"partly hidden fiber ({(~visible).sum()})"),
+        Line2D([], [], color="0.8", lw=2.4, label="thick: traced from edge to edge of the image"),
+        Line2D([], [], color="white", lw=1.2, label=f"measured width (every {_TICK_EVERY}th sample)"),
+        Line2D([], [], color="C3", ls="", marker=".", ms=6, label="junction (crossing)"),
+    ]
+    ax_key.legend(
+        handles=key,
+        loc="center",
+        ncol=2,
+        frameon=False,
+        labelcolor="white",
+        fontsize=fontsize,
+        handlelength=2.5,
+        columnspacing=2.0,
+    )
     return save_figure(fig, path, dpi=100)
 
 
@@ -169,18 +203,26 @@ def save_orientation_map(m: MeasuredImage, path: str | Path) -> Path:
     lo, hi = np.percentile(m.image, [0.5, 99.5])
     value = np.clip((m.image - lo) / max(hi - lo, 1e-12), 0.0, 1.0)
     fig, ax, ax_key, fontsize = _image_figure(m.image.shape, key_rows=4)
-    ax.imshow(hsv_to_rgb(np.stack([direction / 180.0, coherency, value], axis=-1)),
-              interpolation="nearest")
+    ax.imshow(hsv_to_rgb(np.stack([direction / 180.0, coherency, value], axis=-1)), interpolation="nearest")
     ax.set(xlim=(-0.5, cols - 0.5), ylim=(rows - 0.5, -0.5))
     ax.axis("off")
     _add_scale_bar(ax, m.um_per_px, cols, fontsize)
     right = _colour_disc(fig, ax_key, fontsize)
-    ax_key.text(right + 0.02, 0.5, "hue: local fiber direction, 0-180° counter-clockwise from "
-                "horizontal (key: the disc)\nsaturation: coherency, 0 (grey) at the centre to 1 "
-                f"at the rim\nbrightness: the image. Structure tensor, window $\\sigma$ = {window:.0f} px"
-                f"\nwhole image: dominant direction {m.dominant_direction_deg:.0f}°, coherency "
-                f"{m.coherency:.2f}", transform=ax_key.transAxes, ha="left", va="center",
-                color="white", fontsize=fontsize, linespacing=1.5)
+    ax_key.text(
+        right + 0.02,
+        0.5,
+        "hue: local fiber direction, 0-180° counter-clockwise from "
+        "horizontal (key: the disc)\nsaturation: coherency, 0 (grey) at the centre to 1 "
+        f"at the rim\nbrightness: the image. Structure tensor, window $\\sigma$ = {window:.0f} px"
+        f"\nwhole image: dominant direction {m.dominant_direction_deg:.0f}°, coherency "
+        f"{m.coherency:.2f}",
+        transform=ax_key.transAxes,
+        ha="left",
+        va="center",
+        color="white",
+        fontsize=fontsize,
+        linespacing=1.5,
+    )
     return save_figure(fig, path, dpi=100)
 
 
@@ -216,10 +258,19 @@ def _add_scale_bar(ax: Axes, um_per_px: float, cols: int, fontsize: float) -> No
     from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
     length = scale_bar_um(cols * um_per_px)
-    bar = AnchoredSizeBar(ax.transData, length / um_per_px, f"{length:g} µm", "lower right",
-                          pad=0.4, borderpad=0.8, sep=4, color="white", frameon=True,
-                          size_vertical=max(1.0, 0.008 * cols),
-                          fontproperties=FontProperties(size=1.3 * fontsize))
+    bar = AnchoredSizeBar(
+        ax.transData,
+        length / um_per_px,
+        f"{length:g} µm",
+        "lower right",
+        pad=0.4,
+        borderpad=0.8,
+        sep=4,
+        color="white",
+        frameon=True,
+        size_vertical=max(1.0, 0.008 * cols),
+        fontproperties=FontProperties(size=1.3 * fontsize),
+    )
     bar.patch.set(facecolor="black", alpha=0.55, edgecolor="none")
     ax.add_artist(bar)
 
@@ -231,21 +282,26 @@ def _colour_disc(fig: Figure, ax_key: Axes, fontsize: float) -> float:
     box = ax_key.get_position()
     side = 0.62 * box.height * fig.get_figheight()  # inches
     left = 3.0 * fontsize / 72.0  # room for the "180°" label
-    ax = fig.add_axes((left / fig.get_figwidth(), box.y0 + 0.1 * box.height,
-                       side / fig.get_figwidth(), 0.62 * box.height))
+    ax = fig.add_axes(
+        (left / fig.get_figwidth(), box.y0 + 0.1 * box.height, side / fig.get_figwidth(), 0.62 * box.height)
+    )
     n = 201
-    y, x = np.mgrid[1:-1:n * 1j, -1:1:n * 1j]
+    y, x = np.mgrid[1 : -1 : n * 1j, -1 : 1 : n * 1j]
     radius = np.hypot(x, y)
     hue = np.degrees(np.mod(np.arctan2(y, x), np.pi)) / 180.0
     rgba = np.ones((n, n, 4))
     rgba[..., :3] = hsv_to_rgb(np.stack([hue, np.clip(radius, 0, 1), np.ones_like(hue)], axis=-1))
     rgba[..., 3] = radius <= 1.0
     ax.imshow(rgba, extent=(-1, 1, -1, 1), interpolation="bilinear")
-    for angle, ha, va in ((0, "left", "center"), (45, "left", "bottom"), (90, "center", "bottom"),
-                          (135, "right", "bottom"), (180, "right", "center")):
+    for angle, ha, va in (
+        (0, "left", "center"),
+        (45, "left", "bottom"),
+        (90, "center", "bottom"),
+        (135, "right", "bottom"),
+        (180, "right", "center"),
+    ):
         a = np.radians(angle)
-        ax.text(1.1 * np.cos(a), 1.1 * np.sin(a), f"{angle}°", ha=ha, va=va, color="white",
-                fontsize=0.9 * fontsize)
+        ax.text(1.1 * np.cos(a), 1.1 * np.sin(a), f"{angle}°", ha=ha, va=va, color="white", fontsize=0.9 * fontsize)
     ax.set(xlim=(-1, 1), ylim=(-1, 1), aspect="equal")
     ax.axis("off")
     return (left + side) / fig.get_figwidth() + 0.03

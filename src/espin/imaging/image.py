@@ -78,9 +78,7 @@ def read_image(path: str | Path) -> np.ndarray:
     except SEMError:
         raise
     except Exception as err:  # any decoder failure: the user's file, not our bug
-        raise SEMError(
-            f"image {str(path)!r} is not a readable TIFF, PNG or JPEG image ({err})"
-        ) from err
+        raise SEMError(f"image {str(path)!r} is not a readable TIFF, PNG or JPEG image ({err})") from err
     return as_grey(data, source=str(path))
 
 
@@ -97,19 +95,16 @@ def as_grey(data: np.ndarray, source: str = "image") -> np.ndarray:
     elif a.ndim == 2:
         grey = _scaled(a)
     else:
-        raise SEMError(f"{source}: expected a grey or colour image, got an array of shape "
-                       f"{a.shape}")
+        raise SEMError(f"{source}: expected a grey or colour image, got an array of shape {a.shape}")
     if min(grey.shape) < 16:
-        raise SEMError(f"{source}: image of {grey.shape[1]} x {grey.shape[0]} px is too small "
-                       "(at least 16 x 16 px)")
+        raise SEMError(f"{source}: image of {grey.shape[1]} x {grey.shape[0]} px is too small (at least 16 x 16 px)")
     return grey
 
 
 def _check_values(a: np.ndarray, source: str) -> None:
     """Refuse arrays that hold no grey levels, and floats that are not finite or are < 0."""
     if a.dtype.kind not in "biuf":
-        raise SEMError(f"{source}: image holds values of type {a.dtype}; expected integer or "
-                       "float grey levels")
+        raise SEMError(f"{source}: image holds values of type {a.dtype}; expected integer or float grey levels")
     if a.dtype.kind != "f":
         return
     for bad, problem in ((~np.isfinite(a), "is not finite"), (a < 0, "is negative")):
@@ -126,8 +121,9 @@ def _check_size(path: Path, width: int, height: int) -> None:
     """Refuse an image without pixels or above :data:`MAX_PIXELS`, before decoding it."""
     pixels = width * height
     if pixels == 0:
-        raise SEMError(f"image {str(path)!r} has no pixels ({width} x {height} px); expected "
-                       "an image of at least 16 x 16 px")
+        raise SEMError(
+            f"image {str(path)!r} has no pixels ({width} x {height} px); expected an image of at least 16 x 16 px"
+        )
     if pixels > MAX_PIXELS:
         raise SEMError(
             f"image {str(path)!r} of {width} x {height} px ({pixels / 1e6:.1f} megapixels) is "
@@ -156,8 +152,9 @@ def _read_tiff(path: Path) -> np.ndarray:
         page = cast(tifffile.TiffPage, tif.pages[0])  # the first page is a page, never a frame
         _check_size(path, page.imagewidth, page.imagelength * page.imagedepth)
         if page.dtype is None or page.dtype.kind not in "biuf":
-            raise SEMError(f"image {str(path)!r}: TIFF of sample type {page.dtype}; expected "
-                           "integer or float grey levels")
+            raise SEMError(
+                f"image {str(path)!r}: TIFF of sample type {page.dtype}; expected integer or float grey levels"
+            )
         data = page.asarray()
         if int(page.photometric) == _PALETTE and page.colormap is not None:
             colormap = np.asarray(page.colormap).astype(np.uint16)  # (3, 2**bits), 16-bit
@@ -177,8 +174,10 @@ def _read_pillow(path: Path) -> np.ndarray:
             return _decode_pillow(path)
         except (Image.DecompressionBombWarning, Image.DecompressionBombError) as err:
             reason = str(err).rstrip(".")
-            raise SEMError(f"image {str(path)!r} is larger than espin reads: {reason}; expected "
-                           f"at most {MAX_PIXELS} px: crop or downscale it") from None
+            raise SEMError(
+                f"image {str(path)!r} is larger than espin reads: {reason}; expected "
+                f"at most {MAX_PIXELS} px: crop or downscale it"
+            ) from None
 
 
 def _decode_pillow(path: Path) -> np.ndarray:
@@ -217,8 +216,7 @@ def parse_rows(value: str | tuple[int, int] | list[int], name: str) -> tuple[int
             first, last = value
             pair = (int(first), int(last))
         except (TypeError, ValueError):
-            raise ConfigError(
-                f"{name} must be a pair (start, stop) of rows, got {value!r}") from None
+            raise ConfigError(f"{name} must be a pair (start, stop) of rows, got {value!r}") from None
     return pair
 
 

@@ -55,8 +55,16 @@ from espin.imaging.trace import trace_fibers
 from espin.imaging.visibility import Visibility, fiber_visibility
 from espin.imaging.widths import WidthSamples, fiber_diameters, local_widths
 
-__all__ = ["SEMMeasurement", "measure", "measurement_digest", "SCHEMA", "MEASURE_OUTPUTS",
-           "EDGE_NEAR", "EDGE_REACH", "SCALE_AGREEMENT"]
+__all__ = [
+    "SEMMeasurement",
+    "measure",
+    "measurement_digest",
+    "SCHEMA",
+    "MEASURE_OUTPUTS",
+    "EDGE_NEAR",
+    "EDGE_REACH",
+    "SCALE_AGREEMENT",
+]
 
 SCHEMA = "espin.sem.measurement/1"
 """Schema of ``measurement.toml``."""
@@ -218,11 +226,13 @@ class SEMMeasurement:
         fibers mean +- sd [um], dominant direction [deg] and coherency."""
         name = Path(self.source).name
         if len(name) > REPR_NAME_LENGTH:
-            name = "..." + name[3 - REPR_NAME_LENGTH:]
+            name = "..." + name[3 - REPR_NAME_LENGTH :]
         d = self.fits.diameter
-        return (f"SEMMeasurement({name}, {self.um_per_px:.4g} um/px, {len(self.fibers)} fibers "
-                f"({int(self.fibers['visible'].sum())} visible), diameter {d.mean_um:.3g} +- {d.sd_um:.2g} um, "
-                f"direction {self.dominant_direction_deg:.0f} deg, coherency {self.coherency:.2f})")
+        return (
+            f"SEMMeasurement({name}, {self.um_per_px:.4g} um/px, {len(self.fibers)} fibers "
+            f"({int(self.fibers['visible'].sum())} visible), diameter {d.mean_um:.3g} +- {d.sd_um:.2g} um, "
+            f"direction {self.dominant_direction_deg:.0f} deg, coherency {self.coherency:.2f})"
+        )
 
     def _repr_html_(self) -> str:
         """The printed table of :meth:`table_rows` as an HTML table (Jupyter)."""
@@ -236,15 +246,17 @@ class SEMMeasurement:
         fits = self.fits
         scale: dict[str, Any] = {"source": self.scale_source}
         if self.metadata is not None:
-            scale |= {"metadata_tag": self.metadata.source,
-                      "metadata_um_per_px": self.metadata.um_per_px}
+            scale |= {"metadata_tag": self.metadata.source, "metadata_um_per_px": self.metadata.um_per_px}
         if self.scale_note:
             scale["note"] = self.scale_note
         if self.scale_bar is not None:
-            scale |= {"scale_bar_um": self.scale_bar_um, "scale_bar_px": self.scale_bar.length_px,
-                      "scale_bar_kind": self.scale_bar.kind,
-                      "scale_bar_ticks": self.scale_bar.n_ticks,
-                      "scale_bar_rows": list(self.scale_bar.row_range)}
+            scale |= {
+                "scale_bar_um": self.scale_bar_um,
+                "scale_bar_px": self.scale_bar.length_px,
+                "scale_bar_kind": self.scale_bar.kind,
+                "scale_bar_ticks": self.scale_bar.n_ticks,
+                "scale_bar_rows": list(self.scale_bar.row_range),
+            }
         return {
             "schema": SCHEMA,
             "espin_version": __version__,
@@ -253,66 +265,98 @@ class SEMMeasurement:
             "um_per_px": self.um_per_px,
             "field_of_view_um": list(self.field_of_view_um),
             "min_chord_um": self.min_chord_um,
-            "image": {"rows_analysed": list(self.rows),
-                      "size_px": [int(self.image.shape[1]), int(self.image.shape[0])],
-                      "typical_width_px": self.typical_width_px,
-                      "data_bar": None if self.data_bar is None else self.data_bar.describe(),
-                      "polarity": self.polarity},
+            "image": {
+                "rows_analysed": list(self.rows),
+                "size_px": [int(self.image.shape[1]), int(self.image.shape[0])],
+                "typical_width_px": self.typical_width_px,
+                "data_bar": None if self.data_bar is None else self.data_bar.describe(),
+                "polarity": self.polarity,
+            },
             "scale": scale,
-            "counts": {"fibers": len(f), "width_samples": len(self.widths_um),
-                       "junctions": len(self.junctions_px),
-                       "visible": int(f["visible"].sum()), "hidden": int((~f["visible"]).sum())},
-            "diameter": {"population": "visible", **fits.diameter.summary(),
-                         "visibility_rule": self.visibility.rule,
-                         "brightness_threshold": self.visibility.threshold},
+            "counts": {
+                "fibers": len(f),
+                "width_samples": len(self.widths_um),
+                "junctions": len(self.junctions_px),
+                "visible": int(f["visible"].sum()),
+                "hidden": int((~f["visible"]).sum()),
+            },
+            "diameter": {
+                "population": "visible",
+                **fits.diameter.summary(),
+                "visibility_rule": self.visibility.rule,
+                "brightness_threshold": self.visibility.threshold,
+            },
             "diameter_hidden": {"population": "hidden", **self.diameter_hidden.summary()},
-            "diameter_all": {"population": "all", **self.diameter_all.summary(),
-                             "local_mean_um": _nan_stat(np.mean, self.widths_um),
-                             "local_sd_um": _nan_stat(np.std, self.widths_um)},
-            "orientation": {"dominant_direction_deg": self.dominant_direction_deg,
-                            "coherency": self.coherency,
-                            "selection": "AIC",
-                            "distribution": fits.orientation_model,
-                            "von_mises_mean_deg": fits.orientation_mean_deg,
-                            "von_mises_kappa": fits.orientation_kappa,
-                            "aic_uniform": fits.orientation_aic_uniform,
-                            "aic_von_mises": fits.orientation_aic_von_mises},
-            "tortuosity": {"distribution": "halfnorm", "loc": fits.tortuosity_loc,
-                           "scale": fits.tortuosity_scale,
-                           "mean": _nan_stat(np.mean, f["tortuosity"]),
-                           "sd": _nan_stat(np.std, f["tortuosity"])},
-            "crossing": {"n_crossing": self.n_crossing,
-                         "u_turn_fraction": self.u_turn_fraction,
-                         "straightness": self.straightness,
-                         "edge_near_widths": EDGE_NEAR, "edge_reach_widths": EDGE_REACH},
+            "diameter_all": {
+                "population": "all",
+                **self.diameter_all.summary(),
+                "local_mean_um": _nan_stat(np.mean, self.widths_um),
+                "local_sd_um": _nan_stat(np.std, self.widths_um),
+            },
+            "orientation": {
+                "dominant_direction_deg": self.dominant_direction_deg,
+                "coherency": self.coherency,
+                "selection": "AIC",
+                "distribution": fits.orientation_model,
+                "von_mises_mean_deg": fits.orientation_mean_deg,
+                "von_mises_kappa": fits.orientation_kappa,
+                "aic_uniform": fits.orientation_aic_uniform,
+                "aic_von_mises": fits.orientation_aic_von_mises,
+            },
+            "tortuosity": {
+                "distribution": "halfnorm",
+                "loc": fits.tortuosity_loc,
+                "scale": fits.tortuosity_scale,
+                "mean": _nan_stat(np.mean, f["tortuosity"]),
+                "sd": _nan_stat(np.std, f["tortuosity"]),
+            },
+            "crossing": {
+                "n_crossing": self.n_crossing,
+                "u_turn_fraction": self.u_turn_fraction,
+                "straightness": self.straightness,
+                "edge_near_widths": EDGE_NEAR,
+                "edge_reach_widths": EDGE_REACH,
+            },
             "pores": self.pores.summary(),
         }
 
     def table_rows(self) -> list[tuple[str, str]]:
         """(quantity, value) pairs for a short printed table."""
         f, fits = self.fibers, self.fits
-        orient = ("uniform" if fits.orientation_model == "uniform" else
-                  f"von Mises, mean {fits.orientation_mean_deg:.1f} deg, "
-                  f"kappa {fits.orientation_kappa:.3g}")
-        bar = ([] if self.data_bar is None else
-               [("data bar", f"{self.data_bar.describe()}, left out (found)")])
+        orient = (
+            "uniform"
+            if fits.orientation_model == "uniform"
+            else f"von Mises, mean {fits.orientation_mean_deg:.1f} deg, kappa {fits.orientation_kappa:.3g}"
+        )
+        bar = [] if self.data_bar is None else [("data bar", f"{self.data_bar.describe()}, left out (found)")]
         return [
             ("scale", f"{self.um_per_px:.5g} um/px" + self._scale_text()),
             *bar,
-            ("field of view",
-             f"{self.field_of_view_um[0]:.4g} x {self.field_of_view_um[1]:.4g} um"),
-            ("fibers traced", f"{len(f)} (end-to-end >= {self.min_chord_um:.3g} um, median "
-                              f"{_nan_stat(np.median, f['end_to_end_um']):.3g} um)"),
+            ("field of view", f"{self.field_of_view_um[0]:.4g} x {self.field_of_view_um[1]:.4g} um"),
+            (
+                "fibers traced",
+                f"{len(f)} (end-to-end >= {self.min_chord_um:.3g} um, median "
+                f"{_nan_stat(np.median, f['end_to_end_um']):.3g} um)",
+            ),
             ("diameter", self._diameter_text(fits.diameter, "visible fibers")),
             ("  hidden fibers", self._diameter_text(self.diameter_hidden, "partly hidden, deeper")),
-            ("  all fibers", f"mean {self.diameter_all.mean_um:.4g} +- "
-                             f"{self.diameter_all.sd_um:.3g} um ({self.diameter_all.n}; "
-                             f"{len(self.widths_um)} local widths)"),
-            ("orientation", f"dominant {self.dominant_direction_deg:.1f} deg, coherency "
-                            f"{self.coherency:.3f}; fibers: {orient} (AIC)"),
-            ("tortuosity", f"mean {_nan_stat(np.mean, f['tortuosity']):.4f}; half-normal loc 1, "
-                           f"scale {fits.tortuosity_scale:.4f} (of the traced pieces; whole "
-                           "fibers across the image: espin calibrate-geometry)"),
+            (
+                "  all fibers",
+                f"mean {self.diameter_all.mean_um:.4g} +- "
+                f"{self.diameter_all.sd_um:.3g} um ({self.diameter_all.n}; "
+                f"{len(self.widths_um)} local widths)",
+            ),
+            (
+                "orientation",
+                f"dominant {self.dominant_direction_deg:.1f} deg, coherency "
+                f"{self.coherency:.3f}; fibers: {orient} (AIC)",
+            ),
+            (
+                "tortuosity",
+                f"mean {_nan_stat(np.mean, f['tortuosity']):.4f}; half-normal loc 1, "
+                f"scale {fits.tortuosity_scale:.4f} (of the traced pieces; whole "
+                "fibers across the image: espin calibrate-geometry)",
+            ),
             ("edge to edge", self._crossing_text()),
             *self.pores.table_rows(),
         ]
@@ -321,14 +365,15 @@ class SEMMeasurement:
     def _diameter_text(fits: DiameterFits, population: str) -> str:
         if fits.n == 0:
             return f"none ({population})"
-        text = (f"{fits.mean_um:.4g} +- {fits.sd_um:.3g} um, median {fits.median_um:.4g} "
-                f"({fits.n} {population}")
+        text = f"{fits.mean_um:.4g} +- {fits.sd_um:.3g} um, median {fits.median_um:.4g} ({fits.n} {population}"
         if not fits.chosen:
             return text + ")"
         if fits.chosen == "mixture" and fits.mixture is not None:
             m = fits.mixture
-            family = (f"mixture {m.weight:.2f} x {m.mean_1:.3g} +- {m.sd_1:.2g} and "
-                      f"{1 - m.weight:.2f} x {m.mean_2:.3g} +- {m.sd_2:.2g}")
+            family = (
+                f"mixture {m.weight:.2f} x {m.mean_1:.3g} +- {m.sd_1:.2g} and "
+                f"{1 - m.weight:.2f} x {m.mean_2:.3g} +- {m.sd_2:.2g}"
+            )
         else:
             family = fits.chosen
         return text + f"; {family} by BIC)"
@@ -345,8 +390,10 @@ class SEMMeasurement:
     def _crossing_text(self) -> str:
         if self.n_crossing == 0:
             return "no fiber traced across the image"
-        return (f"{self.n_crossing} fibers traced across the image; U-turn fraction "
-                f"{self.u_turn_fraction:.3f}, straightness {self.straightness:.4f}")
+        return (
+            f"{self.n_crossing} fibers traced across the image; U-turn fraction "
+            f"{self.u_turn_fraction:.3f}, straightness {self.straightness:.4f}"
+        )
 
     def write(self, folder: str | Path, figures: bool = True, *, overwrite: bool = False) -> dict[str, Path]:
         """Write ``fibers.csv``, ``measurement.toml`` and (optionally) the figures, with the
@@ -383,9 +430,12 @@ class SEMMeasurement:
         from espin.core.atomic import atomic_write_bytes
 
         folder = Path(folder)
-        files = {"fibers": write_fibers_csv(self.fibers, folder / "fibers.csv"),
-                 "summary": atomic_write_bytes(folder / "measurement.toml",
-                                               tomli_w.dumps(_toml_ready(self.summary())).encode())}
+        files = {
+            "fibers": write_fibers_csv(self.fibers, folder / "fibers.csv"),
+            "summary": atomic_write_bytes(
+                folder / "measurement.toml", tomli_w.dumps(_toml_ready(self.summary())).encode()
+            ),
+        }
         if figures:
             from espin.imaging.figures import (
                 save_histograms,
@@ -466,12 +516,21 @@ def measure(
         non-square pixels (without a given scale), there are no fibers, or the fibers look dark
         on a bright background (without ``invert``).
     """
-    digest, metadata, note = _checked_inputs(image, dict(
-        um_per_px=um_per_px, scale_bar_um=scale_bar_um, scale_bar_rows=scale_bar_rows,
-        crop_rows=crop_rows, crop_bottom_px=crop_bottom_px, width_px=width_px,
-        max_bend_deg=max_bend_deg, min_length_diameters=min_length_diameters,
-        detect_data_bar=detect_data_bar, invert=invert,
-    ))
+    digest, metadata, note = _checked_inputs(
+        image,
+        dict(
+            um_per_px=um_per_px,
+            scale_bar_um=scale_bar_um,
+            scale_bar_rows=scale_bar_rows,
+            crop_rows=crop_rows,
+            crop_bottom_px=crop_bottom_px,
+            width_px=width_px,
+            max_bend_deg=max_bend_deg,
+            min_length_diameters=min_length_diameters,
+            detect_data_bar=detect_data_bar,
+            invert=invert,
+        ),
+    )
     bar_rows = parse_rows(scale_bar_rows, "scale_bar_rows") if scale_bar_rows is not None else None
     keep_rows = parse_rows(crop_rows, "crop_rows") if crop_rows is not None else None
     if isinstance(image, (str, Path)):
@@ -486,8 +545,7 @@ def measure(
         crop_rows_slice = row_slice(keep_rows, n_rows, "crop_rows")
     elif crop_bottom_px:
         if crop_bottom_px >= n_rows - 16:
-            raise ConfigError(f"crop_bottom_px = {crop_bottom_px} must leave at least 16 of the "
-                              f"image's {n_rows} rows")
+            raise ConfigError(f"crop_bottom_px = {crop_bottom_px} must leave at least 16 of the image's {n_rows} rows")
         crop_rows_slice = slice(0, n_rows - crop_bottom_px)
     elif bar_slice is not None:
         in_bottom = bar_slice.start >= n_rows / 2
@@ -498,8 +556,7 @@ def measure(
     if crop_rows_slice is None:
         crop_rows_slice = slice(0, n_rows)
     if crop_rows_slice.stop - crop_rows_slice.start < 16:
-        raise ConfigError("the rows left to analyse (crop_rows, or above/below scale_bar_rows) "
-                          "must be at least 16")
+        raise ConfigError("the rows left to analyse (crop_rows, or above/below scale_bar_rows) must be at least 16")
 
     bar = detect_scale_bar(grey, bar_slice) if bar_slice is not None else None
     if bar is not None:
@@ -510,16 +567,32 @@ def measure(
         scale, scale_source = cast(MetadataScale, metadata).um_per_px, "metadata"
     analysed = grey[crop_rows_slice]
     if width_px is not None and width_px > min(analysed.shape) / 4:
-        raise ConfigError(f"width_px = {width_px:g} is more than a quarter of the analysed image "
-                          f"({analysed.shape[1]} x {analysed.shape[0]} px): fibers that wide cannot be "
-                          "traced; give the typical fiber width in pixels, or leave it out to estimate it")
+        raise ConfigError(
+            f"width_px = {width_px:g} is more than a quarter of the analysed image "
+            f"({analysed.shape[1]} x {analysed.shape[0]} px): fibers that wide cannot be "
+            "traced; give the typical fiber width in pixels, or leave it out to estimate it"
+        )
     analysed, polarity = bright_fibers(analysed, invert, source)
-    scale_fields = {"scale_bar": bar, "scale_bar_um": None if bar is None else float(cast(float, scale_bar_um)),
-                    "scale_source": scale_source, "metadata": metadata,
-                    "scale_note": note or _scale_note(scale, scale_source, metadata),
-                    "data_bar": data_bar, "polarity": polarity}
-    return _measure_grey(analysed, scale, width_px, max_bend_deg, min_length_diameters, source,
-                         (crop_rows_slice.start, crop_rows_slice.stop), digest, scale_fields)
+    scale_fields = {
+        "scale_bar": bar,
+        "scale_bar_um": None if bar is None else float(cast(float, scale_bar_um)),
+        "scale_source": scale_source,
+        "metadata": metadata,
+        "scale_note": note or _scale_note(scale, scale_source, metadata),
+        "data_bar": data_bar,
+        "polarity": polarity,
+    }
+    return _measure_grey(
+        analysed,
+        scale,
+        width_px,
+        max_bend_deg,
+        min_length_diameters,
+        source,
+        (crop_rows_slice.start, crop_rows_slice.stop),
+        digest,
+        scale_fields,
+    )
 
 
 def _find_data_bar(grey: np.ndarray) -> tuple[tuple[int, int], DataBar | None]:
@@ -555,8 +628,7 @@ def measurement_digest(image: str | Path | np.ndarray, **options: Any) -> str:
     return _checked_inputs(image, options)[0]
 
 
-def _checked_inputs(image: str | Path | np.ndarray,
-                    options: dict[str, Any]) -> tuple[str, MetadataScale | None, str]:
+def _checked_inputs(image: str | Path | np.ndarray, options: dict[str, Any]) -> tuple[str, MetadataScale | None, str]:
     """:func:`measurement_digest`, with the image's metadata pixel size and a note on why the
     metadata was not read (see :func:`_image_metadata`)."""
     options = {"detect_data_bar": True, "invert": None, **options}
@@ -580,8 +652,7 @@ def _checked_inputs(image: str | Path | np.ndarray,
     return digest.hexdigest(), metadata, note
 
 
-def _image_metadata(image: str | Path | np.ndarray,
-                    given: bool) -> tuple[MetadataScale | None, str]:
+def _image_metadata(image: str | Path | np.ndarray, given: bool) -> tuple[MetadataScale | None, str]:
     """The pixel size the image file's tags record (:func:`espin.imaging.metadata.read_pixel_size`)
     and a note.
 
@@ -597,12 +668,17 @@ def _image_metadata(image: str | Path | np.ndarray,
             return None, f"the image's metadata is not used: {err}"
     metadata = read_pixel_size(cast(Path, image)) if is_file else None  # a file is named by a path
     if metadata is None:
-        where = ("no pixel size in the image's metadata (FEI or Zeiss microscope tags, an "
-                 "ImageJ description with a length unit; the dpi of a TIFF is not one)"
-                 if isinstance(image, (str, Path)) else "an image array has no metadata")
-        raise ConfigError("no scale: give um_per_px (--um-per-px), or scale_bar_um (--scale-bar-um, "
-                          "the bar's length in um) with scale_bar_rows (--scale-bar-rows START:STOP, "
-                          f"the image rows that hold it); {where}")
+        where = (
+            "no pixel size in the image's metadata (FEI or Zeiss microscope tags, an "
+            "ImageJ description with a length unit; the dpi of a TIFF is not one)"
+            if isinstance(image, (str, Path))
+            else "an image array has no metadata"
+        )
+        raise ConfigError(
+            "no scale: give um_per_px (--um-per-px), or scale_bar_um (--scale-bar-um, "
+            "the bar's length in um) with scale_bar_rows (--scale-bar-rows START:STOP, "
+            f"the image rows that hold it); {where}"
+        )
     return metadata, ""
 
 
@@ -615,8 +691,10 @@ def _scale_note(um_per_px: float, scale_source: str, metadata: MetadataScale | N
     if off <= SCALE_AGREEMENT:
         return ""
     given = "the scale bar" if scale_source == "scale_bar" else "um_per_px"
-    return (f"the image's metadata ({metadata.source}) gives {metadata.um_per_px:.5g} um/px, "
-            f"{off:.1%} off the {um_per_px:.5g} um/px of {given}, which is used")
+    return (
+        f"the image's metadata ({metadata.source}) gives {metadata.um_per_px:.5g} um/px, "
+        f"{off:.1%} off the {um_per_px:.5g} um/px of {given}, which is used"
+    )
 
 
 def _file_digest(path: Path) -> bytes:
@@ -635,10 +713,17 @@ def _file_digest(path: Path) -> bytes:
         raise SEMError(f"image {str(path)!r} cannot be read: {err.strerror}") from None
 
 
-def _measure_grey(grey: np.ndarray, um_per_px: float, width_px: float | None,
-                  max_bend_deg: float, min_length_diameters: float, source: str,
-                  rows: tuple[int, int], inputs_digest: str,
-                  scale_fields: dict[str, Any]) -> SEMMeasurement:
+def _measure_grey(
+    grey: np.ndarray,
+    um_per_px: float,
+    width_px: float | None,
+    max_bend_deg: float,
+    min_length_diameters: float,
+    source: str,
+    rows: tuple[int, int],
+    inputs_digest: str,
+    scale_fields: dict[str, Any],
+) -> SEMMeasurement:
     """Measure an analysed grey image; ``scale_fields`` are the :class:`SEMMeasurement` fields
     that say where ``um_per_px`` came from (``scale_bar`` ... ``scale_note``) and the data
     bar left out (``data_bar``)."""
@@ -664,45 +749,62 @@ def _measure_grey(grey: np.ndarray, um_per_px: float, width_px: float | None,
     renumber[kept] = np.arange(len(kept))
     on_kept = renumber[samples.fiber] >= 0
     samples = samples.subset(on_kept, renumber[samples.fiber[on_kept]])
-    visibility = fiber_visibility(grey, [paths[i] for i in kept], samples, traced.junctions,
-                                  crossings, seg.width_px)
+    visibility = fiber_visibility(grey, [paths[i] for i in kept], samples, traced.junctions, crossings, seg.width_px)
     visible = visibility.visible & np.isfinite(diameter_px)
     contour_px = np.maximum(contour[kept], chord[kept])
-    edges, edge_to_edge = _edge_crossings([paths[i] for i in kept], contour_px, grey.shape,
-                                          seg.width_px)
+    edges, edge_to_edge = _edge_crossings([paths[i] for i in kept], contour_px, grey.shape, seg.width_px)
     names = np.array(EDGE_NAMES + ("",))  # index -1 (inside the image) -> ""
-    fibers = pd.DataFrame({
-        "fiber": np.arange(len(kept), dtype=np.int64),
-        "diameter_um": diameter_px * um_per_px,
-        "orientation_deg": image_angle_deg(chord_vec[kept, 0], chord_vec[kept, 1]) % 180.0,
-        "tortuosity": np.maximum(contour[kept] / chord[kept], 1.0),
-        "contour_length_um": contour_px * um_per_px,
-        "end_to_end_um": chord[kept] * um_per_px,
-        "start_edge": names[edges[:, 0]],
-        "end_edge": names[edges[:, 1]],
-        "visible": visible,
-    }, columns=list(FIBER_COLUMNS))
+    fibers = pd.DataFrame(
+        {
+            "fiber": np.arange(len(kept), dtype=np.int64),
+            "diameter_um": diameter_px * um_per_px,
+            "orientation_deg": image_angle_deg(chord_vec[kept, 0], chord_vec[kept, 1]) % 180.0,
+            "tortuosity": np.maximum(contour[kept] / chord[kept], 1.0),
+            "contour_length_um": contour_px * um_per_px,
+            "end_to_end_um": chord[kept] * um_per_px,
+            "start_edge": names[edges[:, 0]],
+            "end_edge": names[edges[:, 1]],
+            "visible": visible,
+        },
+        columns=list(FIBER_COLUMNS),
+    )
     direction, coherency = structure_tensor_orientation(seg.flat)
     diameter_um = fibers["diameter_um"].to_numpy()
-    fits = fit_distributions(diameter_um[visible], fibers["orientation_deg"].to_numpy(),
-                             fibers["tortuosity"].to_numpy())
+    fits = fit_distributions(
+        diameter_um[visible], fibers["orientation_deg"].to_numpy(), fibers["tortuosity"].to_numpy()
+    )
     return SEMMeasurement(
-        fibers=fibers, widths_um=samples.width_px * um_per_px, um_per_px=um_per_px,
+        fibers=fibers,
+        widths_um=samples.width_px * um_per_px,
+        um_per_px=um_per_px,
         field_of_view_um=(grey.shape[1] * um_per_px, grey.shape[0] * um_per_px),
-        dominant_direction_deg=direction, coherency=coherency, fits=fits,
+        dominant_direction_deg=direction,
+        coherency=coherency,
+        fits=fits,
         diameter_hidden=fit_diameter_families(diameter_um[~visible]),
-        diameter_all=fit_diameter_families(diameter_um), visibility=visibility,
-        n_crossing=edge_to_edge.n_crossing, u_turn_fraction=edge_to_edge.u_turn_fraction,
+        diameter_all=fit_diameter_families(diameter_um),
+        visibility=visibility,
+        n_crossing=edge_to_edge.n_crossing,
+        u_turn_fraction=edge_to_edge.u_turn_fraction,
         straightness=edge_to_edge.straightness,
-        min_chord_um=min_chord_px * um_per_px, typical_width_px=typical, image=grey,
-        mask=seg.mask, pores=mat_structure(seg.mask, traced.junctions, um_per_px), rows=rows,
-        paths_px=[paths[i] for i in kept], width_samples=samples, junctions_px=traced.junctions,
-        source=source, inputs_digest=inputs_digest, **scale_fields,
+        min_chord_um=min_chord_px * um_per_px,
+        typical_width_px=typical,
+        image=grey,
+        mask=seg.mask,
+        pores=mat_structure(seg.mask, traced.junctions, um_per_px),
+        rows=rows,
+        paths_px=[paths[i] for i in kept],
+        width_samples=samples,
+        junctions_px=traced.junctions,
+        source=source,
+        inputs_digest=inputs_digest,
+        **scale_fields,
     )
 
 
-def _edge_crossings(paths: list[np.ndarray], contour_px: np.ndarray, shape: tuple[int, int],
-                    width_px: float) -> tuple[np.ndarray, CrossingStatistics]:
+def _edge_crossings(
+    paths: list[np.ndarray], contour_px: np.ndarray, shape: tuple[int, int], width_px: float
+) -> tuple[np.ndarray, CrossingStatistics]:
     """Edge of the analysed image at both ends of each traced fiber, and the crossing
     statistics of the fibers traced from edge to edge.
 
@@ -739,8 +841,9 @@ def _edge_crossings(paths: list[np.ndarray], contour_px: np.ndarray, shape: tupl
     return edges, crossing_statistics(ends[:, 0], ends[:, 1], contour_px + added, lower, upper, tol)
 
 
-def _end_on_edge(oriented: np.ndarray, lower: np.ndarray, upper: np.ndarray,
-                 width_px: float) -> tuple[np.ndarray, float]:
+def _end_on_edge(
+    oriented: np.ndarray, lower: np.ndarray, upper: np.ndarray, width_px: float
+) -> tuple[np.ndarray, float]:
     """The last point of a centre line (x, y) [px], or where its straight continuation leaves
     the rectangle [lower, upper] if that is within :data:`EDGE_REACH` w (and the point is not
     within :data:`EDGE_NEAR` w of an edge already); and the length [px] added.
@@ -758,18 +861,26 @@ def _end_on_edge(oriented: np.ndarray, lower: np.ndarray, upper: np.ndarray,
         return end, 0.0
     direction = direction / norm
     with np.errstate(divide="ignore", invalid="ignore"):
-        steps = np.where(direction > 0, (upper - end) / direction,
-                         np.where(direction < 0, (lower - end) / direction, np.inf))
+        steps = np.where(
+            direction > 0, (upper - end) / direction, np.where(direction < 0, (lower - end) / direction, np.inf)
+        )
     reach = float(np.min(steps))
     if reach > EDGE_REACH * width_px:
         return end, 0.0
     return np.clip(end + reach * direction, lower, upper), reach
 
 
-def _check_options(um_per_px: float | None, scale_bar_um: float | None, scale_bar_rows: Any,
-                   crop_rows: Any, crop_bottom_px: int | None, width_px: float | None,
-                   max_bend_deg: float, min_length_diameters: float,
-                   detect_data_bar: bool) -> None:
+def _check_options(
+    um_per_px: float | None,
+    scale_bar_um: float | None,
+    scale_bar_rows: Any,
+    crop_rows: Any,
+    crop_bottom_px: int | None,
+    width_px: float | None,
+    max_bend_deg: float,
+    min_length_diameters: float,
+    detect_data_bar: bool,
+) -> None:
     """Every option error, before any work (ConfigError naming the parameter)."""
     if um_per_px is not None and not (_finite(um_per_px) and 1e-6 <= um_per_px <= 1e3):
         raise ConfigError(f"um_per_px must be a number in [1e-6, 1000] (1 pm to 1 mm per pixel), got {um_per_px!r}")
@@ -781,8 +892,7 @@ def _check_options(um_per_px: float | None, scale_bar_um: float | None, scale_ba
         if scale_bar_um is None:
             raise ConfigError("scale_bar_rows needs scale_bar_um (the bar's length in um)")
         if scale_bar_rows is None:
-            raise ConfigError("scale_bar_um needs scale_bar_rows (START:STOP, the image rows "
-                              "that hold the bar)")
+            raise ConfigError("scale_bar_um needs scale_bar_rows (START:STOP, the image rows that hold the bar)")
         parse_rows(scale_bar_rows, "scale_bar_rows")
     if crop_rows is not None:
         parse_rows(crop_rows, "crop_rows")
@@ -801,8 +911,7 @@ def _check_options(um_per_px: float | None, scale_bar_um: float | None, scale_ba
 
 
 def _finite(x: Any) -> bool:
-    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool) \
-        and math.isfinite(float(x))
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, bool) and math.isfinite(float(x))
 
 
 def _nan_stat(func: Any, values: Any) -> float:

@@ -35,8 +35,14 @@ from typing import Any
 
 from espin.core.errors import SEMError
 
-__all__ = ["MAX_UM_PER_PX", "SQUARE_TOLERANCE", "MetadataScale", "MetadataWarning",
-           "pixel_size_from_tags", "read_pixel_size"]
+__all__ = [
+    "MAX_UM_PER_PX",
+    "SQUARE_TOLERANCE",
+    "MetadataScale",
+    "MetadataWarning",
+    "pixel_size_from_tags",
+    "read_pixel_size",
+]
 
 MAX_UM_PER_PX = 1000.0
 """Largest pixel size read from a tag [um / px] (as ``um_per_px`` of ``espin measure``)."""
@@ -48,8 +54,16 @@ _FEI_TAGS = {34682: "FEI_HELIOS", 34680: "FEI_SFEG"}
 _ZEISS_TAG = 34118
 _DESCRIPTION, _X_RESOLUTION, _Y_RESOLUTION = 270, 282, 283
 _TAGS = (*_FEI_TAGS, _ZEISS_TAG, _DESCRIPTION, _X_RESOLUTION, _Y_RESOLUTION)
-_UM_PER_UNIT = {"nm": 1e-3, "um": 1.0, "\u00b5m": 1.0, "\u03bcm": 1.0, "\\u00b5m": 1.0,
-                "micron": 1.0, "microns": 1.0, "mm": 1e3}
+_UM_PER_UNIT = {
+    "nm": 1e-3,
+    "um": 1.0,
+    "\u00b5m": 1.0,
+    "\u03bcm": 1.0,
+    "\\u00b5m": 1.0,
+    "micron": 1.0,
+    "microns": 1.0,
+    "mm": 1e3,
+}
 """Length units of the Zeiss and ImageJ tags (lower case) [um]; ImageJ escapes µ as
 ``\\u00B5``."""
 
@@ -128,7 +142,11 @@ def pixel_size_from_tags(values: Mapping[int, Any], source: str = "image") -> Me
         Its pixels are not square.
     """
     readers: list[tuple[int, Callable[[int, Mapping[int, Any]], _Found | None]]] = [
-        (34682, _fei), (34680, _fei), (_ZEISS_TAG, _zeiss), (_DESCRIPTION, _imagej)]
+        (34682, _fei),
+        (34680, _fei),
+        (_ZEISS_TAG, _zeiss),
+        (_DESCRIPTION, _imagej),
+    ]
     for code, reader in readers:
         found = reader(code, values) if values.get(code) is not None else None
         if found is not None and _usable(found, source):
@@ -151,8 +169,7 @@ def _fei(code: int, values: Mapping[int, Any]) -> _Found | None:
     if not isinstance(scan, dict) or "PixelWidth" not in scan:
         return None
     height = _number(scan["PixelHeight"]) * 1e6 if "PixelHeight" in scan else None
-    return _Found(_number(scan["PixelWidth"]) * 1e6, height,
-                  f"FEI tag {code} [Scan] PixelWidth")
+    return _Found(_number(scan["PixelWidth"]) * 1e6, height, f"FEI tag {code} [Scan] PixelWidth")
 
 
 def _zeiss(code: int, values: Mapping[int, Any]) -> _Found | None:
@@ -183,11 +200,13 @@ def _usable(found: _Found, source: str) -> bool:
     """Whether a found pixel size is sane (else warned about); refuse non-square pixels."""
     for size in (found.width_um, found.height_um):
         if size is not None and not (math.isfinite(size) and 0 < size <= MAX_UM_PER_PX):
-            warnings.warn(f"{source}: {found.name} gives a pixel size of {size!r} um, not in "
-                          f"(0, {MAX_UM_PER_PX:g}] um; ignored", MetadataWarning, stacklevel=3)
+            warnings.warn(
+                f"{source}: {found.name} gives a pixel size of {size!r} um, not in (0, {MAX_UM_PER_PX:g}] um; ignored",
+                MetadataWarning,
+                stacklevel=3,
+            )
             return False
-    if found.height_um is not None and \
-            abs(found.height_um - found.width_um) > SQUARE_TOLERANCE * found.width_um:
+    if found.height_um is not None and abs(found.height_um - found.width_um) > SQUARE_TOLERANCE * found.width_um:
         raise SEMError(
             f"{source}: {found.name} records non-square pixels, {found.width_um:.6g} um wide and "
             f"{found.height_um:.6g} um high (more than {SQUARE_TOLERANCE:.0%} apart); espin "

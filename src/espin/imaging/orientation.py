@@ -55,8 +55,7 @@ def structure_tensor_orientation(image: np.ndarray, sigma_px: float = 1.0) -> tu
     return float(np.degrees(np.mod(gradient + np.pi / 2.0, np.pi))), coherency
 
 
-def local_orientation(image: np.ndarray, window_px: float,
-                      sigma_px: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+def local_orientation(image: np.ndarray, window_px: float, sigma_px: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """Local fiber direction and coherency at every pixel (OrientationJ's local structure
     tensor).
 

@@ -36,11 +36,13 @@ def line_ratio(grey: np.ndarray) -> float:
     g = (g - g.mean()) / (g.std() + 1e-12)
     ratios = []
     for sigma in SCALES_PX:
-        large, small = hessian_matrix_eigvals(hessian_matrix(g, sigma=sigma, order="rc",
-                                                             use_gaussian_derivatives=False))
+        large, small = hessian_matrix_eigvals(
+            hessian_matrix(g, sigma=sigma, order="rc", use_gaussian_derivatives=False)
+        )
         strength = np.maximum(np.abs(large), np.abs(small))
-        line = ((strength > np.percentile(strength, 90))
-                & (1.0 - np.minimum(np.abs(large), np.abs(small)) / (strength + 1e-12) > LINE_ANISOTROPY))
+        line = (strength > np.percentile(strength, 90)) & (
+            1.0 - np.minimum(np.abs(large), np.abs(small)) / (strength + 1e-12) > LINE_ANISOTROPY
+        )
         bright = int(np.count_nonzero(line & (np.abs(small) > np.abs(large)) & (small < 0.0)))
         dark = int(np.count_nonzero(line & (np.abs(large) > np.abs(small)) & (large > 0.0)))
         ratios.append(max(bright, 1) / max(dark, 1))
@@ -71,14 +73,20 @@ def bright_fibers(grey: np.ndarray, invert: bool | None, source: str) -> tuple[n
     ratio = line_ratio(grey)
     if invert:
         if ratio > 1.0 / DARK_FIBERS_BELOW:
-            raise SEMError(f"{source}: --invert was given, but the fibers look bright on a dark background "
-                           f"already (bright-to-dark line ratio {ratio:.2f}; dark fibers give below "
-                           f"{DARK_FIBERS_BELOW:g}); leave out --invert")
-        return (grey.max() + grey.min() - grey,
-                f"dark fibers on a bright background, inverted as asked (--invert; line ratio {ratio:.2f})")
+            raise SEMError(
+                f"{source}: --invert was given, but the fibers look bright on a dark background "
+                f"already (bright-to-dark line ratio {ratio:.2f}; dark fibers give below "
+                f"{DARK_FIBERS_BELOW:g}); leave out --invert"
+            )
+        return (
+            grey.max() + grey.min() - grey,
+            f"dark fibers on a bright background, inverted as asked (--invert; line ratio {ratio:.2f})",
+        )
     if ratio < DARK_FIBERS_BELOW:
-        raise SEMError(f"{source}: the fibers look dark on a bright background (bright-to-dark line ratio "
-                       f"{ratio:.2f}, below {DARK_FIBERS_BELOW:g}; an SEM image of fibers gives 1.4 or more): measured "
-                       "as it is, the gaps would be taken for fibers. Give --invert to measure it inverted, or "
-                       "--no-invert if the fibers are bright")
+        raise SEMError(
+            f"{source}: the fibers look dark on a bright background (bright-to-dark line ratio "
+            f"{ratio:.2f}, below {DARK_FIBERS_BELOW:g}; an SEM image of fibers gives 1.4 or more): measured "
+            "as it is, the gaps would be taken for fibers. Give --invert to measure it inverted, or "
+            "--no-invert if the fibers are bright"
+        )
     return grey, f"bright fibers on a dark background (checked: line ratio {ratio:.2f})"

@@ -92,11 +92,13 @@ class PoreStructure:
         return {
             "porosity": self.porosity,
             "pore_size": "equivalent-circle diameter sqrt(4 A / pi) of the non-fiber regions "
-                         "(4-connected) not touching the image border",
-            "n_pores": len(d), "n_pores_on_border": self.n_pores_on_border,
+            "(4-connected) not touching the image border",
+            "n_pores": len(d),
+            "n_pores_on_border": self.n_pores_on_border,
             "pore_diameter_median_um": self.pore_diameter_median_um,
             "pore_diameter_mean_um": _mean(d),
-            "pore_diameter_p10_um": _quantile(d, 0.1), "pore_diameter_p90_um": _quantile(d, 0.9),
+            "pore_diameter_p10_um": _quantile(d, 0.1),
+            "pore_diameter_p90_um": _quantile(d, 0.9),
             "pore_area_mean_um2": _mean(np.pi / 4.0 * d**2),
             "pore_area_median_um2": _median(np.pi / 4.0 * d**2),
             "pore_inscribed_median_um": self.pore_inscribed_median_um,
@@ -112,12 +114,18 @@ class PoreStructure:
         """(quantity, value) pairs for a short printed table."""
         return [
             ("porosity", f"{self.porosity:.3f} (non-fiber area fraction of the mask)"),
-            ("pore size", f"median {self.pore_diameter_median_um:.3g} um equivalent-circle, "
-                          f"{self.pore_inscribed_median_um:.3g} um inscribed ({len(self.pore_diameter_um)} "
-                          f"pores inside the image, {self.n_pores_on_border} on its border)"),
-            ("intersections", f"{self.intersection_density_per_um2:.4g} per um^2, "
-                              f"{self.intersections_per_um:.3g} per um of fiber "
-                              f"({self.n_junctions} junctions)"),
+            (
+                "pore size",
+                f"median {self.pore_diameter_median_um:.3g} um equivalent-circle, "
+                f"{self.pore_inscribed_median_um:.3g} um inscribed ({len(self.pore_diameter_um)} "
+                f"pores inside the image, {self.n_pores_on_border} on its border)",
+            ),
+            (
+                "intersections",
+                f"{self.intersection_density_per_um2:.4g} per um^2, "
+                f"{self.intersections_per_um:.3g} per um of fiber "
+                f"({self.n_junctions} junctions)",
+            ),
         ]
 
 

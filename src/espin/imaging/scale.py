@@ -80,8 +80,9 @@ def detect_scale_bar(grey: np.ndarray, rows: slice) -> ScaleBar:
         if top - median < _MIN_CONTRAST:
             continue
         labels, _ = ndimage.label(values > (median + top) / 2.0, structure=np.ones((3, 3)))
-        boxes = [box for box in ndimage.find_objects(labels)
-                 if box[0].start > 0 and box[0].stop < len(region)]  # wholly inside the rows
+        boxes = [
+            box for box in ndimage.find_objects(labels) if box[0].start > 0 and box[0].stop < len(region)
+        ]  # wholly inside the rows
         fill = ndimage.sum_labels(labels > 0, labels, np.arange(1, labels.max() + 1))
         found += _solid_bars(boxes, fill, labels, rows.start) + _tick_series(boxes, rows.start)
     if not found:
@@ -106,15 +107,24 @@ def _solid_bars(boxes: list, area: np.ndarray, labels: np.ndarray, row0: int) ->
         height, width = _extent(box)
         label = int(labels[box].max())
         if width >= MIN_BAR_PX and width >= 4 * height and area[label - 1] >= 0.8 * height * width:
-            bars.append(ScaleBar(float(width), (row0 + box[0].start, row0 + box[0].stop),
-                                 (float(box[1].start), float(box[1].stop)), "bar", 0))
+            bars.append(
+                ScaleBar(
+                    float(width),
+                    (row0 + box[0].start, row0 + box[0].stop),
+                    (float(box[1].start), float(box[1].stop)),
+                    "bar",
+                    0,
+                )
+            )
     return bars
 
 
 def _tick_series(boxes: list, row0: int) -> list[ScaleBar]:
     """Groups of >= 3 identical tall, thin marks (same rows, same width), evenly spaced."""
-    ticks = np.array([(b[0].start, b[0].stop, b[1].start, b[1].stop) for b in boxes
-                      if _extent(b)[0] >= 2 * _extent(b)[1]], dtype=float).reshape(-1, 4)
+    ticks = np.array(
+        [(b[0].start, b[0].stop, b[1].start, b[1].stop) for b in boxes if _extent(b)[0] >= 2 * _extent(b)[1]],
+        dtype=float,
+    ).reshape(-1, 4)
     series = []
     used = np.zeros(len(ticks), dtype=bool)
     for i in range(len(ticks)):

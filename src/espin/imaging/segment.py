@@ -89,8 +89,7 @@ def segment_fibers(grey: np.ndarray, width_px: float | None = None) -> Segmentat
     threshold = _otsu(flat)
     mask = _clean(flat > threshold, w)
     if mask.mean() < _MIN_FIBER_FRACTION:
-        raise SEMError("no fibers found: after thresholding, fewer than 1 % of the pixels are "
-                       "fiber-like structures")
+        raise SEMError("no fibers found: after thresholding, fewer than 1 % of the pixels are fiber-like structures")
     return Segmentation(flat=flat, mask=mask, width_px=w, threshold=threshold)
 
 
@@ -134,7 +133,9 @@ def _estimate_width(image: np.ndarray) -> float:
     d = ndimage.distance_transform_edt(mask)[skeleton]
     width = float(np.median(2.0 * d - 1.0))
     if width <= MIN_WIDTH_PX:
-        raise SEMError(f"no fibers found: the bright structures are {width:.1f} px wide, not "
-                       f"more than the {MIN_WIDTH_PX:g} px a width can be measured on "
-                       "(noise?); give width_px if the fibers really are this thin")
+        raise SEMError(
+            f"no fibers found: the bright structures are {width:.1f} px wide, not "
+            f"more than the {MIN_WIDTH_PX:g} px a width can be measured on "
+            "(noise?); give width_px if the fibers really are this thin"
+        )
     return width

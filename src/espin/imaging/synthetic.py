@@ -118,8 +118,7 @@ class SyntheticSEM:
         depth = self.layers[0] - layer
         return np.where((fiber >= 0) & (depth < len(self.layers)), depth, -1)
 
-    def followed(self, paths: list[np.ndarray], junctions: np.ndarray,
-                 away_px: float) -> np.ndarray:
+    def followed(self, paths: list[np.ndarray], junctions: np.ndarray, away_px: float) -> np.ndarray:
         """The mat fiber each traced centre line follows: the most frequent ``label`` at its
         points at least ``away_px`` from every junction (at all its points if none is).
 
@@ -144,8 +143,7 @@ class SyntheticSEM:
             if len(path) == 0:
                 continue
             far = path if tree is None else path[tree.query(path)[0] >= away_px]
-            pixel = np.clip(np.round(far if len(far) else path).astype(np.int64), 0,
-                            np.array(self.label.shape) - 1)
+            pixel = np.clip(np.round(far if len(far) else path).astype(np.int64), 0, np.array(self.label.shape) - 1)
             values, counts = np.unique(self.label[pixel[:, 0], pixel[:, 1]], return_counts=True)
             out[i] = values[np.argmax(counts)]
         return out
@@ -220,8 +218,9 @@ def render_sem(
         origin = np.full(2, (float(mat.size) - side) / 2.0)
     origin = np.asarray(origin, dtype=float).reshape(2)
     pixel = diameter / 8.0 if um_per_px is None else float(um_per_px)
-    _check_options(side, pixel, layers, noise_sd, blur_px, depth_blur_px, depth_dimming,
-                   illumination, background, mat.n_layers)
+    _check_options(
+        side, pixel, layers, noise_sd, blur_px, depth_blur_px, depth_dimming, illumination, background, mat.n_layers
+    )
     _check_data_bar(data_bar, data_bar_side, data_bar_fraction)
     n_px = max(int(round(side / pixel)), 1)
     pixel = side / n_px
@@ -248,16 +247,36 @@ def render_sem(
     if data_bar is not None:
         bar_rows = _draw_data_bar(image, data_bar, data_bar_side, data_bar_fraction)
 
-    visible, fiber, diam = _ground_truth(mat, drawn, origin, side,
-                                         3.0 * diameter if min_chord_um is None else min_chord_um)
-    return SyntheticSEM(image=image, um_per_px=pixel, origin=origin, side=side, layers=drawn,
-                        fiber=fiber, diameter_um=diam, visible=visible, data_bar_rows=bar_rows,
-                        label=label, fiber_layer=np.asarray(mat.fiber_layer, dtype=np.int64))
+    visible, fiber, diam = _ground_truth(
+        mat, drawn, origin, side, 3.0 * diameter if min_chord_um is None else min_chord_um
+    )
+    return SyntheticSEM(
+        image=image,
+        um_per_px=pixel,
+        origin=origin,
+        side=side,
+        layers=drawn,
+        fiber=fiber,
+        diameter_um=diam,
+        visible=visible,
+        data_bar_rows=bar_rows,
+        label=label,
+        fiber_layer=np.asarray(mat.fiber_layer, dtype=np.int64),
+    )
 
 
-def _check_options(side: float, pixel: float, layers: int, noise_sd: float, blur_px: float,
-                   depth_blur_px: float, depth_dimming: float, illumination: float,
-                   background: float, n_layers: int) -> None:
+def _check_options(
+    side: float,
+    pixel: float,
+    layers: int,
+    noise_sd: float,
+    blur_px: float,
+    depth_blur_px: float,
+    depth_dimming: float,
+    illumination: float,
+    background: float,
+    n_layers: int,
+) -> None:
     checks = [
         ("side_um", side > 0, "> 0"),
         ("um_per_px", 0 < pixel <= side, f"in (0, side_um = {side:g}]"),
@@ -289,7 +308,7 @@ def _draw_data_bar(image: np.ndarray, kind: str, side: str, fraction: float) -> 
     height = min(max(int(round(fraction * n_rows)), 12), n_rows)
     start = n_rows - height if side == "bottom" else 0
     ink = _data_bar_ink(height, n_cols, side)
-    band = image[start:start + height]
+    band = image[start : start + height]
     if kind == "band":
         band[:] = 0.0
     else:
@@ -308,11 +327,11 @@ def _data_bar_ink(height: int, n_cols: int, side: str) -> np.ndarray:
     ticks = slice(tick, 2 * tick) if side == "bottom" else slice(height - 2 * tick, height - tick)
     for k in range(_N_TICKS):
         left = int(0.55 * n_cols) + k * spacing
-        ink[ticks, left:left + tick_width] = True
+        ink[ticks, left : left + tick_width] = True
     gap = max(1, tick // 2)
     text = _text_ink(height - 1 - 2 * tick - gap, n_cols // 2)
     text_top = 2 * tick + gap if side == "bottom" else 1
-    ink[text_top:text_top + text.shape[0], 2:2 + text.shape[1]] = text
+    ink[text_top : text_top + text.shape[0], 2 : 2 + text.shape[1]] = text
     return ink
 
 
@@ -325,11 +344,12 @@ def _text_ink(rows: int, cols: int) -> np.ndarray:
     ImageDraw.Draw(canvas).text((0, 0), _DATA_BAR_TEXT, fill=255, font=font)
     ink = np.asarray(canvas) >= 128
     used = np.flatnonzero(ink.any(axis=1))
-    return ink[used[0]:used[0] + min(rows, used[-1] + 1 - used[0])] if len(used) else ink[:0]
+    return ink[used[0] : used[0] + min(rows, used[-1] + 1 - used[0])] if len(used) else ink[:0]
 
 
-def _rasterize_layer(mat: FiberMat, layer: int, origin: np.ndarray, side: float, pixel: float,
-                     n_px: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _rasterize_layer(
+    mat: FiberMat, layer: int, origin: np.ndarray, side: float, pixel: float, n_px: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Coverage (0-1, anti-aliased), profile shade and fiber label (mat index of the nearest
     fiber where it covers at least half the pixel, else -1) of one layer's fibers on the
     pixel grid.
@@ -351,7 +371,8 @@ def _rasterize_layer(mat: FiberMat, layer: int, origin: np.ndarray, side: float,
     lo = np.floor(np.minimum(a, b) - reach[:, None]).astype(np.int64).clip(0, n_px - 1)
     hi = np.ceil(np.maximum(a, b) + reach[:, None]).astype(np.int64).clip(0, n_px - 1)
     inside = np.all(np.maximum(a, b) + reach[:, None] >= 0, axis=1) & np.all(
-        np.minimum(a, b) - reach[:, None] <= n_px - 1, axis=1)
+        np.minimum(a, b) - reach[:, None] <= n_px - 1, axis=1
+    )
     a, b, radius, lo, hi = a[inside], b[inside], radius[inside], lo[inside], hi[inside]
     extent = hi - lo + 1
     count = extent[:, 0] * extent[:, 1]
@@ -363,12 +384,10 @@ def _rasterize_layer(mat: FiberMat, layer: int, origin: np.ndarray, side: float,
     ends = np.cumsum(count)
     start = 0
     while start < len(count):
-        stop = max(int(np.searchsorted(ends, ends[start] - count[start] + _MAX_PAIRS, "right")),
-                   start + 1)
+        stop = max(int(np.searchsorted(ends, ends[start] - count[start] + _MAX_PAIRS, "right")), start + 1)
         s = np.arange(start, stop)
         pair = np.repeat(s, count[s])
-        k = np.arange(len(pair)) - np.repeat(ends[s] - count[s] - (ends[start] - count[start]),
-                                             count[s])
+        k = np.arange(len(pair)) - np.repeat(ends[s] - count[s] - (ends[start] - count[start]), count[s])
         col = lo[pair, 0] + k % extent[pair, 0]
         row = lo[pair, 1] + k // extent[pair, 0]
         d = _point_segment_distance(np.column_stack([col, row]), a[pair], b[pair])
@@ -397,8 +416,9 @@ def _point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.n
     return np.hypot(*(p - foot).T)
 
 
-def _ground_truth(mat: FiberMat, drawn: np.ndarray, origin: np.ndarray, side: float,
-                  min_chord: float) -> tuple[VisibleFibers, np.ndarray, np.ndarray]:
+def _ground_truth(
+    mat: FiberMat, drawn: np.ndarray, origin: np.ndarray, side: float, min_chord: float
+) -> tuple[VisibleFibers, np.ndarray, np.ndarray]:
     """Visible portions of the drawn layers' fibers and the true diameter of those fibers."""
     chosen = np.flatnonzero(np.isin(mat.fiber_layer, drawn))
     counts = np.diff(mat.fiber_offsets)

@@ -145,20 +145,21 @@ def trace_fibers(mask: np.ndarray, width_px: float, max_bend_deg: float = 35.0) 
     graph = _prune_spurs(graph, w)
     graph = _merge_junctions(graph, w)
     partner, bridges = _pair_shallow_crossings(graph, w, np.radians(max_bend_deg))
-    width = 2.0 * ndimage.distance_transform_edt(np.pad(mask, pad, mode="edge"))[
-        pad:-pad, pad:-pad] - 1.0
+    width = 2.0 * ndimage.distance_transform_edt(np.pad(mask, pad, mode="edge"))[pad:-pad, pad:-pad] - 1.0
     partner, inner = _pair_branches(graph, w, np.radians(max_bend_deg), partner, bridges, width)
     chains = _chain_fibers(graph, partner, w, bridges | inner)
     if _GAP > 0:
         smooth = _join_gaps(chains, w, np.radians(max_bend_deg), skeleton.shape)
     else:
         smooth = [_smoothed(c, w) for c, _ in chains]
-    paths = [piece for path in smooth
-             for piece in _split_at_turns(path, w, np.radians(_TURN * max_bend_deg))]
+    paths = [piece for path in smooth for piece in _split_at_turns(path, w, np.radians(_TURN * max_bend_deg))]
     shared = [graph.branches[b] for b in np.flatnonzero(bridges | inner)]
-    return TracedFibers(paths=paths, junctions=graph.junction_centre, skeleton=skeleton,
-                        shared=np.concatenate(shared).astype(float) if shared
-                        else np.zeros((0, 2)))
+    return TracedFibers(
+        paths=paths,
+        junctions=graph.junction_centre,
+        skeleton=skeleton,
+        shared=np.concatenate(shared).astype(float) if shared else np.zeros((0, 2)),
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -168,8 +169,7 @@ def _skeleton_graph(skeleton: np.ndarray) -> _Graph:
     count = ndimage.convolve(skeleton.astype(np.int8), np.ones((3, 3), np.int8), mode="constant")
     junction_px = skeleton & (count - 1 >= 3)
     junction_label, n_junctions = ndimage.label(junction_px, structure=np.ones((3, 3)))
-    centre = np.array(ndimage.center_of_mass(junction_px, junction_label,
-                                             np.arange(1, n_junctions + 1))).reshape(-1, 2)
+    centre = np.array(ndimage.center_of_mass(junction_px, junction_label, np.arange(1, n_junctions + 1))).reshape(-1, 2)
     branches = _ordered_chains(skeleton & ~junction_px)
     shape = np.array(skeleton.shape)
     ends = np.full((len(branches), 2), -1, dtype=np.int64)
@@ -182,8 +182,7 @@ def _skeleton_graph(skeleton: np.ndarray) -> _Graph:
             if len(labels):
                 # A one-pixel branch may touch two junctions: give it both.
                 ends[i, side] = (labels.max() if side == 0 else labels.min()) - 1
-    return _Graph(branches=branches, ends=ends, junction_centre=centre,
-                  skeleton_shape=skeleton.shape)
+    return _Graph(branches=branches, ends=ends, junction_centre=centre, skeleton_shape=skeleton.shape)
 
 
 def _ordered_chains(chain_px: np.ndarray) -> list[np.ndarray]:
@@ -233,8 +232,9 @@ def _prune_spurs(graph: _Graph, w: float) -> _Graph:
     length = np.array([_branch_length(b) for b in graph.branches])
     free = (graph.ends < 0).sum(axis=1) == 1
     keep = ~(free & (length < w))
-    return _Graph([b for b, k in zip(graph.branches, keep) if k], graph.ends[keep],
-                  graph.junction_centre, graph.skeleton_shape)
+    return _Graph(
+        [b for b, k in zip(graph.branches, keep) if k], graph.ends[keep], graph.junction_centre, graph.skeleton_shape
+    )
 
 
 def _merge_junctions(graph: _Graph, w: float) -> _Graph:
@@ -245,18 +245,21 @@ def _merge_junctions(graph: _Graph, w: float) -> _Graph:
     """
     n = len(graph.junction_centre)
     length = np.array([_branch_length(b) for b in graph.branches])
-    candidate = np.flatnonzero(np.all(graph.ends >= 0, axis=1) & (length < _MERGE * w)
-                               & (graph.ends[:, 0] != graph.ends[:, 1]))
+    candidate = np.flatnonzero(
+        np.all(graph.ends >= 0, axis=1) & (length < _MERGE * w) & (graph.ends[:, 0] != graph.ends[:, 1])
+    )
     group = _group_junctions(graph, candidate[np.argsort(length[candidate])], _MERGE * w)
     _, group = np.unique(group, return_inverse=True)
     count = np.bincount(group, minlength=group.max(initial=-1) + 1)
-    centre = np.column_stack([np.bincount(group, graph.junction_centre[:, k]) / count
-                              for k in range(2)]) if n else graph.junction_centre
+    centre = (
+        np.column_stack([np.bincount(group, graph.junction_centre[:, k]) / count for k in range(2)])
+        if n
+        else graph.junction_centre
+    )
     ends = np.where(graph.ends >= 0, group[np.maximum(graph.ends, 0)] if n else -1, -1)
     # Bridges (and short loops) inside a merged junction are dropped.
     inner = np.all(ends >= 0, axis=1) & (ends[:, 0] == ends[:, 1]) & (length < 2 * _MERGE * w)
-    return _Graph([b for b, k in zip(graph.branches, ~inner) if k], ends[~inner], centre,
-                  graph.skeleton_shape)
+    return _Graph([b for b, k in zip(graph.branches, ~inner) if k], ends[~inner], centre, graph.skeleton_shape)
 
 
 # --------------------------------------------------------------------------------------------
@@ -267,7 +270,7 @@ def _outgoing_direction(chain: np.ndarray, centre: np.ndarray, w: float) -> np.n
     distance = np.hypot(*(chain - centre).T)
     near = chain[(distance >= 0.75 * w) & (distance <= 2.75 * w)]
     if len(near) < 3:
-        near = chain[np.argsort(distance)[-max(len(chain) // 2, 1):]]
+        near = chain[np.argsort(distance)[-max(len(chain) // 2, 1) :]]
     d = near.mean(axis=0) - centre
     if len(near) >= 3:
         axis = np.linalg.svd(near - near.mean(axis=0), full_matrices=False)[2][0]
@@ -276,8 +279,7 @@ def _outgoing_direction(chain: np.ndarray, centre: np.ndarray, w: float) -> np.n
     return d / norm if norm > 0 else d
 
 
-def _pair_shallow_crossings(graph: _Graph, w: float,
-                            max_bend: float) -> tuple[np.ndarray, np.ndarray]:
+def _pair_shallow_crossings(graph: _Graph, w: float, max_bend: float) -> tuple[np.ndarray, np.ndarray]:
     """Pair the branches of two fibers crossing at a shallow angle: (partner, bridges).
 
     Two fibers crossing at a small angle share a stretch of skeleton longer than the merge
@@ -307,14 +309,17 @@ def _pair_shallow_crossings(graph: _Graph, w: float,
                 at.setdefault(int(graph.ends[b, side]), []).append(2 * b + side)
     for bridge, chain in enumerate(graph.branches):
         j1, j2 = (int(j) for j in graph.ends[bridge])
-        if (j1 < 0 or j2 < 0 or j1 == j2 or len(at[j1]) != 3 or len(at[j2]) != 3
-                or _branch_length(chain) > _SHALLOW * w):
+        if j1 < 0 or j2 < 0 or j1 == j2 or len(at[j1]) != 3 or len(at[j2]) != 3 or _branch_length(chain) > _SHALLOW * w:
             continue
         outer1 = [e for e in at[j1] if e // 2 != bridge]
         outer2 = [e for e in at[j2] if e // 2 != bridge]
         ends = outer1 + outer2
-        if len(ends) != 4 or len({e // 2 for e in ends}) != 4 or np.any(
-                partner.flat[ends] >= 0) or bridges[[e // 2 for e in ends]].any():
+        if (
+            len(ends) != 4
+            or len({e // 2 for e in ends}) != 4
+            or np.any(partner.flat[ends] >= 0)
+            or bridges[[e // 2 for e in ends]].any()
+        ):
             continue
         axis = graph.junction_centre[j2] - graph.junction_centre[j1]
         u, anchor = {}, {}
@@ -332,12 +337,13 @@ def _pair_shallow_crossings(graph: _Graph, w: float,
             directions and the line joining them (on one straight line they are all 0)."""
             line = anchor[c] - anchor[a]
             line = line / max(float(np.hypot(*line)), 1e-12)
-            return max(float(np.arccos(np.clip(-(u[a] @ u[c]), -1.0, 1.0))),
-                       2.0 * float(np.arccos(np.clip(-(u[a] @ line), -1.0, 1.0))),
-                       2.0 * float(np.arccos(np.clip(u[c] @ line, -1.0, 1.0))))
+            return max(
+                float(np.arccos(np.clip(-(u[a] @ u[c]), -1.0, 1.0))),
+                2.0 * float(np.arccos(np.clip(-(u[a] @ line), -1.0, 1.0))),
+                2.0 * float(np.arccos(np.clip(u[c] @ line, -1.0, 1.0))),
+            )
 
-        options = [((outer1[0], outer2[0]), (outer1[1], outer2[1])),
-                   ((outer1[0], outer2[1]), (outer1[1], outer2[0]))]
+        options = [((outer1[0], outer2[0]), (outer1[1], outer2[1])), ((outer1[0], outer2[1]), (outer1[1], outer2[0]))]
         worst = [max(deviation(*p) for p in pairs) for pairs in options]
         best = int(np.argmin(worst))
         if worst[best] > max_bend:
@@ -348,8 +354,9 @@ def _pair_shallow_crossings(graph: _Graph, w: float,
     return partner, bridges
 
 
-def _pair_branches(graph: _Graph, w: float, max_bend: float, partner: np.ndarray,
-                   bridges: np.ndarray, width: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _pair_branches(
+    graph: _Graph, w: float, max_bend: float, partner: np.ndarray, bridges: np.ndarray, width: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Pair the branch ends at every junction cluster: (partner, inner).
 
     partner[b, side] = (branch, side) index 2 b' + s' joined at that end, or -1. Junctions
@@ -409,23 +416,22 @@ def _group_junctions(graph: _Graph, branches: np.ndarray, max_spread: float) -> 
     return group
 
 
-def _junction_clusters(graph: _Graph, w: float, partner: np.ndarray,
-                       bridges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _junction_clusters(
+    graph: _Graph, w: float, partner: np.ndarray, bridges: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Cluster of every junction, and the inner branches (joining two junctions of one
     cluster, at most _CLUSTER w long); shortest branches first, a merge refused if the
     cluster would be more than _CLUSTER_SPREAD w across."""
     n = len(graph.junction_centre)
     length = np.array([_branch_length(b) for b in graph.branches])
-    short = (np.all(graph.ends >= 0, axis=1) & (length <= _CLUSTER * w) & ~bridges
-             & np.all(partner < 0, axis=1))
+    short = np.all(graph.ends >= 0, axis=1) & (length <= _CLUSTER * w) & ~bridges & np.all(partner < 0, axis=1)
     group = _group_junctions(graph, np.flatnonzero(short)[np.argsort(length[short])], _CLUSTER_SPREAD * w)
     ends = np.maximum(graph.ends, 0)
     inner = short & (group[ends[:, 0]] == group[ends[:, 1]]) if n else short
     return group, inner
 
 
-def _continuation_cost(ua: np.ndarray, uc: np.ndarray, anchor_a: np.ndarray,
-                       anchor_c: np.ndarray) -> float:
+def _continuation_cost(ua: np.ndarray, uc: np.ndarray, anchor_a: np.ndarray, anchor_c: np.ndarray) -> float:
     """How far branch c is from continuing branch a straight through a junction [rad].
 
     The bend (pi minus the angle between their outgoing directions ``ua``, ``uc``) or the
@@ -438,9 +444,11 @@ def _continuation_cost(ua: np.ndarray, uc: np.ndarray, anchor_a: np.ndarray,
     if norm < 1e-9:
         return float(np.arccos(np.clip(-(ua @ uc), -1.0, 1.0)))
     line = line / norm
-    return max(float(np.arccos(np.clip(-(ua @ uc), -1.0, 1.0))),
-               float(np.arccos(np.clip(-(ua @ line), -1.0, 1.0))),
-               float(np.arccos(np.clip(uc @ line, -1.0, 1.0))))
+    return max(
+        float(np.arccos(np.clip(-(ua @ uc), -1.0, 1.0))),
+        float(np.arccos(np.clip(-(ua @ line), -1.0, 1.0))),
+        float(np.arccos(np.clip(uc @ line, -1.0, 1.0))),
+    )
 
 
 def _width_near(width: np.ndarray, oriented: np.ndarray, centre: np.ndarray, w: float) -> float:
@@ -460,8 +468,7 @@ def _width_cost(a: float, c: float) -> float:
     return float(_WIDTH_COST * max(excess, 0.0))
 
 
-def _best_matching(cost: np.ndarray, allowed: np.ndarray,
-                   unpaired: float) -> list[tuple[int, int]]:
+def _best_matching(cost: np.ndarray, allowed: np.ndarray, unpaired: float) -> list[tuple[int, int]]:
     """Pairs (i, k), each one ``allowed``, that minimize the total ``cost`` (symmetric
     matrices), an item left unpaired costing ``unpaired``. Exhaustive for up to _EXACT
     items, greedy (cheapest first) above."""
@@ -470,8 +477,7 @@ def _best_matching(cost: np.ndarray, allowed: np.ndarray,
         order = np.dstack(np.unravel_index(np.argsort(cost, axis=None), cost.shape))[0]
         taken, pairs = set(), []
         for i, k in order:
-            if (i < k and allowed[i, k] and cost[i, k] < 2 * unpaired and i not in taken
-                    and k not in taken):
+            if i < k and allowed[i, k] and cost[i, k] < 2 * unpaired and i not in taken and k not in taken:
                 taken |= {i, k}
                 pairs.append((int(i), int(k)))
         return pairs
@@ -488,7 +494,7 @@ def _best_matching(cost: np.ndarray, allowed: np.ndarray,
         total += unpaired
         for m, k in enumerate(rest):
             if allowed[first, k]:
-                sub, sub_pairs = best(rest[:m] + rest[m + 1:])
+                sub, sub_pairs = best(rest[:m] + rest[m + 1 :])
                 if sub + cost[first, k] < total:
                     total, pairs = sub + cost[first, k], [(first, k)] + sub_pairs
         memo[free] = total, pairs
@@ -497,8 +503,7 @@ def _best_matching(cost: np.ndarray, allowed: np.ndarray,
     return best(tuple(range(n)))[1]
 
 
-def _chain_fibers(graph: _Graph, partner: np.ndarray, w: float,
-                  bridges: np.ndarray) -> list[tuple[np.ndarray, bool]]:
+def _chain_fibers(graph: _Graph, partner: np.ndarray, w: float, bridges: np.ndarray) -> list[tuple[np.ndarray, bool]]:
     """Follow branches through their paired ends: (pixel chain, open?) of each fiber.
 
     The ends of an open chain are trimmed (:func:`_trim_open_ends`); a closed loop is not.
@@ -522,8 +527,7 @@ def _chain_fibers(graph: _Graph, partner: np.ndarray, w: float,
         chain = np.concatenate(pieces).astype(float)
         if partner[b, 1 - side] < 0:  # an open chain: trim both of its ends
             first_b, first_side = divmod(start, 2)
-            chain = _trim_open_ends(chain, graph.ends[first_b, first_side],
-                                    graph.ends[b, 1 - side], graph, w)
+            chain = _trim_open_ends(chain, graph.ends[first_b, first_side], graph.ends[b, 1 - side], graph, w)
             paths.append((chain, True))
         else:
             paths.append((chain, False))
@@ -547,10 +551,9 @@ def _max_turn(path: np.ndarray, h: int, around: float, radius: float) -> float:
     n = len(path)
     if n < 2 * h + 1:
         return 0.0
-    before = path[h:n - h] - path[:n - 2 * h]
-    after = path[2 * h:] - path[h:n - h]
-    cos = np.einsum("ij,ij->i", before, after) / np.maximum(
-        np.hypot(*before.T) * np.hypot(*after.T), 1e-12)
+    before = path[h : n - h] - path[: n - 2 * h]
+    after = path[2 * h :] - path[h : n - h]
+    cos = np.einsum("ij,ij->i", before, after) / np.maximum(np.hypot(*before.T) * np.hypot(*after.T), 1e-12)
     index = np.arange(h, n - h)
     near = np.abs(index - around) <= radius
     return float(np.arccos(np.clip(cos[near], -1.0, 1.0)).max(initial=0.0))
@@ -620,8 +623,10 @@ def _join_gaps(chains: list, w: float, max_bend: float, shape: tuple) -> list[np
         path = _smoothed(assemble(joined), w)
         # the gap starts at the arc length of A (one smoothed point per pixel of arc)
         arc_a = float(np.hypot(*np.diff(assemble(A_or), axis=0).T).sum())
-        if max(_max_turn(path, max(int(round(k * w)), 2), arc_a + gap / 2, _GUARD * w)
-               for k in (_GUARD_SHORT, _GUARD)) > _GUARD_LIMIT * max_bend:
+        if (
+            max(_max_turn(path, max(int(round(k * w)), 2), arc_a + gap / 2, _GUARD * w) for k in (_GUARD_SHORT, _GUARD))
+            > _GUARD_LIMIT * max_bend
+        ):
             continue
         free -= {(ia, sa), (ib, sb)}
         seq[ga] = joined
@@ -631,8 +636,7 @@ def _join_gaps(chains: list, w: float, max_bend: float, shape: tuple) -> list[np
     return [_smoothed(assemble(pieces), w) for pieces in seq.values()]
 
 
-def _trim_open_ends(chain: np.ndarray, j_first: int, j_last: int, graph: _Graph,
-                    w: float) -> np.ndarray:
+def _trim_open_ends(chain: np.ndarray, j_first: int, j_last: int, graph: _Graph, w: float) -> np.ndarray:
     """Drop the end pixels of an open fiber chain where the skeleton does not follow the fiber.
 
     At an unpaired end at a junction the skeleton bends towards the junction centre within
@@ -652,7 +656,7 @@ def _trim_open_ends(chain: np.ndarray, j_first: int, j_last: int, graph: _Graph,
     kept = np.flatnonzero(keep)
     if len(kept) < 2:
         return chain
-    return chain[kept[0]:kept[-1] + 1]
+    return chain[kept[0] : kept[-1] + 1]
 
 
 def _trimmed(graph: _Graph, b: int, side: int, w: float) -> np.ndarray:
@@ -662,7 +666,7 @@ def _trimmed(graph: _Graph, b: int, side: int, w: float) -> np.ndarray:
     keep = np.ones(len(chain), dtype=bool)
     for j in ends[ends >= 0]:
         keep &= np.hypot(*(chain - graph.junction_centre[j]).T) > w / 2.0
-    return chain[keep] if keep.any() else chain[len(chain) // 2: len(chain) // 2 + 1]
+    return chain[keep] if keep.any() else chain[len(chain) // 2 : len(chain) // 2 + 1]
 
 
 def _smoothed(chain: np.ndarray, w: float) -> np.ndarray:
@@ -693,15 +697,14 @@ def _local_linear(points: np.ndarray, sigma: float) -> np.ndarray:
     ones = np.ones(n)
 
     def conv(x: np.ndarray, kern: np.ndarray) -> np.ndarray:  # sum_k kern[k] x[i + k]
-        return np.convolve(x, kern[::-1], mode="full")[half:half + n]
+        return np.convolve(x, kern[::-1], mode="full")[half : half + n]
 
     s0, s1, s2 = conv(ones, g), conv(ones, k * g), conv(ones, k * k * g)
     out = np.empty_like(points)
     for c in range(points.shape[1]):
         t0, t1 = conv(points[:, c], g), conv(points[:, c], k * g)
         det = s0 * s2 - s1 * s1
-        out[:, c] = np.where(det > 1e-9, (s2 * t0 - s1 * t1) / np.where(det > 1e-9, det, 1.0),
-                             t0 / s0)
+        out[:, c] = np.where(det > 1e-9, (s2 * t0 - s1 * t1) / np.where(det > 1e-9, det, 1.0), t0 / s0)
     return out
 
 
@@ -718,10 +721,9 @@ def _split_at_turns(path: np.ndarray, w: float, max_bend: float) -> list[np.ndar
     n = len(path)
     if n < 2 * h + 1:
         return [path]
-    before = path[h:n - h] - path[:n - 2 * h]
-    after = path[2 * h:] - path[h:n - h]
-    cos = np.einsum("ij,ij->i", before, after) / np.maximum(
-        np.hypot(*before.T) * np.hypot(*after.T), 1e-12)
+    before = path[h : n - h] - path[: n - 2 * h]
+    after = path[2 * h :] - path[h : n - h]
+    cos = np.einsum("ij,ij->i", before, after) / np.maximum(np.hypot(*before.T) * np.hypot(*after.T), 1e-12)
     turn = np.arccos(np.clip(cos, -1.0, 1.0))
     cuts: list[int] = []
     for i in np.argsort(-turn):

@@ -157,21 +157,28 @@ class TraceCheck:
     def describe(self) -> str:
         """A few lines: crossings passed by angle, switches, switch rate, coverage."""
         edges = ANGLE_BINS_DEG
-        bins = ", ".join(f"{edges[k]:g}-{edges[k + 1]:g} deg: {p} ({s})" for k, (p, s) in
-                         enumerate(zip(self.passed_by_angle(), self.switches_by_angle())))
-        lines = [f"{self.n_traces} traces; {len(self.crossing_px)} true crossings, "
-                 f"{self.n_passed} passed by traces (switches): {bins}",
-                 f"switches at crossings {self.n_switches} (rate {self.switch_rate:.3f}); "
-                 f"jumps between fibers off crossings {self.n_jumps}",
-                 f"median coverage of a visible fiber by its longest trace "
-                 f"{self.median_coverage:.3f} ({len(self.fiber)} fibers; by depth "
-                 + ", ".join(f"{d}: {np.median(self.coverage[self.fiber_depth == d]):.3f}"
-                             for d in np.unique(self.fiber_depth)) + ")"]
-        for (r, c), (a, b), angle in zip(self.switches_px, self.switch_fibers,
-                                         self.switch_angle_deg):
-            lines.append(f"  switch at (row {r:.0f}, col {c:.0f}): fiber {a} -> {b}, crossing "
-                         f"angle {angle:.0f} deg" if np.isfinite(angle) else
-                         f"  jump at (row {r:.0f}, col {c:.0f}): fiber {a} -> {b}")
+        bins = ", ".join(
+            f"{edges[k]:g}-{edges[k + 1]:g} deg: {p} ({s})"
+            for k, (p, s) in enumerate(zip(self.passed_by_angle(), self.switches_by_angle()))
+        )
+        lines = [
+            f"{self.n_traces} traces; {len(self.crossing_px)} true crossings, "
+            f"{self.n_passed} passed by traces (switches): {bins}",
+            f"switches at crossings {self.n_switches} (rate {self.switch_rate:.3f}); "
+            f"jumps between fibers off crossings {self.n_jumps}",
+            f"median coverage of a visible fiber by its longest trace "
+            f"{self.median_coverage:.3f} ({len(self.fiber)} fibers; by depth "
+            + ", ".join(
+                f"{d}: {np.median(self.coverage[self.fiber_depth == d]):.3f}" for d in np.unique(self.fiber_depth)
+            )
+            + ")",
+        ]
+        for (r, c), (a, b), angle in zip(self.switches_px, self.switch_fibers, self.switch_angle_deg):
+            lines.append(
+                f"  switch at (row {r:.0f}, col {c:.0f}): fiber {a} -> {b}, crossing angle {angle:.0f} deg"
+                if np.isfinite(angle)
+                else f"  jump at (row {r:.0f}, col {c:.0f}): fiber {a} -> {b}"
+            )
         return "\n".join(lines)
 
 
@@ -186,8 +193,7 @@ class _TrueLines:
     run_fiber: np.ndarray  # (n_runs,) int64
 
 
-def check_traces(paths: list[np.ndarray], image: SyntheticSEM, mat: FiberMat,
-                 width_px: float) -> TraceCheck:
+def check_traces(paths: list[np.ndarray], image: SyntheticSEM, mat: FiberMat, width_px: float) -> TraceCheck:
     """Compare traced centre lines with the true fibers of a rendered mat.
 
     Parameters
@@ -217,24 +223,31 @@ def check_traces(paths: list[np.ndarray], image: SyntheticSEM, mat: FiberMat,
         runs = _fiber_runs(follow, w)
         found = _switches(t, path, runs, crossing, pair, angle, w)
         switches += found
-        passes += _passes(t, path, follow, crossing, pair, w,
-                          {s[4] for s in found if s[4] >= 0})
+        passes += _passes(t, path, follow, crossing, pair, w, {s[4] for s in found if s[4] >= 0})
     fiber, depth, coverage = _coverage(paths, image, lines, tree, w)
     where = np.array([s[2:4] for s in switches], dtype=float).reshape(-1, 2)
     return TraceCheck(
-        crossing_px=crossing, crossing_fibers=pair, crossing_angle_deg=angle,
+        crossing_px=crossing,
+        crossing_fibers=pair,
+        crossing_angle_deg=angle,
         passes=np.array(passes, dtype=np.int64).reshape(-1, 2),
-        switches_px=where, switch_trace=np.array([s[0] for s in switches], dtype=np.int64),
+        switches_px=where,
+        switch_trace=np.array([s[0] for s in switches], dtype=np.int64),
         switch_fibers=np.array([s[1] for s in switches], dtype=np.int64).reshape(-1, 2),
         switch_angle_deg=np.array([s[5] for s in switches], dtype=float),
-        fiber=fiber, fiber_depth=depth, coverage=coverage, n_traces=len(paths))
+        fiber=fiber,
+        fiber_depth=depth,
+        coverage=coverage,
+        n_traces=len(paths),
+    )
 
 
 def _to_px(xy: np.ndarray, image: SyntheticSEM) -> np.ndarray:
     """Mat coordinates (x, y) [um] -> pixel centres (row, col), as the renderer maps them."""
     top = image.origin[1] + image.side
-    return np.column_stack([(top - xy[:, 1]) / image.um_per_px - 0.5,
-                            (xy[:, 0] - image.origin[0]) / image.um_per_px - 0.5])
+    return np.column_stack(
+        [(top - xy[:, 1]) / image.um_per_px - 0.5, (xy[:, 0] - image.origin[0]) / image.um_per_px - 0.5]
+    )
 
 
 def _true_lines(image: SyntheticSEM, mat: FiberMat) -> _TrueLines:
@@ -244,7 +257,7 @@ def _true_lines(image: SyntheticSEM, mat: FiberMat) -> _TrueLines:
     points, fiber, portion = [], [], []
     polylines: list[np.ndarray] = []
     for r in np.flatnonzero(drawn):
-        xy = runs.points[runs.first[r]:runs.last[r] + 1]
+        xy = runs.points[runs.first[r] : runs.last[r] + 1]
         px = _to_px(xy, image)
         arc = np.r_[0.0, np.cumsum(np.hypot(*np.diff(px, axis=0).T))]
         s = np.arange(0.0, arc[-1] + STEP_PX / 2, STEP_PX)
@@ -252,9 +265,13 @@ def _true_lines(image: SyntheticSEM, mat: FiberMat) -> _TrueLines:
         fiber.append(np.full(len(s), runs.fiber[r]))
         portion.append(np.full(len(s), len(polylines)))
         polylines.append(px)
-    return _TrueLines(points=np.concatenate(points), fiber=np.concatenate(fiber),
-                      portion=np.concatenate(portion), polylines=polylines,
-                      run_fiber=runs.fiber[drawn])
+    return _TrueLines(
+        points=np.concatenate(points),
+        fiber=np.concatenate(fiber),
+        portion=np.concatenate(portion),
+        polylines=polylines,
+        run_fiber=runs.fiber[drawn],
+    )
 
 
 def _true_crossings(lines: _TrueLines) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -262,16 +279,14 @@ def _true_crossings(lines: _TrueLines) -> tuple[np.ndarray, np.ndarray, np.ndarr
     fibers (sorted) and the acute angle [deg] of each."""
     seg_a = np.concatenate([p[:-1] for p in lines.polylines])
     seg_b = np.concatenate([p[1:] for p in lines.polylines])
-    seg_fiber = np.concatenate([np.full(len(p) - 1, f)
-                                for p, f in zip(lines.polylines, lines.run_fiber)])
+    seg_fiber = np.concatenate([np.full(len(p) - 1, f) for p, f in zip(lines.polylines, lines.run_fiber)])
     lo, hi = np.minimum(seg_a, seg_b), np.maximum(seg_a, seg_b)
     # Candidate pairs: overlapping bounding boxes, whose centres are at most the sum of their
     # half-sides apart along each axis (Chebyshev distance, p = inf), found by a tree.
     centre, half = (lo + hi) / 2, np.max(hi - lo, axis=1) / 2
     pairs = cKDTree(centre).query_pairs(2 * half.max() + 1e-9, p=np.inf, output_type="ndarray")
     i, j = pairs[:, 0], pairs[:, 1]
-    keep = (seg_fiber[i] != seg_fiber[j]) & np.all(lo[i] <= hi[j], axis=1) & np.all(
-        lo[j] <= hi[i], axis=1)
+    keep = (seg_fiber[i] != seg_fiber[j]) & np.all(lo[i] <= hi[j], axis=1) & np.all(lo[j] <= hi[i], axis=1)
     i, j = i[keep], j[keep]
     p, r = seg_a[i], seg_b[i] - seg_a[i]
     q, s = seg_a[j], seg_b[j] - seg_a[j]
@@ -283,15 +298,15 @@ def _true_crossings(lines: _TrueLines) -> tuple[np.ndarray, np.ndarray, np.ndarr
     u = (qp[:, 0] * r[:, 1] - qp[:, 1] * r[:, 0]) / safe
     hit = ok & (t >= 0) & (t < 1) & (u >= 0) & (u < 1)
     point = p[hit] + t[hit, None] * r[hit]
-    cos = np.abs(np.einsum("ij,ij->i", r[hit], s[hit])) / (
-        np.hypot(*r[hit].T) * np.hypot(*s[hit].T))
+    cos = np.abs(np.einsum("ij,ij->i", r[hit], s[hit])) / (np.hypot(*r[hit].T) * np.hypot(*s[hit].T))
     angle = np.degrees(np.arccos(np.clip(cos, 0.0, 1.0)))
     pair = np.sort(np.column_stack([seg_fiber[i[hit]], seg_fiber[j[hit]]]), axis=1)
     return point.reshape(-1, 2), pair.reshape(-1, 2).astype(np.int64), angle
 
 
-def _followed_fiber(path: np.ndarray, lines: _TrueLines, tree: cKDTree,
-                    crossing_tree: cKDTree | None, w: float) -> np.ndarray:
+def _followed_fiber(
+    path: np.ndarray, lines: _TrueLines, tree: cKDTree, crossing_tree: cKDTree | None, w: float
+) -> np.ndarray:
     """Mat index of the fiber a trace follows at each of its points, -1 where ambiguous."""
     k = min(len(lines.points), int(np.ceil(8.0 * (_ON_FIBER + _MARGIN) * w / STEP_PX)) + 8)
     distance, index = tree.query(path, k=k, distance_upper_bound=(_ON_FIBER + _MARGIN) * w)
@@ -299,8 +314,11 @@ def _followed_fiber(path: np.ndarray, lines: _TrueLines, tree: cKDTree,
     fib = np.where(found, lines.fiber[np.minimum(index, len(lines.fiber) - 1)], -1)
     nearest = fib[:, 0]
     other = np.where(found & (fib != nearest[:, None]), distance, np.inf).min(axis=1)
-    follow = np.where(np.isfinite(distance[:, 0]) & (distance[:, 0] <= _ON_FIBER * w)
-                      & (other >= distance[:, 0] + _MARGIN * w), nearest, -1)
+    follow = np.where(
+        np.isfinite(distance[:, 0]) & (distance[:, 0] <= _ON_FIBER * w) & (other >= distance[:, 0] + _MARGIN * w),
+        nearest,
+        -1,
+    )
     if crossing_tree is not None:
         near = crossing_tree.query(path, distance_upper_bound=_NEAR_CROSSING * w)[0]
         follow[np.isfinite(near)] = -1
@@ -326,8 +344,15 @@ def _fiber_runs(follow: np.ndarray, w: float) -> list[tuple[int, int, int]]:
     return runs
 
 
-def _switches(t: int, path: np.ndarray, runs: list[tuple[int, int, int]], crossing: np.ndarray,
-              pair: np.ndarray, angles: np.ndarray, w: float) -> list[tuple]:
+def _switches(
+    t: int,
+    path: np.ndarray,
+    runs: list[tuple[int, int, int]],
+    crossing: np.ndarray,
+    pair: np.ndarray,
+    angles: np.ndarray,
+    w: float,
+) -> list[tuple]:
     """(trace, (from, to), row, col, crossing index or -1, angle [deg] or NaN) per switch."""
     out = []
     for (fa, _, end), (fb, start, _) in zip(runs[:-1], runs[1:]):
@@ -343,8 +368,9 @@ def _switches(t: int, path: np.ndarray, runs: list[tuple[int, int, int]], crossi
     return out
 
 
-def _passes(t: int, path: np.ndarray, follow: np.ndarray, crossing: np.ndarray,
-            pair: np.ndarray, w: float, switched: set[int]) -> list[tuple[int, int]]:
+def _passes(
+    t: int, path: np.ndarray, follow: np.ndarray, crossing: np.ndarray, pair: np.ndarray, w: float, switched: set[int]
+) -> list[tuple[int, int]]:
     """(trace, crossing) for the crossings the trace passes through (module notes, 4)."""
     if len(crossing) == 0 or len(path) < 2:
         return []
@@ -355,7 +381,7 @@ def _passes(t: int, path: np.ndarray, follow: np.ndarray, crossing: np.ndarray,
         i = int(index[c])
         if i < beyond or len(path) - 1 - i < beyond:
             continue
-        before = follow[:i + 1][follow[:i + 1] >= 0]
+        before = follow[: i + 1][follow[: i + 1] >= 0]
         after = follow[i:][follow[i:] >= 0]
         sides = ([before[-1]] if len(before) else []) + ([after[0]] if len(after) else [])
         if np.isin(sides, pair[c]).any():
@@ -363,8 +389,9 @@ def _passes(t: int, path: np.ndarray, follow: np.ndarray, crossing: np.ndarray,
     return [(t, c) for c in sorted(out)]
 
 
-def _coverage(paths: list[np.ndarray], image: SyntheticSEM, lines: _TrueLines,
-              tree: cKDTree, w: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _coverage(
+    paths: list[np.ndarray], image: SyntheticSEM, lines: _TrueLines, tree: cKDTree, w: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Visible fibers, their depth and the fraction of their visible length (portions with
     a chord of at least the ground truth's ``min_chord``) covered by their longest trace."""
     fibers = np.unique(image.visible.fiber)
@@ -378,8 +405,11 @@ def _coverage(paths: list[np.ndarray], image: SyntheticSEM, lines: _TrueLines,
     min_chord = image.visible.min_chord / image.um_per_px
     coverage = np.zeros(len(fibers))
     for k, f in enumerate(fibers):
-        portions = [r for r in np.flatnonzero(lines.run_fiber == f)
-                    if np.hypot(*(lines.polylines[r][-1] - lines.polylines[r][0])) >= min_chord]
+        portions = [
+            r
+            for r in np.flatnonzero(lines.run_fiber == f)
+            if np.hypot(*(lines.polylines[r][-1] - lines.polylines[r][0])) >= min_chord
+        ]
         samples = lines.points[np.isin(lines.portion, portions)]
         if len(samples) == 0:
             continue
@@ -417,8 +447,7 @@ class JunctionPasses:
         return len(self.trace)
 
 
-def junction_passes(paths: list[np.ndarray], junctions: np.ndarray,
-                    width_px: float) -> JunctionPasses:
+def junction_passes(paths: list[np.ndarray], junctions: np.ndarray, width_px: float) -> JunctionPasses:
     """Junctions that traces pass through: within w / 2 of the trace, which runs on for at
     least 1.5 w of arc on both sides.
 
@@ -452,6 +481,9 @@ def junction_passes(paths: list[np.ndarray], junctions: np.ndarray,
             rows.append((t, int(j), float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))))
     trace = np.array([r[0] for r in rows], dtype=np.int64)
     junction = np.array([r[1] for r in rows], dtype=np.int64)
-    return JunctionPasses(trace=trace, junction=junction,
-                          point_px=np.asarray(junctions, dtype=float)[junction].reshape(-1, 2),
-                          turn_deg=np.array([r[2] for r in rows], dtype=float))
+    return JunctionPasses(
+        trace=trace,
+        junction=junction,
+        point_px=np.asarray(junctions, dtype=float)[junction].reshape(-1, 2),
+        turn_deg=np.array([r[2] for r in rows], dtype=float),
+    )

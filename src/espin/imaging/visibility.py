@@ -61,8 +61,17 @@ from scipy.spatial import cKDTree
 from espin.imaging.distributions import MIN_COMPONENT, fit_normal_mixture
 from espin.imaging.widths import WidthSamples, sample_counts
 
-__all__ = ["Visibility", "classify", "fiber_features", "fiber_visibility", "OCCLUSION_RATIO",
-           "OCCLUDED_FRACTION", "MIN_EDGE_CONTRAST", "MIN_SEPARATION", "SINGLE_THRESHOLD"]
+__all__ = [
+    "Visibility",
+    "classify",
+    "fiber_features",
+    "fiber_visibility",
+    "OCCLUSION_RATIO",
+    "OCCLUDED_FRACTION",
+    "MIN_EDGE_CONTRAST",
+    "MIN_SEPARATION",
+    "SINGLE_THRESHOLD",
+]
 
 OCCLUSION_RATIO = 1.25
 """A junction at least this many times brighter (above the dark level) than a fiber's plateau
@@ -131,9 +140,14 @@ class Visibility:
     rule: str
 
 
-def fiber_features(grey: np.ndarray, paths: list[np.ndarray], samples: WidthSamples,
-                   junctions: np.ndarray, crossings: np.ndarray,
-                   width_px: float) -> dict[str, np.ndarray]:
+def fiber_features(
+    grey: np.ndarray,
+    paths: list[np.ndarray],
+    samples: WidthSamples,
+    junctions: np.ndarray,
+    crossings: np.ndarray,
+    width_px: float,
+) -> dict[str, np.ndarray]:
     """The features of the module notes for each traced fiber.
 
     Parameters
@@ -166,16 +180,24 @@ def fiber_features(grey: np.ndarray, paths: list[np.ndarray], samples: WidthSamp
         both = np.where(counts > 0, found / counts, np.nan)
     if len(samples.fiber) == 0:
         nothing = np.full(n, np.nan)
-        return {"brightness": nothing, "edge_sigma_px": nothing, "edge_contrast": nothing,
-                "occluded": nothing, "both_edges": both}
+        return {
+            "brightness": nothing,
+            "edge_sigma_px": nothing,
+            "edge_contrast": nothing,
+            "occluded": nothing,
+            "both_edges": both,
+        }
     sides, top = _side_profiles(smooth, samples, w)
-    plateau = top[:len(samples.fiber)] - dark
+    plateau = top[: len(samples.fiber)] - dark
     reference = _reference(plateau, samples.point, math.hypot(*grey.shape) * _REFERENCE_RADIUS)
     own = _per_fiber(plateau, samples.fiber, n)
-    return {"brightness": _per_fiber(plateau / np.maximum(reference, 1e-12), samples.fiber, n),
-            "edge_sigma_px": _edge_sigma(sides, top, samples.fiber, n),
-            "edge_contrast": _edge_contrast(sides, top, dark, samples.fiber, n),
-            "occluded": _occluded(smooth - dark, paths, junctions, own, w), "both_edges": both}
+    return {
+        "brightness": _per_fiber(plateau / np.maximum(reference, 1e-12), samples.fiber, n),
+        "edge_sigma_px": _edge_sigma(sides, top, samples.fiber, n),
+        "edge_contrast": _edge_contrast(sides, top, dark, samples.fiber, n),
+        "occluded": _occluded(smooth - dark, paths, junctions, own, w),
+        "both_edges": both,
+    }
 
 
 def _reference(plateau: np.ndarray, point: np.ndarray, radius: float) -> np.ndarray:
@@ -188,15 +210,15 @@ def _reference(plateau: np.ndarray, point: np.ndarray, radius: float) -> np.ndar
     out = np.empty(len(point))
     block = max(1, _BLOCK_PAIRS // max(len(point), 1))
     for start in range(0, len(point), block):
-        chunk = point[start:start + block]
+        chunk = point[start : start + block]
         near = np.hypot(chunk[:, None, 0] - point[None, :, 0], chunk[:, None, 1] - point[None, :, 1]) <= radius
-        out[start:start + block] = np.nanpercentile(np.where(near, plateau[None, :], np.nan),
-                                                    _REFERENCE_QUANTILE, axis=1)
+        out[start : start + block] = np.nanpercentile(
+            np.where(near, plateau[None, :], np.nan), _REFERENCE_QUANTILE, axis=1
+        )
     return out
 
 
-def _side_profiles(smooth: np.ndarray, samples: WidthSamples,
-                   w: float) -> tuple[np.ndarray, np.ndarray]:
+def _side_profiles(smooth: np.ndarray, samples: WidthSamples, w: float) -> tuple[np.ndarray, np.ndarray]:
     """Each sample's profile folded onto its two sides (t >= 0 from its centre, every 0.25 px,
     +inf beyond half its width + w / 2: the next fiber), and its plateau (mean over the middle
     half of its width).
@@ -213,8 +235,9 @@ def _side_profiles(smooth: np.ndarray, samples: WidthSamples,
     t = np.concatenate([-t[:0:-1], t])
     centre = samples.point + samples.centre_px[:, None] * samples.normal
     coords = centre[:, None, :] + t[None, :, None] * samples.normal[:, None, :]
-    profile = ndimage.map_coordinates(smooth, coords.reshape(-1, 2).T, order=1,
-                                      mode="nearest").reshape(len(centre), len(t))
+    profile = ndimage.map_coordinates(smooth, coords.reshape(-1, 2).T, order=1, mode="nearest").reshape(
+        len(centre), len(t)
+    )
     middle = np.abs(t)[None, :] <= 0.25 * samples.width_px[:, None]
     top = np.nanmean(np.where(middle, profile, np.nan), axis=1)
     inside = np.where(np.abs(t)[None, :] <= reach[:, None], profile, np.inf)
@@ -222,8 +245,7 @@ def _side_profiles(smooth: np.ndarray, samples: WidthSamples,
     return np.concatenate([inside[:, half:], inside[:, half::-1]]), np.concatenate([top, top])
 
 
-def _edge_contrast(sides: np.ndarray, top: np.ndarray, dark: float,
-                   fiber: np.ndarray, n: int) -> np.ndarray:
+def _edge_contrast(sides: np.ndarray, top: np.ndarray, dark: float, fiber: np.ndarray, n: int) -> np.ndarray:
     """Median over each fiber's samples of the weaker side's drop from the plateau to that
     side's lowest level, over the plateau above the dark level."""
     drop = (top - sides.min(axis=1)) / np.maximum(top - dark, 1e-12)
@@ -257,8 +279,9 @@ def _per_fiber(values: np.ndarray, fiber: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def _occluded(bright: np.ndarray, paths: list[np.ndarray], crossings: np.ndarray,
-              own: np.ndarray, w: float) -> np.ndarray:
+def _occluded(
+    bright: np.ndarray, paths: list[np.ndarray], crossings: np.ndarray, own: np.ndarray, w: float
+) -> np.ndarray:
     """Fraction of each fiber's crossings (within w / 2 of its path) whose brightness (the
     image above the dark level, at the crossing centre) is :data:`OCCLUSION_RATIO` times its
     own plateau or more; NaN without a crossing."""
@@ -295,11 +318,16 @@ def classify(features: dict[str, np.ndarray]) -> Visibility:
     contrast = np.asarray(features["edge_contrast"], dtype=float)
     with np.errstate(invalid="ignore"):
         visible = (brightness >= threshold) & (contrast >= MIN_EDGE_CONTRAST) & ~covered
-    return Visibility(visible=visible, brightness=brightness,
-                      edge_sigma_px=np.asarray(features["edge_sigma_px"], dtype=float),
-                      edge_contrast=contrast,
-                      occluded=occluded, both_edges=np.asarray(features["both_edges"], dtype=float),
-                      threshold=threshold, rule=rule)
+    return Visibility(
+        visible=visible,
+        brightness=brightness,
+        edge_sigma_px=np.asarray(features["edge_sigma_px"], dtype=float),
+        edge_contrast=contrast,
+        occluded=occluded,
+        both_edges=np.asarray(features["both_edges"], dtype=float),
+        threshold=threshold,
+        rule=rule,
+    )
 
 
 def _threshold(brightness: np.ndarray) -> tuple[float, str]:
@@ -321,12 +349,21 @@ def _threshold(brightness: np.ndarray) -> tuple[float, str]:
         return float(math.exp(0.5 * (mixture.mean_1 + mixture.mean_2))), (
             f"two populations: brightness {math.exp(mixture.mean_1):.3g} and "
             f"{math.exp(mixture.mean_2):.3g} (mixture of ln brightness, BIC {bic_two:.1f} "
-            f"against {bic_one:.1f} for one)")
-    return SINGLE_THRESHOLD, (f"one population (mixture of ln brightness: BIC {bic_two:.1f} "
-                              f"against {bic_one:.1f}, components {ratio:.3g} times apart)")
+            f"against {bic_one:.1f} for one)"
+        )
+    return SINGLE_THRESHOLD, (
+        f"one population (mixture of ln brightness: BIC {bic_two:.1f} "
+        f"against {bic_one:.1f}, components {ratio:.3g} times apart)"
+    )
 
 
-def fiber_visibility(grey: np.ndarray, paths: list[np.ndarray], samples: WidthSamples,
-                     junctions: np.ndarray, crossings: np.ndarray, width_px: float) -> Visibility:
+def fiber_visibility(
+    grey: np.ndarray,
+    paths: list[np.ndarray],
+    samples: WidthSamples,
+    junctions: np.ndarray,
+    crossings: np.ndarray,
+    width_px: float,
+) -> Visibility:
     """:func:`classify` of the :func:`fiber_features` (same parameters)."""
     return classify(fiber_features(grey, paths, samples, junctions, crossings, width_px))

@@ -57,13 +57,16 @@ class WidthSamples:
 
     def subset(self, keep: np.ndarray, fiber: np.ndarray | None = None) -> WidthSamples:
         """The samples ``keep`` (mask or indices); their fiber numbers replaced by ``fiber``."""
-        return WidthSamples(fiber=self.fiber[keep] if fiber is None else fiber,
-                            point=self.point[keep], normal=self.normal[keep],
-                            width_px=self.width_px[keep], centre_px=self.centre_px[keep])
+        return WidthSamples(
+            fiber=self.fiber[keep] if fiber is None else fiber,
+            point=self.point[keep],
+            normal=self.normal[keep],
+            width_px=self.width_px[keep],
+            centre_px=self.centre_px[keep],
+        )
 
 
-def local_widths(flat: np.ndarray, paths: list[np.ndarray], junctions: np.ndarray,
-                 width_px: float) -> WidthSamples:
+def local_widths(flat: np.ndarray, paths: list[np.ndarray], junctions: np.ndarray, width_px: float) -> WidthSamples:
     """Full widths at half maximum across the traced fibers (see the module notes).
 
     Parameters
@@ -91,8 +94,13 @@ def local_widths(flat: np.ndarray, paths: list[np.ndarray], junctions: np.ndarra
     left, ok_l = _edge(profile[:, half::-1], peak)
     width = (right + left) * _PROFILE_STEP
     ok = ok_r & ok_l & (width > 0)
-    return WidthSamples(fiber=fiber[ok], point=point[ok], normal=normal[ok], width_px=width[ok],
-                        centre_px=0.5 * (right - left)[ok] * _PROFILE_STEP)
+    return WidthSamples(
+        fiber=fiber[ok],
+        point=point[ok],
+        normal=normal[ok],
+        width_px=width[ok],
+        centre_px=0.5 * (right - left)[ok] * _PROFILE_STEP,
+    )
 
 
 def sample_counts(paths: list[np.ndarray], junctions: np.ndarray, width_px: float) -> np.ndarray:
@@ -116,8 +124,7 @@ def sample_counts(paths: list[np.ndarray], junctions: np.ndarray, width_px: floa
     return np.bincount(fiber, minlength=len(paths)).astype(np.int64)
 
 
-def fiber_diameters(flat: np.ndarray, samples: WidthSamples, n_fibers: int,
-                    width_px: float) -> np.ndarray:
+def fiber_diameters(flat: np.ndarray, samples: WidthSamples, n_fibers: int, width_px: float) -> np.ndarray:
     """Diameter of each fiber: a blurred flat profile fitted to its median profile.
 
     The profiles of a fiber's samples, centred on their half-maximum midpoints and scaled on
@@ -183,8 +190,9 @@ def _blurred_flat_width(t: np.ndarray, y: np.ndarray, fwhm: float, w: float) -> 
     def model(p: np.ndarray) -> np.ndarray:
         width, sigma, amplitude, centre, offset = p
         s = t - centre
-        return offset + 0.5 * amplitude * (special.erf((s + width / 2) / (root2 * sigma))
-                                           - special.erf((s - width / 2) / (root2 * sigma)))
+        return offset + 0.5 * amplitude * (
+            special.erf((s + width / 2) / (root2 * sigma)) - special.erf((s - width / 2) / (root2 * sigma))
+        )
 
     lower = [0.25, 0.05, 0.5, -w / 2, -0.1]
     upper = [3.0 * w, 2.0 * w, _MAX_AMPLITUDE, w / 2, 0.5]
@@ -196,14 +204,14 @@ def _blurred_flat_width(t: np.ndarray, y: np.ndarray, fwhm: float, w: float) -> 
     return width if fit.success and np.isfinite(width) and plausible else fwhm
 
 
-def _profiles(flat: np.ndarray, point: np.ndarray, normal: np.ndarray,
-              reach: float) -> tuple[np.ndarray, np.ndarray]:
+def _profiles(flat: np.ndarray, point: np.ndarray, normal: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
     """Offsets t [px] (-reach..reach, quarter pixels) and the image read at point + t normal."""
     half = int(np.ceil(reach / _PROFILE_STEP))
     t = np.arange(-half, half + 1) * _PROFILE_STEP
     coords = point[:, None, :] + t[None, :, None] * normal[:, None, :]
-    profile = ndimage.map_coordinates(flat, coords.reshape(-1, 2).T, order=1,
-                                      mode="nearest").reshape(len(point), len(t))
+    profile = ndimage.map_coordinates(flat, coords.reshape(-1, 2).T, order=1, mode="nearest").reshape(
+        len(point), len(t)
+    )
     return t, profile
 
 
@@ -221,8 +229,9 @@ def _edge(side: np.ndarray, peak: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return (i - 1) + frac, ok
 
 
-def _sample_points(paths: list[np.ndarray], junctions: np.ndarray,
-                   w: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _sample_points(
+    paths: list[np.ndarray], junctions: np.ndarray, w: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sample points along all paths, their unit normals, away from junctions and ends."""
     if not paths:
         return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2))
@@ -230,8 +239,7 @@ def _sample_points(paths: list[np.ndarray], junctions: np.ndarray,
     margin = int(np.ceil(w / 2.0))
     fiber = np.concatenate([np.full(len(p), i) for i, p in enumerate(paths)])
     point = np.concatenate(paths)
-    tangent = np.concatenate([np.gradient(p, axis=0) if len(p) > 1 else np.zeros_like(p)
-                              for p in paths])
+    tangent = np.concatenate([np.gradient(p, axis=0) if len(p) > 1 else np.zeros_like(p) for p in paths])
     index = np.concatenate([np.arange(len(p)) for p in paths])
     length = np.concatenate([np.full(len(p), len(p)) for p in paths])
     keep = (index % step == 0) & (index >= margin) & (index < length - margin)

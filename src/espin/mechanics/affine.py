@@ -55,11 +55,18 @@ class AffineSteps:
         self.dX = network.element_vector
         n = network.n_elements
         F0 = program.prescribed_F(0.0)
-        self.state = StepState(0.0, self.reference[:network.n_inner] @ F0.T, np.zeros(len(self.directions)), F0,
-                               network.initial_plastic_stretch, np.zeros(n))
+        self.state = StepState(
+            0.0,
+            self.reference[: network.n_inner] @ F0.T,
+            np.zeros(len(self.directions)),
+            F0,
+            network.initial_plastic_stretch,
+            np.zeros(n),
+        )
 
-    def _evaluate(self, free: np.ndarray, F_prescribed: np.ndarray, dt: float, guess: np.ndarray | None
-                  ) -> tuple[np.ndarray, np.ndarray, LawState, np.ndarray, np.ndarray]:
+    def _evaluate(
+        self, free: np.ndarray, F_prescribed: np.ndarray, dt: float, guess: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray, LawState, np.ndarray, np.ndarray]:
         """F, the nodes at F X, the law, the element forces and stiffnesses at free values ``free``."""
         F = F_prescribed + np.tensordot(free, self.directions, axes=1) if len(free) else F_prescribed
         if not (np.all(np.isfinite(F)) and np.linalg.det(F) > 0.0):
@@ -119,8 +126,11 @@ class AffineSteps:
                 if norm <= solver.config.rtol * P_scale + solver.stress_tolerance_abs:
                     break
                 if iterations == _MAX_ITERATIONS:
-                    raise StepNotConverged(f"the free components of F did not converge in {_MAX_ITERATIONS} "
-                                           "iterations", history=history, iterations=iterations)
+                    raise StepNotConverged(
+                        f"the free components of F did not converge in {_MAX_ITERATIONS} iterations",
+                        history=history,
+                        iterations=iterations,
+                    )
                 iterations += 1
                 step = np.linalg.solve(self._jacobian(F, x, force, stiffness), -residual)
                 for _ in range(_MAX_HALVINGS):
@@ -134,16 +144,19 @@ class AffineSteps:
                         break
                     step = 0.5 * step
                 else:
-                    raise StepNotConverged("no shorter step along the Newton direction lowered the free "
-                                           "components' stress residual", StepFailureKind.UPHILL,
-                                           history=history, iterations=iterations)
+                    raise StepNotConverged(
+                        "no shorter step along the Newton direction lowered the free components' stress residual",
+                        StepFailureKind.UPHILL,
+                        history=history,
+                        iterations=iterations,
+                    )
                 free = free + step
                 F, x, law, force, stiffness = trial
                 residual, P_scale = trial_residual, trial_scale
         kin = solver.asm.kinematics(x)
-        imbalance = solver.asm.gradient(force, kin)[:2 * solver.n_inner]
+        imbalance = solver.asm.gradient(force, kin)[: 2 * solver.n_inner]
         residual_force = float(np.max(np.abs(imbalance))) if len(imbalance) else 0.0
-        state = StepState(end, x[:solver.n_inner].copy(), free, F, law.plastic_stretch, law.stress)
+        state = StepState(end, x[: solver.n_inner].copy(), free, F, law.plastic_stretch, law.stress)
         return StepResult(state, law, force, kin, iterations, 0, residual_force, history)
 
     def error(self, trial: StepResult) -> float:

@@ -116,7 +116,7 @@ class NetworkAssembler:
     # -- geometry ---------------------------------------------------------------------------
     def positions(self, inner: np.ndarray, F: np.ndarray) -> np.ndarray:
         """(n_nodes, 2) current positions: inner nodes given, border nodes x = F X."""
-        border = self.reference[self.network.n_inner:] @ F.T
+        border = self.reference[self.network.n_inner :] @ F.T
         return np.concatenate([inner.reshape(-1, 2), border])
 
     def kinematics(self, x: np.ndarray) -> Kinematics:
@@ -169,8 +169,9 @@ class NetworkAssembler:
             self._patterns[part] = _pattern(r - shift[0], c - shift[1], keep, shape)
         return self._patterns[part]
 
-    def _values(self, axial: np.ndarray, transverse: np.ndarray, kin: Kinematics,
-                joint_blocks: np.ndarray | None) -> np.ndarray:
+    def _values(
+        self, axial: np.ndarray, transverse: np.ndarray, kin: Kinematics, joint_blocks: np.ndarray | None
+    ) -> np.ndarray:
         """Element matrices, then the joints' (zero where none are given)."""
         values = self._element_blocks(axial, transverse, kin)
         if self.joints is None:
@@ -178,8 +179,14 @@ class NetworkAssembler:
         joint = np.zeros(36 * len(self.joints.stiffness)) if joint_blocks is None else joint_blocks.ravel()
         return np.concatenate([values, joint])
 
-    def tangent(self, part: str, axial: np.ndarray, transverse: np.ndarray, kin: Kinematics,
-                joint_blocks: np.ndarray | None = None) -> sp.csr_matrix:
+    def tangent(
+        self,
+        part: str,
+        axial: np.ndarray,
+        transverse: np.ndarray,
+        kin: Kinematics,
+        joint_blocks: np.ndarray | None = None,
+    ) -> sp.csr_matrix:
         """Assemble one block of the stiffness matrix (see :meth:`pattern`).
 
         Parameters
@@ -199,7 +206,11 @@ class NetworkAssembler:
         return self.pattern(part).fill(self._values(axial, transverse, kin, joint_blocks))
 
     def tangents(
-        self, parts: tuple[str, ...], axial: np.ndarray, transverse: np.ndarray, kin: Kinematics,
+        self,
+        parts: tuple[str, ...],
+        axial: np.ndarray,
+        transverse: np.ndarray,
+        kin: Kinematics,
         joint_blocks: np.ndarray | None = None,
     ) -> list[sp.csr_matrix]:
         """Several blocks of the stiffness matrix from one evaluation of the element matrices."""

@@ -66,15 +66,31 @@ from espin.core.config import Config
 from espin.geometry.size_estimate import estimate_size
 from espin.mechanics.loading import load_program
 
-__all__ = ["Calibration", "TensileCost", "Plan", "calibrate", "predict_test", "plan", "pool_seconds", "crossing_factor",
-           "format_duration", "CALIBRATION_BUDGET_S", "REFERENCE_CALIBRATION"]
+__all__ = [
+    "Calibration",
+    "TensileCost",
+    "Plan",
+    "calibrate",
+    "predict_test",
+    "plan",
+    "pool_seconds",
+    "crossing_factor",
+    "format_duration",
+    "CALIBRATION_BUDGET_S",
+    "REFERENCE_CALIBRATION",
+]
 
 log = logging.getLogger(__name__)
 
 CALIBRATION_BUDGET_S = 2.0
 """Most wall time the speed calibration may take [s]."""
-CALIBRATION_MAT = {"rve.size_ratio": 80.0, "rve.layers": 4, "rve.seed": 1, "loading.max_strain": 0.03,
-                   "loading.steps": 12}
+CALIBRATION_MAT = {
+    "rve.size_ratio": 80.0,
+    "rve.layers": 4,
+    "rve.seed": 1,
+    "loading.max_strain": 0.03,
+    "loading.steps": 12,
+}
 """The calibration's tensile test: overrides of the ``plla`` preset."""
 REFERENCE_SECONDS_PER_ITERATION = 0.0054
 """Seconds per Newton iteration of the calibration test on the development machine, quiet [s]."""
@@ -203,8 +219,13 @@ def calibrate(*, budget_s: float = CALIBRATION_BUDGET_S, refresh: bool = False) 
     (t0, c0, n0), (t1, c1, n1) = counted[0], counted[-1]
     n = max(n1 - n0, 1)
     result = Calibration((t1 - t0) / n, (c1 - c0) / n, time.perf_counter() - start, n1 - n0)
-    log.debug("speed calibration: %.4f s per iteration (CPU %.4f s), slowness %.2f, %.2f s",
-              result.seconds_per_iteration, result.cpu_seconds_per_iteration, result.slowness, result.seconds)
+    log.debug(
+        "speed calibration: %.4f s per iteration (CPU %.4f s), slowness %.2f, %.2f s",
+        result.seconds_per_iteration,
+        result.cpu_seconds_per_iteration,
+        result.slowness,
+        result.seconds,
+    )
     _CACHE["speed"] = result
     return result
 
@@ -309,15 +330,15 @@ def predict_test(config: Config, calibration: Calibration | None = None) -> Tens
     rve = config.rve
     turn = rve.max_deviation_deg if rve.walk == "paper" else rve.waviness_deg
     tortuous = max(1.0, (turn or 0.0) / TURN_REFERENCE_DEG[rve.walk]) ** TURN_EXPONENT
-    substeps = max(float(steps), SUBSTEPS_PER_STRAIN * path * (1.0 + 0.25 * (tortuous - 1.0))) if adaptive \
-        else float(steps)
+    substeps = (
+        max(float(steps), SUBSTEPS_PER_STRAIN * path * (1.0 + 0.25 * (tortuous - 1.0))) if adaptive else float(steps)
+    )
     plastic = tortuous * (1.0 if config.fiber.flow_rate_per_s > 0 else 0.5)
     yield_part = plastic * YIELD_ITERATIONS * (dof / 1e4) ** YIELD_EXPONENT * min(1.0, path / YIELD_STRAIN_SPAN)
     iterations = (ITERATIONS_PER_SUBSTEP * substeps + yield_part) * TEST_ITERATIONS.get(program.test, 1.0)
     x = dof / 1e4
     growth = ITERATION_SCALE * x**ITERATION_EXPONENT * (1.0 if _pardiso(config.solver.linear) else SUPERLU_FACTOR)
-    units = (iterations * (ITERATION_BASE + growth)
-             + steps * RECORD_PER_DOF * dof)
+    units = iterations * (ITERATION_BASE + growth) + steps * RECORD_PER_DOF * dof
     seconds = calibration.seconds_per_iteration * units + calibration.slowness * GENERATE_S_PER_SEGMENT * size.segments
     return TensileCost(dof, steps, substeps, iterations, seconds)
 
@@ -370,11 +391,16 @@ class Plan:
         """One line, e.g. ``plan: 30 tensile tests x 60,146 DOF on 2 workers -> about 20 min
         (speed calibration 1.4 s)``."""
         tests = f"{self.simulations:,} tensile test{'s' * (self.simulations != 1)}"
-        dof = f"{self.dof:,.0f} DOF" if self.max_dof <= 1.05 * self.dof else \
-            f"{self.dof:,.0f} DOF on average (up to {self.max_dof:,.0f})"
+        dof = (
+            f"{self.dof:,.0f} DOF"
+            if self.max_dof <= 1.05 * self.dof
+            else f"{self.dof:,.0f} DOF on average (up to {self.max_dof:,.0f})"
+        )
         if self.workers is None:
-            where = (f"about {format_duration(self.seconds)} on one worker of the scheduler "
-                     f"({format_duration(self.per_test_s)} per test)")
+            where = (
+                f"about {format_duration(self.seconds)} on one worker of the scheduler "
+                f"({format_duration(self.per_test_s)} per test)"
+            )
         else:
             where = f"{self.workers} worker{'s' * (self.workers != 1)} -> about {format_duration(self.seconds)}"
             where = "on " + where
@@ -423,5 +449,12 @@ def plan(configs: Sequence[Config], workers: int | None, calibration: Calibratio
     mean_dof = sum(c.dof for c in costs) / n if n else 0.0
     workers = None if workers is None else max(1, int(workers))
     start = START_S * calibration.slowness if n else 0.0
-    return Plan(n, mean_dof, workers, start + pool_seconds(seconds, workers), calibration.seconds,
-                sum(seconds) / n if n else 0.0, max((c.dof for c in costs), default=0.0))
+    return Plan(
+        n,
+        mean_dof,
+        workers,
+        start + pool_seconds(seconds, workers),
+        calibration.seconds,
+        sum(seconds) / n if n else 0.0,
+        max((c.dof for c in costs), default=0.0),
+    )

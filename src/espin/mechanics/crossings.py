@@ -44,8 +44,9 @@ __all__ = ["crossing_joints", "with_crossings"]
 _SEED_STREAM = 0x6675736564  # "fused": the draw of fused crossings has its own stream of the RVE seed
 
 
-def crossing_joints(network: Network, modulus_MPa: float, fraction: float, seed: int,
-                    stiffness_ratio: float = 1.0) -> FiberJoints:
+def crossing_joints(
+    network: Network, modulus_MPa: float, fraction: float, seed: int, stiffness_ratio: float = 1.0
+) -> FiberJoints:
     """The springs of the fused crossings of a network (module notes).
 
     Parameters
@@ -77,7 +78,7 @@ def crossing_joints(network: Network, modulus_MPa: float, fraction: float, seed:
     starts = np.flatnonzero(np.r_[True, centre[1:] != centre[:-1]])
     counts = np.diff(np.r_[starts, len(centre)])
     # A crossing: a node where arms of two or more fibers meet.
-    crossing_of_group = np.array([len(np.unique(fiber[s:s + c])) > 1 for s, c in zip(starts, counts)], dtype=bool)
+    crossing_of_group = np.array([len(np.unique(fiber[s : s + c])) > 1 for s, c in zip(starts, counts)], dtype=bool)
     groups = np.flatnonzero(crossing_of_group)
     rng = np.random.default_rng([int(seed), _SEED_STREAM])
     fused = groups[rng.random(len(groups)) < fraction] if fraction < 1.0 else groups
@@ -108,7 +109,9 @@ def with_crossings(joints: FiberJoints | None, crossings: FiberJoints) -> FiberJ
     """The fiber joints followed by the crossing springs, as one set of joints."""
     if joints is None:
         return crossings
-    return FiberJoints(np.concatenate([joints.nodes, crossings.nodes]),
-                       np.concatenate([joints.stiffness, crossings.stiffness]),
-                       np.concatenate([joints.reference_angle, crossings.reference_angle]),
-                       np.concatenate([joints.floor, crossings.floor]))
+    return FiberJoints(
+        np.concatenate([joints.nodes, crossings.nodes]),
+        np.concatenate([joints.stiffness, crossings.stiffness]),
+        np.concatenate([joints.reference_angle, crossings.reference_angle]),
+        np.concatenate([joints.floor, crossings.floor]),
+    )

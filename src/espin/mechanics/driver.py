@@ -32,9 +32,18 @@ from espin.mechanics.homogenization import cauchy_stress, kirchhoff_stress, nomi
 from espin.mechanics.loading import LateralStress, LoadProgram, load_program
 from espin.mechanics.march import MarchFailed, ReportTally, StepPolicy, march
 
-__all__ = ["StepRecord", "step_record", "MEASURES", "SimulationResult", "SimulationFailed", "run_program",
-           "result_from_records",
-           "FREE_LATERAL_NOTE", "curve_columns", "curve_summary"]
+__all__ = [
+    "StepRecord",
+    "step_record",
+    "MEASURES",
+    "SimulationResult",
+    "SimulationFailed",
+    "run_program",
+    "result_from_records",
+    "FREE_LATERAL_NOTE",
+    "curve_columns",
+    "curve_summary",
+]
 
 log = logging.getLogger(__name__)
 
@@ -102,15 +111,25 @@ class StepRecord:
     recruited: np.ndarray
 
 
-_CURVE_TENSORS = (("F", "F", ""), ("P", "P", "_MPa"), ("paper", "P_paper", "_MPa"), ("kirchhoff", "kirchhoff", "_MPa"),
-                  ("cauchy", "cauchy", "_MPa"))
+_CURVE_TENSORS = (
+    ("F", "F", ""),
+    ("P", "P", "_MPa"),
+    ("paper", "P_paper", "_MPa"),
+    ("kirchhoff", "kirchhoff", "_MPa"),
+    ("cauchy", "cauchy", "_MPa"),
+)
 """(column prefix, SimulationResult attribute, unit suffix) of the tensors of ``curve.csv``."""
 MEASURES = {"nominal": "P", "paper": "P_paper", "kirchhoff": "kirchhoff"}
 """``output.stress_measure`` -> the attribute of :class:`StepRecord` and :class:`SimulationResult`
 that holds it."""
-_CURVE_SCALARS = (("recruited_fraction", "recruited_fraction"), ("yielded_fraction", "yielded_fraction"),
-                  ("iterations", "iterations"), ("factorizations", "factorizations"), ("substeps", "substeps"),
-                  ("residual_uN", "residual"))
+_CURVE_SCALARS = (
+    ("recruited_fraction", "recruited_fraction"),
+    ("yielded_fraction", "yielded_fraction"),
+    ("iterations", "iterations"),
+    ("factorizations", "factorizations"),
+    ("substeps", "substeps"),
+    ("residual_uN", "residual"),
+)
 """(column, SimulationResult attribute) of the per-step scalars of ``curve.csv``, after ``stress_MPa``."""
 
 
@@ -236,8 +255,10 @@ class SimulationResult:
         [uN]); ``stress_MPa`` is :meth:`stress` of ``output.stress_measure``."""
         import pandas as pd
 
-        steps = {name: getattr(self, name) for name in ("time", "strain", *(a for _, a, _ in _CURVE_TENSORS),
-                                                        *(a for _, a in _CURVE_SCALARS))}
+        steps = {
+            name: getattr(self, name)
+            for name in ("time", "strain", *(a for _, a, _ in _CURVE_TENSORS), *(a for _, a in _CURVE_SCALARS))
+        }
         return pd.DataFrame(curve_columns(steps, self.stress()))
 
     def _summary(self) -> dict[str, str]:
@@ -251,9 +272,11 @@ class SimulationResult:
     def __repr__(self) -> str:
         """One line: test, steps, max strain, peak and last curve stress [MPa], elements, nodes."""
         s = self._summary()
-        return (f"SimulationResult({s['test']}, {s['steps']} steps, max strain {s['max strain']}, "
-                f"peak {s['peak stress']}, last {s['last stress']} ({s['stress']}), {s['elements']} elements, "
-                f"{s['nodes']} nodes)")
+        return (
+            f"SimulationResult({s['test']}, {s['steps']} steps, max strain {s['max strain']}, "
+            f"peak {s['peak stress']}, last {s['last stress']} ({s['stress']}), {s['elements']} elements, "
+            f"{s['nodes']} nodes)"
+        )
 
     def _repr_html_(self) -> str:
         """The key numbers as an HTML table (Jupyter)."""
@@ -264,8 +287,14 @@ class SimulationResult:
         return html_table("SimulationResult", list(summary.items()))
 
 
-def step_record(index: int, solver: EquilibriumSolver, result: StepResult, strain: float,
-                counts: tuple[int, int, int] | list[int], threshold: float) -> StepRecord:
+def step_record(
+    index: int,
+    solver: EquilibriumSolver,
+    result: StepResult,
+    strain: float,
+    counts: tuple[int, int, int] | list[int],
+    threshold: float,
+) -> StepRecord:
     """The :class:`StepRecord` of a converged step: homogenized stresses and fractions of the
     ``result`` of ``solver``, with (iterations, factorizations, substeps) ``counts`` and the
     yield ``threshold`` on lambda_p - 1."""
@@ -324,14 +353,21 @@ class _ProgramSteps:
         F0 = program.prescribed_F(0.0)
         network = solver.network
         # the undeformed state: the first attempt is at time 0
-        self.state = StepState(0.0, solver.asm.reference[:network.n_inner] @ F0.T, np.zeros(len(self.directions)),
-                               F0, network.initial_plastic_stretch, np.zeros(network.n_elements))
+        self.state = StepState(
+            0.0,
+            solver.asm.reference[: network.n_inner] @ F0.T,
+            np.zeros(len(self.directions)),
+            F0,
+            network.initial_plastic_stretch,
+            np.zeros(network.n_elements),
+        )
         self.previous: StepState | None = None  # the state before, for the predictor
 
     def attempt(self, start: float, end: float) -> StepResult:
         F_next = self.program.prescribed_F(end)
-        guess_inner, guess_free = _predict(self.state, self.previous, end, F_next, self.directions,
-                                           self.solver.asm, self.solver.n_inner)
+        guess_inner, guess_free = _predict(
+            self.state, self.previous, end, F_next, self.directions, self.solver.asm, self.solver.n_inner
+        )
         return self.solver.solve(self.state, end, F_next, self.directions, guess_inner, guess_free, self.lateral)
 
     def error(self, trial: StepResult) -> float:
@@ -385,10 +421,16 @@ def run_program(
     if program.test == "uniaxial" and len(program.free_directions) and config.fiber.fused_crossing_fraction == 0:
         log.warning(FREE_LATERAL_NOTE)
     solver = EquilibriumSolver.from_config(network, config, linear_solver)
-    lateral = (None if program.lateral_stress_MPa is None
-               else LateralStress(program.lateral_stress_MPa, config.output.stress_measure == "kirchhoff"))
-    steps = (AffineSteps(solver, program, lateral) if config.solver.kinematics == "affine"
-             else _ProgramSteps(solver, program, lateral))
+    lateral = (
+        None
+        if program.lateral_stress_MPa is None
+        else LateralStress(program.lateral_stress_MPa, config.output.stress_measure == "kirchhoff")
+    )
+    steps = (
+        AffineSteps(solver, program, lateral)
+        if config.solver.kinematics == "affine"
+        else _ProgramSteps(solver, program, lateral)
+    )
     threshold = config.output.yield_threshold
     records: list[StepRecord] = []
 
@@ -398,9 +440,16 @@ def run_program(
             on_step(records[-1])
 
     def fail(failure: StepNotConverged, k: int, time: float, cuts: int) -> SimulationFailed:
-        return SimulationFailed(failure, step=k, n_steps=program.n_steps, time=time, strain=program.strain_at(time),
-                                cuts=cuts, mixed=bool(len(program.free_directions)),
-                                partial=result_from_records(config, program, records) if records else None)
+        return SimulationFailed(
+            failure,
+            step=k,
+            n_steps=program.n_steps,
+            time=time,
+            strain=program.strain_at(time),
+            cuts=cuts,
+            mixed=bool(len(program.free_directions)),
+            partial=result_from_records(config, program, records) if records else None,
+        )
 
     try:
         first = steps.attempt(0.0, 0.0)
@@ -431,16 +480,18 @@ _WHY = {
 }
 _TRY = {
     "stalled": "more load steps (loading.steps); where slack and compressed fibers dominate "
-               "(unloading, shear) the network is nearly a mechanism, and a larger "
-               "fiber.slack_modulus_MPa makes it solvable but is another model (docs/mechanics.md)",
+    "(unloading, shear) the network is nearly a mechanism, and a larger "
+    "fiber.slack_modulus_MPa makes it solvable but is another model (docs/mechanics.md)",
     "uphill": "more load steps (loading.steps)",
     "inadmissible": "more load steps (loading.steps)",
     "singular": "a mat that holds together: a larger rve.volume_fraction or more rve.layers",
     "stiff": "a larger solver.time_rtol, or check fiber.flow_rate_per_s and fiber.flow_resistance_MPa "
-             "(a large a_p with a small b_p makes the flow too fast to follow)",
+    "(a large a_p with a small b_p makes the flow too fast to follow)",
 }
-_TRY_MIXED = ("lateral = \"fixed\" or {poisson_ratio = ...} (a free lateral stress is the hardest "
-              "case, docs/mechanics.md), or more load steps (loading.steps)")
+_TRY_MIXED = (
+    'lateral = "fixed" or {poisson_ratio = ...} (a free lateral stress is the hardest '
+    "case, docs/mechanics.md), or more load steps (loading.steps)"
+)
 
 
 class SimulationFailed(SolverError):
@@ -473,8 +524,18 @@ class SimulationFailed(SolverError):
         Where the details were written, if they were.
     """
 
-    def __init__(self, failure: StepNotConverged, *, step: int, n_steps: int, time: float, strain: float,
-                 cuts: int, mixed: bool, partial: SimulationResult | None) -> None:
+    def __init__(
+        self,
+        failure: StepNotConverged,
+        *,
+        step: int,
+        n_steps: int,
+        time: float,
+        strain: float,
+        cuts: int,
+        mixed: bool,
+        partial: SimulationResult | None,
+    ) -> None:
         self.step, self.n_steps, self.time, self.strain, self.cuts = step, n_steps, time, strain, cuts
         self.kind, self.reason, self.history = failure.kind, failure.reason, list(failure.history)
         self.iterations = failure.iterations
@@ -490,15 +551,19 @@ class SimulationFailed(SolverError):
         why = self.reason if self.kind == StepFailureKind.STIFF else _WHY[self.kind]
         if self.kind == StepFailureKind.STALLED and self.history:
             n = self.iterations
-            why += (f" ({n} iteration{'s' * (n != 1)}; residual {self.history[-1]:.3g} uN at the end, "
-                    f"{min(self.history):.3g} at best)")
+            why += (
+                f" ({n} iteration{'s' * (n != 1)}; residual {self.history[-1]:.3g} uN at the end, "
+                f"{min(self.history):.3g} at best)"
+            )
         log_note = ""
         if self.log_path is not None:
             kept = 0 if self.partial is None else len(self.partial.time) - 1
             what = {0: "the initial state is", 1: "the converged step is"}.get(kept, f"the {kept} converged steps are")
             log_note = f"; {what} kept beside the residual history in {self.log_path}"
-        return (f"{where} (strain {self.strain:.6g}, time {self.time:.6g} s) did not converge{cuts}: "
-                f"{why}. Try {self.advice}{log_note}.")
+        return (
+            f"{where} (strain {self.strain:.6g}, time {self.time:.6g} s) did not converge{cuts}: "
+            f"{why}. Try {self.advice}{log_note}."
+        )
 
     def __str__(self) -> str:
         return self.summary()
@@ -506,14 +571,17 @@ class SimulationFailed(SolverError):
     def details(self) -> str:
         """The message, the last attempt's failure and its residual history, as log text."""
         history = "\n".join(f"{k:5d}  {r:.6e}" for k, r in enumerate(self.history))
-        return (f"{self.summary()}\n\nlast attempt: {self.reason}\n"
-                f"converged steps kept: {0 if self.partial is None else len(self.partial.time) - 1}\n\n"
-                f"residual [uN] at the start and after each Newton iteration (solves one after another)\n"
-                f"    k  residual\n{history}\n")
+        return (
+            f"{self.summary()}\n\nlast attempt: {self.reason}\n"
+            f"converged steps kept: {0 if self.partial is None else len(self.partial.time) - 1}\n\n"
+            f"residual [uN] at the start and after each Newton iteration (solves one after another)\n"
+            f"    k  residual\n{history}\n"
+        )
 
 
 def result_from_records(config: Config, program: LoadProgram, records: list[StepRecord]) -> SimulationResult:
     """The :class:`SimulationResult` of the recorded steps so far (``final`` is the last one)."""
+
     def stack(name: str) -> np.ndarray:
         return np.array([getattr(r, name) for r in records])
 

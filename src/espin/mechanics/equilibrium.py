@@ -174,17 +174,23 @@ class _ThreadedLaw:
         self.chunks = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
         self.pool = ThreadPoolExecutor(threads) if threads > 1 else None
 
-    def __call__(self, law: FiberLaw, stretch: np.ndarray, plastic_old: np.ndarray, dt: float,
-                 guess: np.ndarray | None) -> LawState:
+    def __call__(
+        self, law: FiberLaw, stretch: np.ndarray, plastic_old: np.ndarray, dt: float, guess: np.ndarray | None
+    ) -> LawState:
         """:func:`~espin.mechanics.fiber_law.update` of every element."""
+
         def chunk(c: slice) -> LawState:
             return update(law, stretch[c], plastic_old[c], self.tortuosity[c], dt, None if guess is None else guess[c])
 
         if self.pool is None:
             return chunk(self.chunks[0])
         parts = list(self.pool.map(chunk, self.chunks))
-        return LawState(*(np.concatenate([getattr(part, name) for part in parts])
-                          for name in ("stress", "plastic_stretch", "tangent", "recruited")))
+        return LawState(
+            *(
+                np.concatenate([getattr(part, name) for part in parts])
+                for name in ("stress", "plastic_stretch", "tangent", "recruited")
+            )
+        )
 
 
 class EquilibriumSolver:
@@ -211,25 +217,38 @@ class EquilibriumSolver:
         (:mod:`espin.mechanics.crossings`).
     """
 
-    def __init__(self, network: Network, law: FiberLaw, config: SolverConfig, linear_solver,
-                 bending_modulus_MPa: float = 0.0, fused_crossing_fraction: float = 0.0,
-                 crossing_seed: int = 0, crossing_stiffness_ratio: float = 1.0) -> None:
+    def __init__(
+        self,
+        network: Network,
+        law: FiberLaw,
+        config: SolverConfig,
+        linear_solver,
+        bending_modulus_MPa: float = 0.0,
+        fused_crossing_fraction: float = 0.0,
+        crossing_seed: int = 0,
+        crossing_stiffness_ratio: float = 1.0,
+    ) -> None:
         self.network = network
         self.law = law
         self.config = config
         self.linear = linear_solver
-        self.joints: FiberJoints | None = (fiber_joints(network, bending_modulus_MPa)
-                                           if bending_modulus_MPa > 0 else None)
+        self.joints: FiberJoints | None = (
+            fiber_joints(network, bending_modulus_MPa) if bending_modulus_MPa > 0 else None
+        )
         if fused_crossing_fraction > 0 and bending_modulus_MPa > 0:
-            self.joints = with_crossings(self.joints, crossing_joints(
-                network, bending_modulus_MPa, fused_crossing_fraction, crossing_seed, crossing_stiffness_ratio))
+            self.joints = with_crossings(
+                self.joints,
+                crossing_joints(
+                    network, bending_modulus_MPa, fused_crossing_fraction, crossing_seed, crossing_stiffness_ratio
+                ),
+            )
         self.asm = NetworkAssembler(network, self.joints)
         self.l0 = network.element_length
         self.area = network.element_area
         self.tortuosity = network.element_tortuosity
         self._law_update = _ThreadedLaw(self.tortuosity)
         self.n_inner = network.n_inner
-        self.border_reference = self.asm.reference[network.n_inner:]
+        self.border_reference = self.asm.reference[network.n_inner :]
         self.force_tolerance_abs = config.atol * law.taut_modulus * float(np.mean(self.area))
         fiber_fraction = float(np.sum(self.area * network.element_contour_length)) / network.reference_volume
         self.stress_tolerance_abs = config.atol * law.taut_modulus * fiber_fraction
@@ -238,13 +257,21 @@ class EquilibriumSolver:
     def from_config(cls, network: Network, config: Config, linear_solver: LinearSolver) -> EquilibriumSolver:
         """The solver of a run's config: its fiber law (with bending and fused crossings, drawn
         from the RVE's seed) and solver settings."""
-        return cls(network, FiberLaw.from_config(config.fiber), config.solver, linear_solver,
-                   config.fiber.bending_modulus_MPa, config.fiber.fused_crossing_fraction, config.rve.seed,
-                   config.fiber.fused_crossing_stiffness_ratio)
+        return cls(
+            network,
+            FiberLaw.from_config(config.fiber),
+            config.solver,
+            linear_solver,
+            config.fiber.bending_modulus_MPa,
+            config.fiber.fused_crossing_fraction,
+            config.rve.seed,
+            config.fiber.fused_crossing_stiffness_ratio,
+        )
 
     # -- evaluation ---------------------------------------------------------------------------
-    def _context(self, start: StepState, time: float, F_prescribed, directions, law: FiberLaw,
-                 lateral: LateralStress | None) -> _Step:
+    def _context(
+        self, start: StepState, time: float, F_prescribed, directions, law: FiberLaw, lateral: LateralStress | None
+    ) -> _Step:
         X = self.border_reference
         modes = np.stack([(X @ G.T).ravel() for G in directions]) if len(directions) else np.zeros((0, 2 * len(X)))
         # Residual rows are forces [uN] for inner DOF and V0 P : G_k [uN um] for free
@@ -266,8 +293,9 @@ class EquilibriumSolver:
         x = self.asm.positions(z[:n], F)
         kin = self.asm.kinematics(x)
         stretch = kin.length / self.l0
-        law = self._law_update(step.law, stretch, step.start.plastic_stretch, step.dt,
-                               None if near is None else near.law.plastic_stretch)
+        law = self._law_update(
+            step.law, stretch, step.start.plastic_stretch, step.dt, None if near is None else near.law.plastic_stretch
+        )
         force, stiffness = axial_force_and_stiffness(law, self.area, self.l0)
         gradient = self.asm.gradient(force, kin)
         if self.joints is not None:
@@ -328,8 +356,9 @@ class EquilibriumSolver:
             corner[0, 0] -= self.network.reference_volume * slope
         return sp.bmat([[K_II, coupling], [coupling.T, sp.csr_matrix(corner)]], format="csr")
 
-    def _direction(self, p: _Point, step: _Step, chord: Factorization | None, choice: _TangentChoice
-                   ) -> tuple[np.ndarray, int, Factorization]:
+    def _direction(
+        self, p: _Point, step: _Step, chord: Factorization | None, choice: _TangentChoice
+    ) -> tuple[np.ndarray, int, Factorization]:
         """Newton direction, the number of factorizations it took and the factorization used.
 
         ``chord``: a factorization to reuse (a chord step, no factorization) if it gives a
@@ -383,19 +412,30 @@ class EquilibriumSolver:
         # gain nothing from threads) runs on one thread: its threads spin after each call
         # and took a core from the next factorization (PARDISO at plla size: 0.098 s per
         # factorization in the run, 0.067 s without; SuperLU needs its threads).
-        openblas = (nullcontext() if getattr(self.linear, "uses_openblas", True)
-                    else ThreadpoolController().select(internal_api="openblas").limit(limits=1))
+        openblas = (
+            nullcontext()
+            if getattr(self.linear, "uses_openblas", True)
+            else ThreadpoolController().select(internal_api="openblas").limit(limits=1)
+        )
         with openblas:
             try:
                 return self._solve(start, time, F_prescribed, directions, guess_inner, guess_free, self.law, lateral)
             except StepNotConverged as failure:
-                return self._solve_by_continuation(failure, start, time, F_prescribed, directions,
-                                                   guess_inner, guess_free, lateral)
+                return self._solve_by_continuation(
+                    failure, start, time, F_prescribed, directions, guess_inner, guess_free, lateral
+                )
 
-    def _solve_by_continuation(self, failure: StepNotConverged, start: StepState, time: float,
-                               F_prescribed: np.ndarray, directions: np.ndarray,
-                               guess_inner: np.ndarray, guess_free: np.ndarray,
-                               lateral: LateralStress | None) -> StepResult:
+    def _solve_by_continuation(
+        self,
+        failure: StepNotConverged,
+        start: StepState,
+        time: float,
+        F_prescribed: np.ndarray,
+        directions: np.ndarray,
+        guess_inner: np.ndarray,
+        guess_free: np.ndarray,
+        lateral: LateralStress | None,
+    ) -> StepResult:
         """The step again, through a continuation in the slack modulus (module docstring).
 
         Raises
@@ -414,19 +454,38 @@ class EquilibriumSolver:
             except StepNotConverged as stage:
                 raise StepNotConverged(
                     f"{failure.reason}; then the continuation in the slack modulus failed at "
-                    f"E_b = {slack:g} MPa: {stage.reason}", stage.kind, history=history + stage.history,
-                    iterations=iterations + stage.iterations, factorizations=factorizations + stage.factorizations,
+                    f"E_b = {slack:g} MPa: {stage.reason}",
+                    stage.kind,
+                    history=history + stage.history,
+                    iterations=iterations + stage.iterations,
+                    factorizations=factorizations + stage.factorizations,
                 ) from None
             iterations += result.iterations
             factorizations += result.factorizations
             history += result.residual_history
             inner, free = result.state.inner, result.state.free
-        return StepResult(result.state, result.law, result.force, result.kinematics, iterations,
-                          factorizations, result.residual, history)
+        return StepResult(
+            result.state,
+            result.law,
+            result.force,
+            result.kinematics,
+            iterations,
+            factorizations,
+            result.residual,
+            history,
+        )
 
-    def _solve(self, start: StepState, time: float, F_prescribed: np.ndarray, directions: np.ndarray,
-               guess_inner: np.ndarray, guess_free: np.ndarray, law: FiberLaw,
-               lateral: LateralStress | None) -> StepResult:
+    def _solve(
+        self,
+        start: StepState,
+        time: float,
+        F_prescribed: np.ndarray,
+        directions: np.ndarray,
+        guess_inner: np.ndarray,
+        guess_free: np.ndarray,
+        law: FiberLaw,
+        lateral: LateralStress | None,
+    ) -> StepResult:
         """Newton's method from the guess, with ``law`` (the true one, or a continuation stage's)."""
         n_free = len(directions)
         limit = self.iteration_limit(n_free)
@@ -445,8 +504,9 @@ class EquilibriumSolver:
                 history.append(norm)
                 if ok:
                     n = 2 * self.n_inner
-                    state = StepState(time, p.z[:n].reshape(-1, 2), p.z[n:].copy(), p.F, p.law.plastic_stretch,
-                                      p.law.stress)
+                    state = StepState(
+                        time, p.z[:n].reshape(-1, 2), p.z[n:].copy(), p.F, p.law.plastic_stretch, p.law.stress
+                    )
                     return StepResult(state, p.law, p.force, p.kin, iteration, factorizations, norm, history)
                 if iteration == limit:
                     break
@@ -460,9 +520,16 @@ class EquilibriumSolver:
     def time_error(self, start: StepState, result: StepResult) -> float:
         """Relative local time error of the step from ``start`` to ``result``
         (:func:`espin.mechanics.time_steps.local_error`, elements weighted by their volume)."""
-        return local_error(self.law, start.stress, start.plastic_stretch, result.law,
-                           result.kinematics.length / self.l0, self.tortuosity, result.state.time - start.time,
-                           self.area * self.l0)
+        return local_error(
+            self.law,
+            start.stress,
+            start.plastic_stretch,
+            result.law,
+            result.kinematics.length / self.l0,
+            self.tortuosity,
+            result.state.time - start.time,
+            self.area * self.l0,
+        )
 
     def macroscopic_tangent(self, result: StepResult) -> np.ndarray:
         """Algorithmic macroscopic tangent A_iJkL = dP_iJ / dF_kL [MPa] at a converged step.
@@ -481,8 +548,9 @@ class EquilibriumSolver:
         _, stiffness = axial_force_and_stiffness(result.law, self.area, self.l0)
         axial, transverse = self._stiffness(result.force, stiffness, kin, clipped=False)
         x = self.asm.positions(result.state.inner, result.state.F)
-        K_II, K_IB, K_BB = self.asm.tangents(("II", "IB", "BB"), axial, transverse, kin,
-                                             self._joint_blocks(x, clipped=False))
+        K_II, K_IB, K_BB = self.asm.tangents(
+            ("II", "IB", "BB"), axial, transverse, kin, self._joint_blocks(x, clipped=False)
+        )
         # Border motion for a unit F_kL: x_b = e_k X_bL, flattened like the border DOF.
         X = self.border_reference
         modes = np.zeros((4, 2 * len(X)))

@@ -54,12 +54,18 @@ def plot_single_fiber(
     first_yield = np.flatnonzero(history.plastic_stretch - 1.0 > YIELD_THRESHOLD)
     if first_yield.size:
         k = first_yield[0]
-        ax.plot(history.stretch[k], history.stress[k], "o", color="C3",
-                label=rf"yield ($\lambda_p - 1 > {YIELD_THRESHOLD:g}$)")
+        ax.plot(
+            history.stretch[k],
+            history.stress[k],
+            "o",
+            color="C3",
+            label=rf"yield ($\lambda_p - 1 > {YIELD_THRESHOLD:g}$)",
+        )
     if rate_per_s is not None and law.flow_rate > 0:
         plateau = law.flow_resistance * np.arcsinh(rate_per_s / law.flow_rate)
-        ax.axhline(plateau, color="C2", ls="--", lw=1,
-                   label=rf"$b_p\,\mathrm{{asinh}}(\dot\lambda / a_p)$ = {plateau:.3g} MPa")
+        ax.axhline(
+            plateau, color="C2", ls="--", lw=1, label=rf"$b_p\,\mathrm{{asinh}}(\dot\lambda / a_p)$ = {plateau:.3g} MPa"
+        )
     ax.set_xlabel(r"stretch $\lambda = l / l_0$")
     ax.set_ylabel("engineering stress $t$ [MPa]")
     ax.set_title(

@@ -188,9 +188,7 @@ def elastic_modulus(law: FiberLaw, elastic_stretch: ArrayLike, tortuosity: Array
     return np.where(np.asarray(elastic_stretch) >= lr, law.taut_modulus / lr, law.slack_modulus)
 
 
-def _flow_terms(
-    law: FiberLaw, stretch: np.ndarray, plastic: np.ndarray, lr: np.ndarray
-) -> tuple[np.ndarray, ...]:
+def _flow_terms(law: FiberLaw, stretch: np.ndarray, plastic: np.ndarray, lr: np.ndarray) -> tuple[np.ndarray, ...]:
     """g = t / (b_p lambda_p^c_p) and its partial derivatives by lambda and lambda_p."""
     e = stretch / plastic
     t = elastic_stress(law, e, lr)
@@ -271,11 +269,7 @@ def _newton(
         w_new = np.where(newton, w_new, 0.5 * (lo + hi))
         step_before, step = step, np.abs(w_new - w)
         flow_new = _flow_magnitude(w_new, adt)
-        done = (
-            (r == 0)
-            | (np.abs(flow_new - flow) <= _RTOL * (plastic_old + flow))
-            | (hi - lo <= _RTOL * hi)
-        )
+        done = (r == 0) | (np.abs(flow_new - flow) <= _RTOL * (plastic_old + flow)) | (hi - lo <= _RTOL * hi)
         out[index[done]] = np.where(r == 0, flow, flow_new)[done]
         more = ~done
         if not more.any():
@@ -284,8 +278,9 @@ def _newton(
             v[more] for v in (index, w_new, lo, hi, step, step_before, adt, plastic_old)
         )
         args = tuple(v[more] for v in args)
-    raise StepNotConverged(f"the fiber law's return mapping did not converge in {_MAX_ITERATIONS} iterations "
-                           f"for {index.size} elements")
+    raise StepNotConverged(
+        f"the fiber law's return mapping did not converge in {_MAX_ITERATIONS} iterations for {index.size} elements"
+    )
 
 
 def _flow_residual(
@@ -364,15 +359,17 @@ def _recruitment_flow(
     returns ``limit``.
     """
     g_r = law.slack_modulus * (lr - 1.0) / law.flow_resistance
-    hi = np.minimum(
-        _log1p_sinh(g_r / plastic_old**law.hardening_exponent), _log1p_ratio(limit, adt)
-    )
+    hi = np.minimum(_log1p_sinh(g_r / plastic_old**law.hardening_exponent), _log1p_ratio(limit, adt))
     residual = partial(_recruitment_residual, law)
     return _newton(residual, hi, np.zeros_like(hi), hi, adt, plastic_old, g_r)
 
 
 def _return_map(
-    law: FiberLaw, stretch: np.ndarray, plastic_old: np.ndarray, lr: np.ndarray, adt: np.ndarray,
+    law: FiberLaw,
+    stretch: np.ndarray,
+    plastic_old: np.ndarray,
+    lr: np.ndarray,
+    adt: np.ndarray,
     guess: np.ndarray | None = None,
 ) -> np.ndarray:
     """Signed plastic increment of every element (1-D arrays; stretch already floored);
@@ -381,8 +378,9 @@ def _return_map(
     flow = np.zeros_like(stretch)
     i = np.flatnonzero((adt > 0) & (trial != 0))
     if i.size:
-        flow[i] = _solve_flow(law, stretch[i], plastic_old[i], lr[i], adt[i], trial[i],
-                              None if guess is None else guess[i])
+        flow[i] = _solve_flow(
+            law, stretch[i], plastic_old[i], lr[i], adt[i], trial[i], None if guess is None else guess[i]
+        )
     return flow
 
 
@@ -475,9 +473,7 @@ def update(
     )
 
 
-def _elastic_work(
-    law: FiberLaw, lam0: np.ndarray, lam1: np.ndarray, plastic: np.ndarray, lr: np.ndarray
-) -> np.ndarray:
+def _elastic_work(law: FiberLaw, lam0: np.ndarray, lam1: np.ndarray, plastic: np.ndarray, lr: np.ndarray) -> np.ndarray:
     """Exact integral of t(max(lambda', floor) / lambda_p) d lambda' from lam0 to lam1 [MPa]."""
     a, b = np.maximum(lam0, STRETCH_FLOOR), np.maximum(lam1, STRETCH_FLOOR)
     ea, eb = a / plastic, b / plastic
@@ -534,9 +530,7 @@ def work_increment(
         Work per unit reference volume ``A l0`` (negative when the element shortens under
         tension).
     """
-    lam0, lam1, plastic_old, lr, adt = _prepare(
-        law, dt, stretch_old, stretch, plastic_stretch_old, tortuosity
-    )
+    lam0, lam1, plastic_old, lr, adt = _prepare(law, dt, stretch_old, stretch, plastic_stretch_old, tortuosity)
     lr = np.maximum(lr, 1.0)
     work = _elastic_work(law, lam0, lam1, plastic_old, lr)
     i = np.flatnonzero((adt > 0) & (lam1 != lam0))
@@ -550,8 +544,7 @@ def work_increment(
     limit = np.maximum(high / lr[i] - plastic_old[i], 0.0)  # kinks beyond high do not matter
     flow_r = _recruitment_flow(law, plastic_old[i], lr[i], adt[i], limit)
     kink_alg = lr[i] * (plastic_old[i] + flow_r)
-    cuts = np.sort(np.column_stack([low, np.clip(kink_trial, low, high),
-                                    np.clip(kink_alg, low, high), high]), axis=1)
+    cuts = np.sort(np.column_stack([low, np.clip(kink_trial, low, high), np.clip(kink_alg, low, high), high]), axis=1)
     modulus = elastic_modulus(law, high / plastic_old[i], lr[i])
     width = PANEL_WIDTH * law.flow_resistance * plastic_old[i] / modulus
     lengths = np.diff(cuts, axis=1)
@@ -564,9 +557,7 @@ def work_increment(
     lam_q = np.maximum(start + h * (k + 0.5 + 0.5 * x[:, None]), STRETCH_FLOOR).ravel()
     plastic_q, lr_q, adt_q = (np.tile(v[elem], order) for v in (plastic_old, lr, adt))
     flow = _return_map(law, lam_q, plastic_q, lr_q, adt_q)
-    correction = elastic_stress(law, lam_q / (plastic_q + flow), lr_q) - elastic_stress(
-        law, lam_q / plastic_q, lr_q
-    )
+    correction = elastic_stress(law, lam_q / (plastic_q + flow), lr_q) - elastic_stress(law, lam_q / plastic_q, lr_q)
     panel_work = 0.5 * h * (weight @ correction.reshape(order, elem.size))
     return work + np.sign(lam1 - lam0) * np.bincount(elem, panel_work, minlength=work.size)
 

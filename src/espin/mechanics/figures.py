@@ -79,12 +79,16 @@ def mark_labels(marks: CurveMarks, test: str = "uniaxial") -> tuple[str, str | N
     elastic = f"{slope} = {marks.modulus_MPa:.3g} MPa"
     if not marks.has_yield:
         return elastic, None, None
-    return (elastic, f"{point} = {marks.yield_stress_MPa:.3g} MPa at {100.0 * marks.yield_strain:.3g} %",
-            f"{post} = {marks.post_yield_modulus_MPa:.3g} MPa")
+    return (
+        elastic,
+        f"{point} = {marks.yield_stress_MPa:.3g} MPa at {100.0 * marks.yield_strain:.3g} %",
+        f"{post} = {marks.post_yield_modulus_MPa:.3g} MPa",
+    )
 
 
-def draw_marks(ax: Axes, marks: CurveMarks, strain_end: float, *, test: str = "uniaxial",
-               color: str = "k", labelled: bool = True) -> list[Line2D]:
+def draw_marks(
+    ax: Axes, marks: CurveMarks, strain_end: float, *, test: str = "uniaxial", color: str = "k", labelled: bool = True
+) -> list[Line2D]:
     """Draw the marks on a stress [MPa] versus strain [%] axes; return the drawn artists.
 
     The elastic line (dashed) runs from its zero-stress strain to 1.2 times the yield strain
@@ -117,14 +121,25 @@ def draw_marks(ax: Axes, marks: CurveMarks, strain_end: float, *, test: str = "u
     if marks.has_yield:
         e_y = e0 + marks.yield_strain
         e = np.array([e_y, max(strain_end, e_y)])
-        artists += ax.plot(100.0 * e_y, marks.yield_stress_MPa, "o", color=color, mfc="none", ms=8, mew=1.5,
-                           zorder=5, label=labels[1])
-        artists += ax.plot(100.0 * e, marks.yield_stress_MPa + marks.post_yield_modulus_MPa * (e - e_y),
-                           color=color, ls=":", lw=1.2, label=labels[2])
+        artists += ax.plot(
+            100.0 * e_y, marks.yield_stress_MPa, "o", color=color, mfc="none", ms=8, mew=1.5, zorder=5, label=labels[1]
+        )
+        artists += ax.plot(
+            100.0 * e,
+            marks.yield_stress_MPa + marks.post_yield_modulus_MPa * (e - e_y),
+            color=color,
+            ls=":",
+            lw=1.2,
+            label=labels[2],
+        )
     return artists
 
-_MEASURE_LABEL = {"nominal": "nominal $P'_{{{}}}$", "paper": "paper Eq. 17 $\\sigma'_{{{}}}$",
-                  "kirchhoff": "Kirchhoff $\\tau'_{{{}}}$"}
+
+_MEASURE_LABEL = {
+    "nominal": "nominal $P'_{{{}}}$",
+    "paper": "paper Eq. 17 $\\sigma'_{{{}}}$",
+    "kirchhoff": "Kirchhoff $\\tau'_{{{}}}$",
+}
 _STRAIN_LABEL = {
     "uniaxial": "strain $F'_{11} - 1$ [%]",
     "equibiaxial": "stretch - 1 [%]",
@@ -152,8 +167,14 @@ def _test_label(config: Config) -> str:
     return text
 
 
-def plot_curve(result: SimulationResult, path: str | Path, measure: str | None = None,
-               *, marks: CurveMarks | None = None, dpi: float = 150.0) -> Path:
+def plot_curve(
+    result: SimulationResult,
+    path: str | Path,
+    measure: str | None = None,
+    *,
+    marks: CurveMarks | None = None,
+    dpi: float = 150.0,
+) -> Path:
     """Draw the stress-strain curve with the recruited and yielded fractions.
 
     Left axis: the curve's stress [MPa] in the loading frame (P'11, or P'12 for simple shear)
@@ -196,8 +217,14 @@ def plot_curve(result: SimulationResult, path: str | Path, measure: str | None =
     ax = fig.add_subplot()
     label = _MEASURE_LABEL[measure].format(component)
     lines = ax.plot(x, result.stress(measure), color="C0", marker="o", markersize=3, label=label)
-    lines += ax.plot(x, result.stress(other), color="C0", linestyle="-.", linewidth=0.8,
-                     label=_MEASURE_LABEL[other].format(component))
+    lines += ax.plot(
+        x,
+        result.stress(other),
+        color="C0",
+        linestyle="-.",
+        linewidth=0.8,
+        label=_MEASURE_LABEL[other].format(component),
+    )
     ax.set_xlabel(xlabel)
     ax.set_ylabel(f"stress, {label} [MPa]")
     right = ax.twinx()
@@ -212,9 +239,16 @@ def plot_curve(result: SimulationResult, path: str | Path, measure: str | None =
     return save_figure(fig, path, dpi)
 
 
-def plot_deformed(network: Network, record: StepRecord, path: str | Path, *,
-                  outline: bool = True, linewidth: float = 0.6, cmap: str = "viridis",
-                  dpi: float = 200.0) -> Path:
+def plot_deformed(
+    network: Network,
+    record: StepRecord,
+    path: str | Path,
+    *,
+    outline: bool = True,
+    linewidth: float = 0.6,
+    cmap: str = "viridis",
+    dpi: float = 200.0,
+) -> Path:
     """Draw the deformed network, elements coloured by their stress t [MPa].
 
     Elements are drawn as straight lines between their nodes at ``record.positions``
@@ -270,16 +304,44 @@ def plot_deformed(network: Network, record: StepRecord, path: str | Path, *,
     if outline:
         half = network.size / 2.0
         square = half * np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
-        whole.add_patch(Polygon(square, closed=True, fill=False, edgecolor="0.5", linestyle="--",
-                                linewidth=0.8, zorder=3, label="reference RVE"))
-        whole.add_patch(Polygon(square @ record.F.T, closed=True, fill=False, edgecolor="k",
-                                linewidth=0.8, zorder=3, label=r"deformed RVE $\mathbf{F}\,X$"))
+        whole.add_patch(
+            Polygon(
+                square,
+                closed=True,
+                fill=False,
+                edgecolor="0.5",
+                linestyle="--",
+                linewidth=0.8,
+                zorder=3,
+                label="reference RVE",
+            )
+        )
+        whole.add_patch(
+            Polygon(
+                square @ record.F.T,
+                closed=True,
+                fill=False,
+                edgecolor="k",
+                linewidth=0.8,
+                zorder=3,
+                label=r"deformed RVE $\mathbf{F}\,X$",
+            )
+        )
     whole.autoscale_view()
     whole.set_title(f"step {record.index}: strain {100.0 * record.strain:.3g} %, time {record.time:.4g} s")
     if zoom:
         h = window / 2.0
-        whole.add_patch(Polygon(h * np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]]), closed=True,
-                                fill=False, edgecolor="C3", linewidth=1.5, zorder=3, label="magnified window"))
+        whole.add_patch(
+            Polygon(
+                h * np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]]),
+                closed=True,
+                fill=False,
+                edgecolor="C3",
+                linewidth=1.5,
+                zorder=3,
+                label="magnified window",
+            )
+        )
         axes[1].set_xlim(-h, h)
         axes[1].set_ylim(-h, h)
         axes[1].set_title(f"centre window, {window:.3g} µm wide")

@@ -30,8 +30,9 @@ from espin.mechanics.bending import FiberJoints
 __all__ = ["nominal_stress", "paper_stress", "kirchhoff_stress", "cauchy_stress"]
 
 
-def nominal_stress(network: Network, force: np.ndarray, kin: Kinematics,
-                   joints: FiberJoints | None = None, x: np.ndarray | None = None) -> np.ndarray:
+def nominal_stress(
+    network: Network, force: np.ndarray, kin: Kinematics, joints: FiberJoints | None = None, x: np.ndarray | None = None
+) -> np.ndarray:
     """(2, 2) nominal stress P [MPa] from element forces T [uN] (docs/model.md section 5),
     plus the fiber joints' part at node positions ``x`` [um] with bending on."""
     virial = np.einsum("e,ei,eJ->iJ", force, kin.unit, network.element_vector)
@@ -46,8 +47,9 @@ def paper_stress(network: Network, stress: np.ndarray, kin: Kinematics) -> np.nd
     return np.einsum("e,ei,ej->ij", weight, kin.unit, kin.unit) / network.reference_volume
 
 
-def kirchhoff_stress(network: Network, force: np.ndarray, kin: Kinematics,
-                     joints: FiberJoints | None = None, x: np.ndarray | None = None) -> np.ndarray:
+def kirchhoff_stress(
+    network: Network, force: np.ndarray, kin: Kinematics, joints: FiberJoints | None = None, x: np.ndarray | None = None
+) -> np.ndarray:
     """(2, 2) Kirchhoff stress tau = P F^T = det F sigma [MPa] per reference volume from element
     forces T [uN], plus the fiber joints' part at node positions ``x`` [um] with bending on."""
     virial = np.einsum("e,ei,ej->ij", force * kin.length, kin.unit, kin.unit)
@@ -57,8 +59,14 @@ def kirchhoff_stress(network: Network, force: np.ndarray, kin: Kinematics,
     return virial / network.reference_volume
 
 
-def cauchy_stress(network: Network, force: np.ndarray, kin: Kinematics, F: np.ndarray,
-                  joints: FiberJoints | None = None, x: np.ndarray | None = None) -> np.ndarray:
+def cauchy_stress(
+    network: Network,
+    force: np.ndarray,
+    kin: Kinematics,
+    F: np.ndarray,
+    joints: FiberJoints | None = None,
+    x: np.ndarray | None = None,
+) -> np.ndarray:
     """(2, 2) in-plane Cauchy stress [MPa] at unchanged thickness, plus the fiber joints'
     part at node positions ``x`` [um] with bending on."""
     weight = force * kin.length

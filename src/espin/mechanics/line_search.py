@@ -45,8 +45,7 @@ class Evaluated(Protocol):
 P = TypeVar("P", bound=Evaluated)
 
 
-def line_search(point: P, direction: np.ndarray, evaluate: Callable[[np.ndarray, P], P],
-                weight: np.ndarray) -> P:
+def line_search(point: P, direction: np.ndarray, evaluate: Callable[[np.ndarray, P], P], weight: np.ndarray) -> P:
     """The accepted trial along ``direction`` from ``point`` (module docstring).
 
     Parameters
@@ -102,8 +101,16 @@ def line_search(point: P, direction: np.ndarray, evaluate: Callable[[np.ndarray,
     raise StepNotConverged("line search could not lower the incremental potential", StepFailureKind.UPHILL)
 
 
-def _decreases(point: P, trial: P, direction: np.ndarray, alpha: float, s0: float, s_trial: float,
-               evaluate: Callable[[np.ndarray, P], P], weight: np.ndarray) -> bool:
+def _decreases(
+    point: P,
+    trial: P,
+    direction: np.ndarray,
+    alpha: float,
+    s0: float,
+    s_trial: float,
+    evaluate: Callable[[np.ndarray, P], P],
+    weight: np.ndarray,
+) -> bool:
     """Whether the potential at ``trial`` is below that at ``point``; checked by quadrature only
     when the residual grew (Simpson's rule with s at 0, alpha / 2 and alpha: one more evaluation)."""
     if np.linalg.norm(weight * trial.residual) <= np.linalg.norm(weight * point.residual):

@@ -47,7 +47,6 @@ from espin.core.errors import ConfigError, SolverError, StepFailureKind, StepNot
 from espin.core.mkl import load_mkl
 
 if TYPE_CHECKING:
-
     from numpy.typing import ArrayLike
 
 __all__ = [
@@ -162,8 +161,7 @@ class Factorization(_Releasable, ABC):
                 break
             x, r, error = x_new, r_new, error_new
         if error > _BACKWARD_ERROR_TOL:
-            logger.debug("%s solve: backward error %.1e after refinement", type(self).__name__,
-                         error)
+            logger.debug("%s solve: backward error %.1e after refinement", type(self).__name__, error)
         return x
 
     def release(self) -> None:
@@ -176,8 +174,7 @@ class Factorization(_Releasable, ABC):
     def _check_valid(self) -> None:
         if not self._valid:
             raise SolverError(
-                "this factorization was released or replaced by a newer factorize() of its "
-                "solver; factorize K again"
+                "this factorization was released or replaced by a newer factorize() of its solver; factorize K again"
             )
 
     @cached_property
@@ -323,8 +320,7 @@ class SuperLUSolver(LinearSolver):
             if perm is None:
                 logger.debug("pymetis not installed: SuperLU orders with MMD_AT_PLUS_A")
                 # K is symmetric, so its CSR arrays are also its CSC arrays.
-                lu = _splu(sp.csc_matrix((K.data, K.indices, K.indptr), shape=K.shape),
-                           "MMD_AT_PLUS_A")
+                lu = _splu(sp.csc_matrix((K.data, K.indices, K.indptr), shape=K.shape), "MMD_AT_PLUS_A")
                 self._ordering = _SymmetricPermutation.of(K, np.argsort(lu.perm_c))
                 return _SuperLUFactorization(lu, K, perm=None)
             self._ordering = _SymmetricPermutation.of(K, perm)
@@ -378,8 +374,7 @@ def _nested_dissection(K: sp.csr_matrix) -> np.ndarray | None:
     cols = vertex[K.indices]
     off_diagonal = rows != cols
     graph = sp.csr_matrix(
-        (np.ones(np.count_nonzero(off_diagonal), dtype=bool),
-         (rows[off_diagonal], cols[off_diagonal])),
+        (np.ones(np.count_nonzero(off_diagonal), dtype=bool), (rows[off_diagonal], cols[off_diagonal])),
         shape=(n_vertices, n_vertices),
     )  # duplicates summed: the quotient graph, without self-loops as METIS requires
     order, _ = pymetis.nested_dissection(
@@ -431,8 +426,9 @@ def _splu(matrix: sp.csc_matrix, permc_spec: str) -> spla.SuperLU:
             options={"SymmetricMode": True},
         )
     except RuntimeError as exc:  # "Factor is exactly singular"
-        raise StepNotConverged(f"SuperLU factorization of the {matrix.shape[0]}-unknown tangent failed: {exc}",
-                               StepFailureKind.SINGULAR) from exc
+        raise StepNotConverged(
+            f"SuperLU factorization of the {matrix.shape[0]}-unknown tangent failed: {exc}", StepFailureKind.SINGULAR
+        ) from exc
 
 
 class _SuperLUFactorization(Factorization):
@@ -569,8 +565,9 @@ class PardisoSolver(LinearSolver):
         threads = self._handle.max_threads()
         if self._handle.threads != threads:
             if self._handle.threads:
-                logger.debug("MKL threads changed from %d to %d: PARDISO analysis redone",
-                             self._handle.threads, threads)
+                logger.debug(
+                    "MKL threads changed from %d to %d: PARDISO analysis redone", self._handle.threads, threads
+                )
             self._handle.free()
             self._handle.threads = threads
             self._handle.iparm[17] = -1  # ask phase 11 for this pattern's factor size
@@ -579,8 +576,9 @@ class PardisoSolver(LinearSolver):
         iparm = self._handle.iparm
         if iparm[13]:
             logger.debug("PARDISO perturbed %d pivots (K nearly singular)", iparm[13])
-        return _PardisoFactorization(self, K, values, n_negative=int(iparm[22]),
-                                     n_perturbed=int(iparm[13]), nnz_factor=int(iparm[17]))
+        return _PardisoFactorization(
+            self, K, values, n_negative=int(iparm[22]), n_perturbed=int(iparm[13]), nnz_factor=int(iparm[17])
+        )
 
     def _release_pattern_data(self) -> None:
         self._upper = None
@@ -619,8 +617,9 @@ class _PardisoHandle:
         """Threads MKL would use now in this thread (e.g. after threadpool_limits)."""
         return int(self._mkl.get_max_threads())
 
-    def call(self, phase: int, upper: _UpperTriangle | None, values: np.ndarray | None,
-             b: np.ndarray | None = None) -> np.ndarray | None:
+    def call(
+        self, phase: int, upper: _UpperTriangle | None, values: np.ndarray | None, b: np.ndarray | None = None
+    ) -> np.ndarray | None:
         """Run a PARDISO phase; return x for phase 33 (b: F-ordered float64), else None."""
         c_int = ctypes.c_int32
         if upper is None or values is None:  # releasing memory: PARDISO reads no matrix, give it a valid one
@@ -668,8 +667,15 @@ class _PardisoHandle:
 class _PardisoFactorization(Factorization):
     """The numerical factorization held by a :class:`PardisoSolver`'s handle."""
 
-    def __init__(self, solver: PardisoSolver, K: sp.csr_matrix, values: np.ndarray,
-                 n_negative: int, n_perturbed: int, nnz_factor: int) -> None:
+    def __init__(
+        self,
+        solver: PardisoSolver,
+        K: sp.csr_matrix,
+        values: np.ndarray,
+        n_negative: int,
+        n_perturbed: int,
+        nnz_factor: int,
+    ) -> None:
         super().__init__(K, n_perturbed, nnz_factor)
         self._solver = solver
         self._values: np.ndarray | None = values  # refinement needs the factorized values
@@ -725,17 +731,14 @@ class _UpperTriangle:
             order = np.lexsort((cols, rows))
             rows, cols, source = rows[order], cols[order], source[order]
         if len(cols) > np.iinfo(np.int32).max:
-            raise SolverError(f"K has {len(cols)} upper-triangle entries, more than PARDISO's "
-                              "32-bit interface takes")
+            raise SolverError(f"K has {len(cols)} upper-triangle entries, more than PARDISO's 32-bit interface takes")
         indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n))])
-        return cls(indptr.astype(np.int32), cols.astype(np.int32), source,
-                   np.flatnonzero(source < 0))
+        return cls(indptr.astype(np.int32), cols.astype(np.int32), source, np.flatnonzero(source < 0))
 
     @classmethod
     def empty(cls) -> _UpperTriangle:
         """The pattern of a 0 x 0 matrix (with one dummy entry in ``indices``)."""
-        return cls(np.zeros(1, np.int32), np.zeros(1, np.int32), np.zeros(0, np.int64),
-                   np.zeros(0, np.int64))
+        return cls(np.zeros(1, np.int32), np.zeros(1, np.int32), np.zeros(0, np.int64), np.zeros(0, np.int64))
 
     def values(self, K: sp.csr_matrix) -> np.ndarray:
         """Values of the upper triangle of K (a new array)."""
@@ -758,12 +761,10 @@ class _Pattern:
     @classmethod
     def of(cls, K: sp.csr_matrix) -> _Pattern:
         """The pattern of K, after checking that it is symmetric."""
-        structure = sp.csr_matrix((np.ones(K.nnz, dtype=bool), K.indices, K.indptr),
-                                  shape=K.shape)
+        structure = sp.csr_matrix((np.ones(K.nnz, dtype=bool), K.indices, K.indptr), shape=K.shape)
         transposed = structure.T.tocsr()
         transposed.sort_indices()
-        if not (np.array_equal(transposed.indptr, K.indptr)
-                and np.array_equal(transposed.indices, K.indices)):
+        if not (np.array_equal(transposed.indptr, K.indptr) and np.array_equal(transposed.indices, K.indices)):
             raise ValueError("K's sparsity pattern is not symmetric; store both triangles")
         return cls(K.indptr.copy(), K.indices.copy())
 
@@ -836,5 +837,6 @@ def make_linear_solver(name: str = "auto") -> LinearSolver:
             raise ConfigError(f"solver.linear = 'pardiso' is not usable here: {problem}")
         logger.debug("PARDISO not usable (%s): using SuperLU", problem)
         return SuperLUSolver()
-    raise ConfigError(f"solver.linear = {name!r} is unknown; allowed: "
-                      + ", ".join(repr(n) for n in LINEAR_SOLVER_NAMES))
+    raise ConfigError(
+        f"solver.linear = {name!r} is unknown; allowed: " + ", ".join(repr(n) for n in LINEAR_SOLVER_NAMES)
+    )

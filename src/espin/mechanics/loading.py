@@ -56,8 +56,17 @@ from espin.core.config import (
 from espin.core.errors import ConfigError
 from espin.core.textfiles import TextFormat, missing, parse_number, read_text, shown_names, text_lines
 
-__all__ = ["path_program", "LoadProgram", "LateralStress", "load_program", "read_table", "MAX_TABLE_BYTES",
-           "MAX_TABLE_ROWS", "MAX_TABLE_LINE_CHARS", "MAX_TABLE_MAGNITUDE"]
+__all__ = [
+    "path_program",
+    "LoadProgram",
+    "LateralStress",
+    "load_program",
+    "read_table",
+    "MAX_TABLE_BYTES",
+    "MAX_TABLE_ROWS",
+    "MAX_TABLE_LINE_CHARS",
+    "MAX_TABLE_MAGNITUDE",
+]
 
 MAX_TABLE_BYTES = 16 * 2**20
 """Largest loading table read [bytes]: 16 MiB. 10^5 rows of five numbers take a few MB."""
@@ -87,9 +96,14 @@ def _rotation(direction_deg: float) -> np.ndarray:
 def _table_format(key: str, columns: Sequence[str]) -> TextFormat:
     """What a loading table named by config ``key`` with ``columns`` is, for its checks."""
     return TextFormat(
-        what="loading table", max_bytes=MAX_TABLE_BYTES, max_line_chars=MAX_TABLE_LINE_CHARS, key=key,
-        expected=(f"expected a CSV table: a header line naming the columns {', '.join(columns)}, then "
-                  "one row of numbers per line (UTF-8, UTF-16 with byte-order mark or Latin-1 text)"),
+        what="loading table",
+        max_bytes=MAX_TABLE_BYTES,
+        max_line_chars=MAX_TABLE_LINE_CHARS,
+        key=key,
+        expected=(
+            f"expected a CSV table: a header line naming the columns {', '.join(columns)}, then "
+            "one row of numbers per line (UTF-8, UTF-16 with byte-order mark or Latin-1 text)"
+        ),
         size_hint="10^5 rows of five numbers take a few MB; is this the table?",
         line_hint="a row is a few numbers; is this the table?",
     )
@@ -103,8 +117,7 @@ def _fields(path: Path, fmt: TextFormat, number: int, line: str) -> list[str]:
         raise fmt.fail(path, f"not a line of CSV (a misplaced '\"'); {fmt.expected}", number) from None
 
 
-def _header(path: Path, fmt: TextFormat, lines: Iterator[tuple[int, str]],
-            columns: Sequence[str]) -> list[int]:
+def _header(path: Path, fmt: TextFormat, lines: Iterator[tuple[int, str]], columns: Sequence[str]) -> list[int]:
     """0-based index of each of ``columns`` in the header, the first kept line."""
     number, line = next(lines, (None, ""))
     if number is None:
@@ -112,39 +125,48 @@ def _header(path: Path, fmt: TextFormat, lines: Iterator[tuple[int, str]],
     names = _fields(path, fmt, number, line)
     missing = [name for name in columns if name not in names]
     if missing:
-        found = ("it holds numbers, not column names" if all(parse_number(name) is not None for name in names)
-                 else f"its columns are {shown_names(names)}")
-        raise fmt.fail(path, f"the header lacks column(s) {', '.join(missing)} ({found}); {fmt.expected}",
-                       number)
+        found = (
+            "it holds numbers, not column names"
+            if all(parse_number(name) is not None for name in names)
+            else f"its columns are {shown_names(names)}"
+        )
+        raise fmt.fail(path, f"the header lacks column(s) {', '.join(missing)} ({found}); {fmt.expected}", number)
     repeated = next((name for name in columns if names.count(name) > 1), None)
     if repeated is not None:
-        raise fmt.fail(path, f"the header names column {repeated} {names.count(repeated)} times; "
-                             "which one to read is unclear", number)
+        raise fmt.fail(
+            path,
+            f"the header names column {repeated} {names.count(repeated)} times; which one to read is unclear",
+            number,
+        )
     return [names.index(name) for name in columns]
 
 
 def _value(path: Path, fmt: TextFormat, number: int, fields: list[str], index: int, name: str) -> float:
     """The number in field ``index`` (0-based) of a data line, column ``name``."""
     if index >= len(fields):
-        raise fmt.fail(path, f"{len(fields)} field(s), but the header puts {name} in column {index + 1}; "
-                             f"{fmt.expected}", number)
+        raise fmt.fail(
+            path, f"{len(fields)} field(s), but the header puts {name} in column {index + 1}; {fmt.expected}", number
+        )
     column = f"column {index + 1} ({name})"
     text = fields[index]
     if not text:
         raise fmt.fail(path, "empty; expected a number such as 0.05 or 5e-2", number, column)
     value = parse_number(text)
     if value is None:
-        raise fmt.fail(path, "not a number; expected a number such as 0.05 or 5e-2 ('.' as the "
-                             "decimal mark)", number, column)
+        raise fmt.fail(
+            path, "not a number; expected a number such as 0.05 or 5e-2 ('.' as the decimal mark)", number, column
+        )
     if not abs(value) <= MAX_TABLE_MAGNITUDE:
         kind = "NaN" if math.isnan(value) else "infinite" if math.isinf(value) else f"{value:.3g}"
-        raise fmt.fail(path, f"{kind}; expected a finite number of magnitude at most "
-                             f"{MAX_TABLE_MAGNITUDE:g}", number, column)
+        raise fmt.fail(
+            path, f"{kind}; expected a finite number of magnitude at most {MAX_TABLE_MAGNITUDE:g}", number, column
+        )
     return value
 
 
-def _rows(path: Path, fmt: TextFormat, lines: Iterator[tuple[int, str]], index: list[int],
-          columns: Sequence[str]) -> tuple[list[int], list[list[float]]]:
+def _rows(
+    path: Path, fmt: TextFormat, lines: Iterator[tuple[int, str]], index: list[int], columns: Sequence[str]
+) -> tuple[list[int], list[list[float]]]:
     """Line numbers and values of the data rows (empty rows such as ``,,,`` skipped)."""
     numbers: list[int] = []
     rows: list[list[float]] = []
@@ -153,22 +175,32 @@ def _rows(path: Path, fmt: TextFormat, lines: Iterator[tuple[int, str]], index: 
         if not any(fields):
             continue
         if len(rows) == MAX_TABLE_ROWS:
-            raise fmt.fail(path, f"more than {MAX_TABLE_ROWS:,} data rows, the limit for a {fmt.what} "
-                                 "(a path has one step per row): thin it out", number)
+            raise fmt.fail(
+                path,
+                f"more than {MAX_TABLE_ROWS:,} data rows, the limit for a {fmt.what} "
+                "(a path has one step per row): thin it out",
+                number,
+            )
         rows.append([_value(path, fmt, number, fields, i, name) for i, name in zip(index, columns)])
         numbers.append(number)
     return numbers, rows
 
 
-def _check_increasing(path: Path, fmt: TextFormat, numbers: list[int], values: np.ndarray, index: int,
-                      name: str) -> None:
+def _check_increasing(
+    path: Path, fmt: TextFormat, numbers: list[int], values: np.ndarray, index: int, name: str
+) -> None:
     """The first column increases strictly from row to row."""
     falls = np.flatnonzero(np.diff(values) <= 0.0)
     if falls.size:
         k = int(falls[0])
-        raise fmt.fail(path, f"{values[k + 1]:.6g} does not increase from {values[k]:.6g} on line "
-                             f"{numbers[k]}; {name} must increase strictly (cut repeated or "
-                             "decreasing rows)", numbers[k + 1], f"column {index + 1} ({name})")
+        raise fmt.fail(
+            path,
+            f"{values[k + 1]:.6g} does not increase from {values[k]:.6g} on line "
+            f"{numbers[k]}; {name} must increase strictly (cut repeated or "
+            "decreasing rows)",
+            numbers[k + 1],
+            f"column {index + 1} ({name})",
+        )
 
 
 def read_table(path: Path, columns: Sequence[str], key: str) -> tuple[np.ndarray, np.ndarray]:
@@ -221,8 +253,9 @@ def _check_path_determinants(path: Path, F: np.ndarray, lines: np.ndarray) -> No
     if bad.size:
         k = int(bad[0])
         fmt = _table_format("loading.path_csv", _PATH_COLUMNS)
-        raise fmt.fail(path, f"det F = {det[k]:.3g}; every F must have det F > 0 (no material is "
-                             "turned inside out)", int(lines[k]))
+        raise fmt.fail(
+            path, f"det F = {det[k]:.3g}; every F must have det F > 0 (no material is turned inside out)", int(lines[k])
+        )
 
 
 _START_TOLERANCE = 1e-6
@@ -234,14 +267,22 @@ def _check_transverse_range(path: Path, table: np.ndarray, lines: np.ndarray, lo
     fmt = _table_format("loading.lateral.transverse_csv", _TRANSVERSE_COLUMNS)
     first, last = table[0, 0], table[-1, 0]
     if first > min(low, 0.0) or last < high:
-        raise fmt.fail(path, f"the table covers axial strains {first:.4g} to {last:.4g}, but the "
-                       f"loading program goes from {min(low, 0.0):.4g} to {high:.4g}: extend the table "
-                       "(it is not extrapolated)", int(lines[0] if first > min(low, 0.0) else lines[-1]))
+        raise fmt.fail(
+            path,
+            f"the table covers axial strains {first:.4g} to {last:.4g}, but the "
+            f"loading program goes from {min(low, 0.0):.4g} to {high:.4g}: extend the table "
+            "(it is not extrapolated)",
+            int(lines[0] if first > min(low, 0.0) else lines[-1]),
+        )
     at_zero = float(np.interp(0.0, table[:, 0], table[:, 1]))
     if abs(at_zero) > _START_TOLERANCE:
-        raise fmt.fail(path, f"the transverse strain at zero axial strain is {at_zero:.4g}, not 0: the "
-                       "undeformed RVE would start stretched (give strains relative to the unloaded "
-                       "specimen)", int(lines[0]))
+        raise fmt.fail(
+            path,
+            f"the transverse strain at zero axial strain is {at_zero:.4g}, not 0: the "
+            "undeformed RVE would start stretched (give strains relative to the unloaded "
+            "specimen)",
+            int(lines[0]),
+        )
 
 
 @dataclass(frozen=True)
@@ -366,8 +407,13 @@ def path_program(time: np.ndarray, F: np.ndarray, strain: np.ndarray | None = No
     n = len(time) - 1
     load = time - time[0] if strain is None else np.asarray(strain, dtype=float)
     return LoadProgram(
-        time=time - time[0], strain=load, segment=np.zeros(n, np.int64), rotation=np.eye(2),
-        free_directions=np.zeros((0, 2, 2)), test="path", _table=np.c_[time - time[0], np.reshape(F, (-1, 4))],
+        time=time - time[0],
+        strain=load,
+        segment=np.zeros(n, np.int64),
+        rotation=np.eye(2),
+        free_directions=np.zeros((0, 2, 2)),
+        test="path",
+        _table=np.c_[time - time[0], np.reshape(F, (-1, 4))],
     )
 
 
@@ -390,16 +436,18 @@ def load_program(loading: LoadingConfig) -> LoadProgram:
         _check_path_determinants(path_csv, table[:, 1:].reshape(-1, 2, 2), lines)
         if np.abs(table[0, 1:] - np.eye(2).ravel()).max() > _START_TOLERANCE:
             fmt = _table_format("loading.path_csv", _PATH_COLUMNS)
-            raise fmt.fail(path_csv, "the first F is not the identity: a path starts from the "
-                           "undeformed RVE (F11 = F22 = 1, F12 = F21 = 0)", int(lines[0]))
+            raise fmt.fail(
+                path_csv,
+                "the first F is not the identity: a path starts from the undeformed RVE (F11 = F22 = 1, F12 = F21 = 0)",
+                int(lines[0]),
+            )
         return path_program(table[:, 0], table[:, 1:].reshape(-1, 2, 2))
     times, strains, segments = [0.0], [0.0], []
     for index, seg in enumerate(loading.segments):
         duration, end, steps = _segment_steps(seg, strains[-1])
         if duration <= 0.0:
             raise ConfigError(
-                f"loading.program[{index}]: segment goes nowhere (to_strain equals the current "
-                f"strain {strains[-1]:g})"
+                f"loading.program[{index}]: segment goes nowhere (to_strain equals the current strain {strains[-1]:g})"
             )
         t0, s0 = times[-1], strains[-1]
         for k in range(1, steps + 1):
@@ -420,16 +468,23 @@ def load_program(loading: LoadingConfig) -> LoadProgram:
         elif isinstance(loading.lateral, PoissonLateral):
             lateral = ("poisson", loading.lateral.poisson_ratio)
         elif isinstance(loading.lateral, TransverseCSVLateral):
-            table, lines = read_table(loading.lateral.transverse_csv, _TRANSVERSE_COLUMNS,
-                                      "loading.lateral.transverse_csv")
+            table, lines = read_table(
+                loading.lateral.transverse_csv, _TRANSVERSE_COLUMNS, "loading.lateral.transverse_csv"
+            )
             _check_transverse_range(loading.lateral.transverse_csv, table, lines, min(strains), max(strains))
             lateral = ("csv", table)
     strains_arr = np.array(strains)
     if loading.test in ("equibiaxial", "pure_shear", "uniaxial") and strains_arr.min() <= -1.0:
         raise ConfigError("loading: the strain must stay above -1 (positive stretch)")
     program = LoadProgram(
-        time=np.array(times), strain=strains_arr, segment=np.array(segments, dtype=np.int64),
-        rotation=R, free_directions=free, test=loading.test, lateral_stress_MPa=lateral_stress, _lateral=lateral,
+        time=np.array(times),
+        strain=strains_arr,
+        segment=np.array(segments, dtype=np.int64),
+        rotation=R,
+        free_directions=free,
+        test=loading.test,
+        lateral_stress_MPa=lateral_stress,
+        _lateral=lateral,
     )
     det = np.array([np.linalg.det(program.prescribed_F(t)) for t in program.time])
     if np.any(det <= 0.0):

@@ -183,8 +183,14 @@ def error_step(dt: float, error: float, tolerance: float) -> float:
     return dt * float(np.clip(_SAFETY * np.sqrt(tolerance / error), _SHRINK_MIN, _GROW_MAX))
 
 
-def march(problem: StepProblem[T], reports: Sequence[float] | np.ndarray, policy: StepPolicy, *,
-          start: float = 0.0, on_report: Callable[[ReportTally[T]], None] | None = None) -> None:
+def march(
+    problem: StepProblem[T],
+    reports: Sequence[float] | np.ndarray,
+    policy: StepPolicy,
+    *,
+    start: float = 0.0,
+    on_report: Callable[[ReportTally[T]], None] | None = None,
+) -> None:
     """March ``problem`` from ``start`` through every reported time (module docstring).
 
     Parameters
@@ -221,16 +227,32 @@ def march(problem: StepProblem[T], reports: Sequence[float] | np.ndarray, policy
             h = split(remaining, step)
             end = t_end if h == remaining else t + h
             if tally.cuts + tally.rejected + tally.substeps >= policy.budget:
-                raise MarchFailed(StepNotConverged(
-                    f"the plastic flow needed more than {policy.budget:,} time steps to reach the reported time "
-                    f"(the last {h:.3g} s long)", StepFailureKind.STIFF), tally, end)
+                raise MarchFailed(
+                    StepNotConverged(
+                        f"the plastic flow needed more than {policy.budget:,} time steps to reach the reported time "
+                        f"(the last {h:.3g} s long)",
+                        StepFailureKind.STIFF,
+                    ),
+                    tally,
+                    end,
+                )
             if 0.0 < h < smallest:
-                below = (f"the time step fell to {h:.3g} s, below the smallest ({policy.smallest:g} of the reported "
-                         "interval)")
+                below = (
+                    f"the time step fell to {h:.3g} s, below the smallest ({policy.smallest:g} of the reported "
+                    "interval)"
+                )
                 if cut_by is not None:  # Newton's failures made it so small, not the plastic flow
-                    raise MarchFailed(StepNotConverged(
-                        f"{cut_by.reason}; {below} after {tally.cuts} halvings", cut_by.kind, history=cut_by.history,
-                        iterations=cut_by.iterations, factorizations=cut_by.factorizations), tally, end)
+                    raise MarchFailed(
+                        StepNotConverged(
+                            f"{cut_by.reason}; {below} after {tally.cuts} halvings",
+                            cut_by.kind,
+                            history=cut_by.history,
+                            iterations=cut_by.iterations,
+                            factorizations=cut_by.factorizations,
+                        ),
+                        tally,
+                        end,
+                    )
                 raise MarchFailed(StepNotConverged(below, StepFailureKind.STIFF), tally, end)
             try:
                 trial = problem.attempt(t, end)

@@ -55,8 +55,15 @@ from espin.mechanics.driver import (
 from espin.mechanics.fiber_law import yielded
 from espin.mechanics.loading import LoadProgram, load_program
 
-__all__ = ["SimulationWriter", "write_results", "load_results", "ResultsFile", "PartialResultWarning", "SCHEMA",
-           "SCHEMA_VERSION"]
+__all__ = [
+    "SimulationWriter",
+    "write_results",
+    "load_results",
+    "ResultsFile",
+    "PartialResultWarning",
+    "SCHEMA",
+    "SCHEMA_VERSION",
+]
 
 SCHEMA = "espin.results"
 SCHEMA_VERSION = 1
@@ -117,8 +124,15 @@ class SimulationWriter:
         The run writing the folder, stored in ``results.h5``.
     """
 
-    def __init__(self, folder: str | Path, network: Network, config: Config,
-                 program: LoadProgram | None = None, vtk: bool = True, run_id: str | None = None) -> None:
+    def __init__(
+        self,
+        folder: str | Path,
+        network: Network,
+        config: Config,
+        program: LoadProgram | None = None,
+        vtk: bool = True,
+        run_id: str | None = None,
+    ) -> None:
         self.folder = Path(folder)
         self.network = network
         self.config = config
@@ -143,13 +157,18 @@ class SimulationWriter:
         if self.vtk:
             self._write_vtk(record)
         if time.monotonic() - self._saved >= RESULTS_INTERVAL_S:
-            write_results(result_from_records(self.config, self.program, self._records), self.folder, curve=False,
-                          run_id=self.run_id)
+            write_results(
+                result_from_records(self.config, self.program, self._records),
+                self.folder,
+                curve=False,
+                run_id=self.run_id,
+            )
             self._saved = time.monotonic()
 
     def _append_curve_row(self, record: StepRecord) -> None:
-        names, columns, formats = _curve_columns(result_from_records(self.config, self.program, [record]),
-                                                 first_step=record.index)
+        names, columns, formats = _curve_columns(
+            result_from_records(self.config, self.program, [record]), first_step=record.index
+        )
         row = ",".join(fmt % np.asarray(column)[0] for fmt, column in zip(formats, columns)) + "\n"
         first = len(self._records) == 1
         try:
@@ -159,8 +178,9 @@ class SimulationWriter:
                 fh.flush()
                 os.fsync(fh.fileno())
         except OSError as err:
-            raise RVEFileError(f"cannot write {self.folder / 'curve.csv'}: {err.strerror or err} "
-                               "(a full disk?)") from None
+            raise RVEFileError(
+                f"cannot write {self.folder / 'curve.csv'}: {err.strerror or err} (a full disk?)"
+            ) from None
 
     def _write_vtk(self, record: StepRecord) -> None:
         name = f"vtk/step_{record.index:04d}.vtu"
@@ -189,8 +209,9 @@ def _curve_columns(result: SimulationResult, first_step: int = 0) -> tuple[list[
     return list(table), columns, formats
 
 
-def write_results(result: SimulationResult, folder: str | Path, *, curve: bool = True,
-                  run_id: str | None = None) -> dict[str, Path]:
+def write_results(
+    result: SimulationResult, folder: str | Path, *, curve: bool = True, run_id: str | None = None
+) -> dict[str, Path]:
     """Write ``curve.csv`` and ``results.h5`` (layouts in the module docs), atomically.
 
     Parameters
@@ -214,8 +235,7 @@ def write_results(result: SimulationResult, folder: str | Path, *, curve: bool =
     if curve:
         names, columns, formats = _curve_columns(result)
         buffer = io.StringIO()
-        np.savetxt(buffer, np.column_stack(columns), fmt=formats, delimiter=",",
-                   header=",".join(names), comments="")
+        np.savetxt(buffer, np.column_stack(columns), fmt=formats, delimiter=",", header=",".join(names), comments="")
         written["curve_csv"] = atomic_write_bytes(folder / "curve.csv", buffer.getvalue().encode("utf-8"))
 
     def write(tmp: Path) -> None:
@@ -279,8 +299,9 @@ class ResultsFile:
         return pd.DataFrame(curve_columns(steps, self.steps["stress_MPa"]))
 
     def _summary(self) -> dict[str, str]:
-        summary = curve_summary(self.config.loading.test, self.config.output.stress_measure,
-                                self.steps["strain"], self.steps["stress_MPa"])
+        summary = curve_summary(
+            self.config.loading.test, self.config.output.stress_measure, self.steps["strain"], self.steps["stress_MPa"]
+        )
         summary["elements"] = str(len(self.final["stress_MPa"]))
         summary["nodes"] = str(len(self.final["positions_um"]))
         summary["seed"] = str(self.seed)
@@ -291,9 +312,11 @@ class ResultsFile:
         """One line: test, steps, max strain, peak and last curve stress [MPa], elements, seed,
         run status."""
         s = self._summary()
-        return (f"ResultsFile({s['test']}, {s['steps']} steps, max strain {s['max strain']}, "
-                f"peak {s['peak stress']}, last {s['last stress']} ({s['stress']}), {s['elements']} elements, "
-                f"seed {s['seed']}, {s['status']})")
+        return (
+            f"ResultsFile({s['test']}, {s['steps']} steps, max strain {s['max strain']}, "
+            f"peak {s['peak stress']}, last {s['last stress']} ({s['stress']}), {s['elements']} elements, "
+            f"seed {s['seed']}, {s['status']})"
+        )
 
     def _repr_html_(self) -> str:
         """The key numbers as an HTML table (Jupyter)."""
@@ -353,33 +376,46 @@ def load_results(path: str | Path) -> ResultsFile:
     path = Path(path)
     if path.is_dir():
         if not (path / "results.h5").exists():
-            raise file_error(path, "", "is a folder without results.h5",
-                             "a results.h5 file or the folder espin simulate wrote, which holds results.h5")
+            raise file_error(
+                path,
+                "",
+                "is a folder without results.h5",
+                "a results.h5 file or the folder espin simulate wrote, which holds results.h5",
+            )
         path = path / "results.h5"
     with open_checked(path, SCHEMA, SCHEMA_VERSION, "results") as f:
         config = read_config(f, path)
-        time_s = read_dataset(f, "steps/time_s", kind="float", shape=(None,), low=0.0,
-                              meaning="the time of each step [s]")
+        time_s = read_dataset(
+            f, "steps/time_s", kind="float", shape=(None,), low=0.0, meaning="the time of each step [s]"
+        )
         n = len(time_s)
         steps = {"time_s": time_s}
         for name, (kind, shape, meaning, checks) in _STEP_CHECKS.items():
             if name == "kirchhoff_MPa" and name not in f["steps"]:  # a file from before it was written
                 continue
-            steps[name] = read_dataset(f, f"steps/{name}", kind=kind, shape=(n, *shape[1:]),
-                                       meaning=meaning, **checks)
+            steps[name] = read_dataset(f, f"steps/{name}", kind=kind, shape=(n, *shape[1:]), meaning=meaning, **checks)
         if "kirchhoff_MPa" not in steps:
             steps["kirchhoff_MPa"] = np.linalg.det(steps["F"])[:, None, None] * steps["cauchy_MPa"]
-        stress = read_dataset(f, "final/stress_MPa", kind="float", shape=(None,),
-                              meaning="the final stress of each element [MPa]")
+        stress = read_dataset(
+            f, "final/stress_MPa", kind="float", shape=(None,), meaning="the final stress of each element [MPa]"
+        )
         m = len(stress)
         final = {
             "stress_MPa": stress,
-            "plastic_stretch": read_dataset(f, "final/plastic_stretch", kind="float", shape=(m,), positive=True,
-                                            meaning="the final plastic stretch of each element"),
-            "recruited": read_dataset(f, "final/recruited", kind="bool", shape=(m,),
-                                      meaning="whether each element is recruited"),
-            "positions_um": read_dataset(f, "final/positions_um", kind="float", shape=(None, 2),
-                                         meaning="the final node positions [um]"),
+            "plastic_stretch": read_dataset(
+                f,
+                "final/plastic_stretch",
+                kind="float",
+                shape=(m,),
+                positive=True,
+                meaning="the final plastic stretch of each element",
+            ),
+            "recruited": read_dataset(
+                f, "final/recruited", kind="bool", shape=(m,), meaning="whether each element is recruited"
+            ),
+            "positions_um": read_dataset(
+                f, "final/positions_um", kind="float", shape=(None, 2), meaning="the final node positions [um]"
+            ),
         }
         if n == 0:
             raise file_error(path, "dataset steps/time_s", "is empty", "at least the undeformed step")
@@ -387,8 +423,7 @@ def load_results(path: str | Path) -> ResultsFile:
     status, problem = _folder_status(path, info.get("run_id"))
     if problem:
         warnings.warn(f"{path}: {problem}", PartialResultWarning, stacklevel=2)
-    return ResultsFile(config=config, seed=config.rve.seed, provenance=info, steps=steps, final=final,
-                       status=status)
+    return ResultsFile(config=config, seed=config.rve.seed, provenance=info, steps=steps, final=final, status=status)
 
 
 def _folder_status(path: Path, run_id: str | None) -> tuple[str | None, str | None]:
@@ -404,9 +439,11 @@ def _folder_status(path: Path, run_id: str | None) -> tuple[str | None, str | No
     if manifest is None:
         return None, None
     if run_id is not None and manifest.run_id != run_id:
-        return "mixed", (f"written by run {run_id}, but its folder's run.json names run {manifest.run_id}: "
-                         "a mixed folder")
+        return "mixed", (
+            f"written by run {run_id}, but its folder's run.json names run {manifest.run_id}: a mixed folder"
+        )
     if manifest.partial:
-        return manifest.status, (f"a partial result: its folder's run.json says the run is {manifest.status} "
-                                 "(killed, failed or still going)")
+        return manifest.status, (
+            f"a partial result: its folder's run.json says the run is {manifest.status} (killed, failed or still going)"
+        )
     return manifest.status, None

@@ -32,13 +32,24 @@ log = logging.getLogger(__name__)
 
 SOLVER_LOG = "solver.log"
 """File of the output folder that a failed run writes its residual history to."""
-SIMULATION_OUTPUTS = ("config.toml", "curve.csv", "results.h5", "curve.png", "deformed.png",
-                      "deformation.pvd", "vtk/step_*.vtu", SOLVER_LOG)
+SIMULATION_OUTPUTS = (
+    "config.toml",
+    "curve.csv",
+    "results.h5",
+    "curve.png",
+    "deformed.png",
+    "deformation.pvd",
+    "vtk/step_*.vtu",
+    SOLVER_LOG,
+)
 """The files a tensile test writes (glob patterns relative to its folder), besides the RVE's."""
 
 
-def resolve_source(source: RVE | Network | Config | str | Path | None, overrides: dict[str, Any],
-                   config: Config | str | Path | None = None) -> tuple[Config, RVE | Network | None]:
+def resolve_source(
+    source: RVE | Network | Config | str | Path | None,
+    overrides: dict[str, Any],
+    config: Config | str | Path | None = None,
+) -> tuple[Config, RVE | Network | None]:
     """The run's validated config, and the RVE or network when ``source`` is one (None: to be
     generated).
 
@@ -137,19 +148,33 @@ def simulate(
     program = load_program(config.loading)  # its tables are read and checked before any work
     if rve is None:
         check_size(config, allow_large=allow_large)  # before the folder is claimed
-    on_step = with_progress(on_step, program.n_steps, progress,
-                            lambda record: (record.index, f"strain {record.strain:.4f}"))
+    on_step = with_progress(
+        on_step, program.n_steps, progress, lambda record: (record.index, f"strain {record.strain:.4f}")
+    )
     if out is None:
         return _run(config, rve, program, None, on_step, threads, allow_large, curve_marks)
     outputs = SIMULATION_OUTPUTS + (RVE_OUTPUTS if rve is None else ())
-    with OutputFolder.claim(out, "simulate", config_digest(config), outputs, overwrite=overwrite,
-                            inputs=[rve.path] if isinstance(rve, RVE) and rve.path is not None else []) as claimed:
+    with OutputFolder.claim(
+        out,
+        "simulate",
+        config_digest(config),
+        outputs,
+        overwrite=overwrite,
+        inputs=[rve.path] if isinstance(rve, RVE) and rve.path is not None else [],
+    ) as claimed:
         return _run(config, rve, program, claimed, on_step, threads, allow_large, curve_marks)
 
 
-def _run(config: Config, rve: RVE | Network | None, program: LoadProgram, claimed: OutputFolder | None,
-         on_step: Callable[[StepRecord], None] | None, threads: int | None, allow_large: bool,
-         curve_marks: Callable[[SimulationResult], CurveMarks | None] | None = None) -> SimulationResult:
+def _run(
+    config: Config,
+    rve: RVE | Network | None,
+    program: LoadProgram,
+    claimed: OutputFolder | None,
+    on_step: Callable[[StepRecord], None] | None,
+    threads: int | None,
+    allow_large: bool,
+    curve_marks: Callable[[SimulationResult], CurveMarks | None] | None = None,
+) -> SimulationResult:
     """Generate the RVE if needed, run the program, write the claimed folder."""
     folder = None if claimed is None else claimed.path
     run_id = None if claimed is None else claimed.run_id
@@ -164,8 +189,7 @@ def _run(config: Config, rve: RVE | Network | None, program: LoadProgram, claime
     if folder is not None:
         from espin.mechanics.results_file import SimulationWriter
 
-        callbacks.append(SimulationWriter(folder, network, config, program, vtk=config.output.vtk,
-                                          run_id=run_id))
+        callbacks.append(SimulationWriter(folder, network, config, program, vtk=config.output.vtk, run_id=run_id))
 
     def step_done(record: StepRecord) -> None:
         for callback in callbacks:

@@ -80,14 +80,17 @@ class _Fiber:
 
     def attempt(self, start: float, end: float) -> _FiberStep:
         k = self.interval
-        at = self.history[k] if end == self.time[k] else np.interp(end, self.time[k - 1:k + 1],
-                                                                    self.history[k - 1:k + 1])
-        return _FiberStep(update(self.law, at, self.committed[1], self.tortuosity, end - start), float(at),
-                          end - start)
+        at = (
+            self.history[k]
+            if end == self.time[k]
+            else np.interp(end, self.time[k - 1 : k + 1], self.history[k - 1 : k + 1])
+        )
+        return _FiberStep(update(self.law, at, self.committed[1], self.tortuosity, end - start), float(at), end - start)
 
     def error(self, trial: _FiberStep) -> float:
-        return local_error(self.law, self.committed[0], self.committed[1], trial.state, trial.stretch,
-                           self.tortuosity, trial.dt)
+        return local_error(
+            self.law, self.committed[0], self.committed[1], trial.state, trial.stretch, self.tortuosity, trial.dt
+        )
 
     def commit(self, trial: _FiberStep) -> None:
         self.committed = (float(trial.state.stress[0]), float(trial.state.plastic_stretch[0]))

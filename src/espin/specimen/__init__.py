@@ -36,9 +36,19 @@ if TYPE_CHECKING:
     from espin.core.parallel import TaskPlace
     from espin.specimen.surrogate import Surrogate
 
-__all__ = ["specimen", "SpecimenSettings", "SpecimenResult", "SpecimenStep", "SpecimenFailed", "Specimen", "SHAPES",
-           "MODELS",
-           "SPECIMEN_OUTPUTS", "reopen_point", "make_specimen"]
+__all__ = [
+    "specimen",
+    "SpecimenSettings",
+    "SpecimenResult",
+    "SpecimenStep",
+    "SpecimenFailed",
+    "Specimen",
+    "SHAPES",
+    "MODELS",
+    "SPECIMEN_OUTPUTS",
+    "reopen_point",
+    "make_specimen",
+]
 
 MODELS = ("fe2", "surrogate", "neo_hookean")
 """Materials at the quadrature points (module docstring)."""
@@ -53,8 +63,7 @@ def make_specimen(shape: str | Path | Specimen, elements_across: int = 4, **opti
     meshio reads, or a :class:`Specimen` (returned as it is)."""
     if isinstance(shape, Specimen):
         if options:
-            raise ConfigError(f"shape options {', '.join(options)} apply to the built-in shapes, not to a "
-                              "Specimen")
+            raise ConfigError(f"shape options {', '.join(options)} apply to the built-in shapes, not to a Specimen")
         return shape
     if isinstance(shape, str) and shape in SHAPES:
         try:
@@ -231,10 +240,15 @@ def specimen(
     from espin.core.parallel import TaskPlace
     from espin.core.progress import with_progress
 
-    settings = SpecimenSettings(model, thickness_mm, grips, lateral, rve_seeds, rtol, modulus_MPa, poisson_ratio,
-                                surrogate_reach)
-    on_step = with_progress(on_step, steps, progress, lambda step: (
-        step.index, f"grip strain {step.grip_strain:.4g}, force {step.force_N:.4g} N"))
+    settings = SpecimenSettings(
+        model, thickness_mm, grips, lateral, rve_seeds, rtol, modulus_MPa, poisson_ratio, surrogate_reach
+    )
+    on_step = with_progress(
+        on_step,
+        steps,
+        progress,
+        lambda step: (step.index, f"grip strain {step.grip_strain:.4g}, force {step.force_N:.4g} N"),
+    )
     place = TaskPlace(workers, scheduler, blas_threads, security)
     program = GripProgram(max_strain, steps, 1.0)  # the rate is checked with the config below
     geometry = make_specimen(shape, elements_across, **dict(shape_options or {}))
@@ -244,8 +258,10 @@ def specimen(
     else:
         config, rve = _resolve_rve(source, overrides)
         if rve is not None and rve_seeds == "per_point":
-            raise ConfigError("rve_seeds = 'per_point' generates a realization per point: give a preset, a "
-                              "TOML file or a Config, not an RVE")
+            raise ConfigError(
+                "rve_seeds = 'per_point' generates a realization per point: give a preset, a "
+                "TOML file or a Config, not an RVE"
+            )
         program = GripProgram(max_strain, steps, config.loading.strain_rate_per_s)
     _check_memory(geometry, model, config, rve)
     samples = None
@@ -256,18 +272,46 @@ def specimen(
 
         samples = read_surrogate(surrogate_from, config, max_strain, allow_mismatch=allow_surrogate_mismatch)
     if out is None:
-        return _run(geometry, program, config, rve, settings, place, samples, None, figures, on_step,
-                    source=surrogate_from, report=report)
-    digest = inputs_digest([surrogate_from] if surrogate_from is not None else [],
-                           config_digest(config) if config is not None else "", repr(geometry), program,
-                           dataclasses.asdict(settings) | {"workers": workers, "scheduler": scheduler,
-                                                           "blas_threads": blas_threads,
-                                                           "surrogate_from": surrogate_from})
+        return _run(
+            geometry,
+            program,
+            config,
+            rve,
+            settings,
+            place,
+            samples,
+            None,
+            figures,
+            on_step,
+            source=surrogate_from,
+            report=report,
+        )
+    digest = inputs_digest(
+        [surrogate_from] if surrogate_from is not None else [],
+        config_digest(config) if config is not None else "",
+        repr(geometry),
+        program,
+        dataclasses.asdict(settings)
+        | {"workers": workers, "scheduler": scheduler, "blas_threads": blas_threads, "surrogate_from": surrogate_from},
+    )
     resumable = model == "surrogate" and surrogate_from is None  # a build keeps its finished paths
-    with OutputFolder.claim(out, "specimen", digest, SPECIMEN_OUTPUTS, overwrite=overwrite,
-                            resume="same-inputs" if resumable else None):
-        return _run(geometry, program, config, rve, settings, place, samples, Path(out), figures, on_step,
-                    source=surrogate_from, report=report)
+    with OutputFolder.claim(
+        out, "specimen", digest, SPECIMEN_OUTPUTS, overwrite=overwrite, resume="same-inputs" if resumable else None
+    ):
+        return _run(
+            geometry,
+            program,
+            config,
+            rve,
+            settings,
+            place,
+            samples,
+            Path(out),
+            figures,
+            on_step,
+            source=surrogate_from,
+            report=report,
+        )
 
 
 def _check_memory(geometry: Specimen, model: str, config, rve) -> None:
@@ -296,10 +340,21 @@ def _resolve_rve(source: Any, overrides: dict[str, Any]):
     return config, rve
 
 
-def _run(geometry: Specimen, program: GripProgram, config: Any, rve: Any, settings: SpecimenSettings,
-         place: TaskPlace, samples: Surrogate | None, folder: Path | None, figures: bool,
-         on_step: Callable[[SpecimenStep], None] | None, *, source: str | Path | None = None,
-         report: Callable[[str], None] | None = None) -> SpecimenResult:
+def _run(
+    geometry: Specimen,
+    program: GripProgram,
+    config: Any,
+    rve: Any,
+    settings: SpecimenSettings,
+    place: TaskPlace,
+    samples: Surrogate | None,
+    folder: Path | None,
+    figures: bool,
+    on_step: Callable[[SpecimenStep], None] | None,
+    *,
+    source: str | Path | None = None,
+    report: Callable[[str], None] | None = None,
+) -> SpecimenResult:
     """The run: ``source`` is the samples file of ``samples``; ``report`` gets the lines of the
     phases that take long (the RVE's generation, the surrogate's build)."""
     from espin.geometry.rve import generate
@@ -319,8 +374,9 @@ def _run(geometry: Specimen, program: GripProgram, config: Any, rve: Any, settin
     writer = None if folder is None else SpecimenWriter(folder, membrane)
     if writer is not None:
         callbacks.insert(0, writer)
-    result = SpecimenResult(geometry, model, settings.thickness_mm, settings.grips, settings.lateral, [],
-                            membrane, config=config)
+    result = SpecimenResult(
+        geometry, model, settings.thickness_mm, settings.grips, settings.lateral, [], membrane, config=config
+    )
     with place.pool() as pool:
         time_rtol = None
         material: PointMaterial
@@ -335,22 +391,38 @@ def _run(geometry: Specimen, program: GripProgram, config: Any, rve: Any, settin
         else:
             if rve is None:
                 if report is not None:
-                    report(f"specimen: generating the RVE (side {config.rve.side_um:.4g} um, {config.rve.layers} "
-                           "layers)")
+                    report(
+                        f"specimen: generating the RVE (side {config.rve.side_um:.4g} um, {config.rve.layers} layers)"
+                    )
                 rve = generate(config)
             if folder is not None:
                 save_rve(rve, folder / "rve.h5")
             if model == "surrogate":
                 result.surrogate = build_surrogate(
-                    rve.network, config, program.max_strain, reach=settings.surrogate_reach, pool=pool,
-                    samples_path=None if folder is None else folder / "surrogate_samples.csv", report=report)
+                    rve.network,
+                    config,
+                    program.max_strain,
+                    reach=settings.surrogate_reach,
+                    pool=pool,
+                    samples_path=None if folder is None else folder / "surrogate_samples.csv",
+                    report=report,
+                )
                 material = result.surrogate.material(n)
             else:
                 config = rve_tolerance(config, settings.rtol)
                 result.config = config
-                networks = (rve.network if settings.rve_seeds == "shared" else
-                            [generate(config.model_copy(update={"rve": config.rve.model_copy(
-                                update={"seed": config.rve.seed + i})})).network for i in range(n)])
+                networks = (
+                    rve.network
+                    if settings.rve_seeds == "shared"
+                    else [
+                        generate(
+                            config.model_copy(
+                                update={"rve": config.rve.model_copy(update={"seed": config.rve.seed + i})}
+                            )
+                        ).network
+                        for i in range(n)
+                    ]
+                )
                 material = RVEPoints(networks, config, n, pool=pool)
                 result.networks = material.networks
                 time_rtol = None if config.solver.time_rtol == "off" else config.solver.time_rtol
@@ -361,29 +433,45 @@ def _run(geometry: Specimen, program: GripProgram, config: Any, rve: Any, settin
                 callback(step)
 
         try:
-            run_specimen(geometry, material, program, thickness_mm=settings.thickness_mm, grips=settings.grips,
-                         lateral=settings.lateral, rtol=settings.rtol, time_rtol=time_rtol,
-                         on_step=step_done, membrane=membrane)
+            run_specimen(
+                geometry,
+                material,
+                program,
+                thickness_mm=settings.thickness_mm,
+                grips=settings.grips,
+                lateral=settings.lateral,
+                rtol=settings.rtol,
+                time_rtol=time_rtol,
+                on_step=step_done,
+                membrane=membrane,
+            )
         except SpecimenFailed as failure:
             if result.surrogate is None:
                 raise
-            raise SpecimenFailed(f"{failure} (surrogate: its interpolated tangent can be indefinite near zero "
-                                 "strain, on wavy mats most; fewer elements across or the fe2 model may get "
-                                 "through: docs/specimen.md, 'The surrogate's limits')", failure.steps) from None
+            raise SpecimenFailed(
+                f"{failure} (surrogate: its interpolated tangent can be indefinite near zero "
+                "strain, on wavy mats most; fewer elements across or the fe2 model may get "
+                "through: docs/specimen.md, 'The surrogate's limits')",
+                failure.steps,
+            ) from None
         finally:
-            result.counts.update(seconds=time.perf_counter() - start, workers=pool.description,
-                                 macro_iterations=sum(s.iterations for s in result.steps),
-                                 time_steps=sum(s.substeps for s in result.steps))
+            result.counts.update(
+                seconds=time.perf_counter() - start,
+                workers=pool.description,
+                macro_iterations=sum(s.iterations for s in result.steps),
+                time_steps=sum(s.substeps for s in result.steps),
+            )
             if isinstance(material, RVEPoints):
                 result.point_time, result.point_F = points_history(material)
                 result.counts.update(rve_solves=material.solves, rve_iterations=material.rve_iterations)
                 result.final_state = material.state
             if result.surrogate is not None:
-                result.counts.update(surrogate_seconds=result.surrogate.seconds,
-                                     surrogate_samples=len(result.surrogate.E))
+                result.counts.update(
+                    surrogate_seconds=result.surrogate.seconds, surrogate_samples=len(result.surrogate.E)
+                )
             if writer is not None:
                 writer.trim()
-                del result.steps[writer.rows:]  # a step whose row was not written is not kept
+                del result.steps[writer.rows :]  # a step whose row was not written is not kept
             if folder is not None and result.steps:
                 result.write(folder, figures=figures)
     return result

@@ -24,8 +24,15 @@ FIELD_LABELS = {
 """Axis label of each field the figures colour by."""
 
 
-def plot_deformed(mesh, u: np.ndarray, dofs: tuple[np.ndarray, np.ndarray], values: np.ndarray, field: str,
-                  path: str | Path, title: str) -> Path:
+def plot_deformed(
+    mesh,
+    u: np.ndarray,
+    dofs: tuple[np.ndarray, np.ndarray],
+    values: np.ndarray,
+    field: str,
+    path: str | Path,
+    title: str,
+) -> Path:
     """The specimen at displacement ``u`` [mm] (true scale), each element coloured by its
     ``values`` of ``field``; the undeformed outline in grey."""
     cells = mesh.t.T
@@ -45,9 +52,13 @@ def plot_deformed(mesh, u: np.ndarray, dofs: tuple[np.ndarray, np.ndarray], valu
     return save_figure(fig, path, dpi=150)
 
 
-def plot_force(steps: Sequence[SpecimenStep], path: str | Path, title: str,
-               others: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
-               gauge_others: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None) -> Path:
+def plot_force(
+    steps: Sequence[SpecimenStep],
+    path: str | Path,
+    title: str,
+    others: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
+    gauge_others: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None,
+) -> Path:
     """Grip force against grip displacement (left) and the gauge section's engineering stress
     against its strain (right); ``others`` / ``gauge_others``: labelled (x, y) curves to compare."""
     fig = Figure(figsize=(10.0, 4.0), layout="constrained")
@@ -60,8 +71,14 @@ def plot_force(steps: Sequence[SpecimenStep], path: str | Path, title: str,
     left.set_xlabel("grip displacement [mm]")
     left.set_ylabel("grip force [N]")
     left.set_title("force-displacement", fontsize=10)
-    right.plot([100.0 * s.gauge_strain for s in steps], [s.gauge_stress_MPa for s in steps], "o-", ms=3,
-               color="C0", label="gauge section")
+    right.plot(
+        [100.0 * s.gauge_strain for s in steps],
+        [s.gauge_stress_MPa for s in steps],
+        "o-",
+        ms=3,
+        color="C0",
+        label="gauge section",
+    )
     for k, (label, (x, y)) in enumerate((gauge_others or {}).items()):
         right.plot(100.0 * np.asarray(x), y, "--", color=f"C{k + 1}", label=label)
     right.set_xlabel("gauge engineering strain [%]")

@@ -100,9 +100,11 @@ class NeoHookean:
         log_J = np.log(J)[:, None, None]
         P = self.mu * (F - inv_T) + self.lam * log_J * inv_T
         eye = np.eye(2)
-        A = (self.mu * np.einsum("ik,JL->iJkL", eye, eye)[None]
-             + (self.mu - self.lam * log_J[..., None, None]) * np.einsum("nLi,nJk->niJkL", inv, inv)
-             + self.lam * np.einsum("nJi,nLk->niJkL", inv, inv))
+        A = (
+            self.mu * np.einsum("ik,JL->iJkL", eye, eye)[None]
+            + (self.mu - self.lam * log_J[..., None, None]) * np.einsum("nLi,nJk->niJkL", inv, inv)
+            + self.lam * np.einsum("nJi,nLk->niJkL", inv, inv)
+        )
         return P, A
 
     def time_error(self) -> float:

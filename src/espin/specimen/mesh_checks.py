@@ -24,8 +24,18 @@ from scipy.spatial import cKDTree
 
 from espin.core.errors import ConfigError
 
-__all__ = ["MAX_COORDINATE_MM", "MERGE_FRACTION", "BYTES_PER_ELEMENT", "check_coordinates", "merge_nodes",
-           "check_cells", "check_pieces", "inside_cells", "specimen_memory", "check_memory"]
+__all__ = [
+    "MAX_COORDINATE_MM",
+    "MERGE_FRACTION",
+    "BYTES_PER_ELEMENT",
+    "check_coordinates",
+    "merge_nodes",
+    "check_cells",
+    "check_pieces",
+    "inside_cells",
+    "specimen_memory",
+    "check_memory",
+]
 
 MAX_COORDINATE_MM = 1e4
 """Largest |coordinate| of a specimen mesh [mm] (10 m: a tensile specimen is mm to cm)."""
@@ -44,16 +54,22 @@ def check_coordinates(points: np.ndarray, where: str) -> None:
     :data:`MAX_COORDINATE_MM`, or without extent in x or y."""
     bad = ~np.all(np.isfinite(points), axis=1)
     if np.any(bad):
-        raise ConfigError(f"{where}: {np.count_nonzero(bad)} node(s) have non-finite coordinates (first: node "
-                          f"{int(np.flatnonzero(bad)[0])}); expected finite x, y in mm")
+        raise ConfigError(
+            f"{where}: {np.count_nonzero(bad)} node(s) have non-finite coordinates (first: node "
+            f"{int(np.flatnonzero(bad)[0])}); expected finite x, y in mm"
+        )
     largest = float(np.abs(points).max()) if points.size else 0.0
     if largest > MAX_COORDINATE_MM:
-        raise ConfigError(f"{where}: a coordinate of {largest:.3g} mm, beyond {MAX_COORDINATE_MM:g} mm; expected a "
-                          "specimen in mm (mm to cm)")
+        raise ConfigError(
+            f"{where}: a coordinate of {largest:.3g} mm, beyond {MAX_COORDINATE_MM:g} mm; expected a "
+            "specimen in mm (mm to cm)"
+        )
     extent = np.ptp(points, axis=0) if points.size else np.zeros(2)
     if not np.all(extent > 0.0):
-        raise ConfigError(f"{where}: the mesh has no extent in {'x' if extent[0] <= 0.0 else 'y'}; expected a 2-D "
-                          "specimen in the x-y plane")
+        raise ConfigError(
+            f"{where}: the mesh has no extent in {'x' if extent[0] <= 0.0 else 'y'}; expected a 2-D "
+            "specimen in the x-y plane"
+        )
 
 
 def _edges(t: np.ndarray) -> np.ndarray:
@@ -90,26 +106,31 @@ def check_cells(p: np.ndarray, t: np.ndarray, where: str) -> None:
     _, first, counts = np.unique(corners, axis=0, return_index=True, return_counts=True)
     if np.any(counts > 1):
         cell = int(first[np.argmax(counts > 1)])
-        raise ConfigError(f"{where}: {int(np.sum(counts[counts > 1] - 1))} cell(s) repeat another's nodes (first: "
-                          f"{_at(p, t, cell)}); expected each cell once")
+        raise ConfigError(
+            f"{where}: {int(np.sum(counts[counts > 1] - 1))} cell(s) repeat another's nodes (first: "
+            f"{_at(p, t, cell)}); expected each cell once"
+        )
     directed = _edges(t)
-    undirected, inverse, counts = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True,
-                                            return_counts=True)
+    undirected, inverse, counts = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True, return_counts=True)
     inverse = inverse.ravel()
     if np.any(counts > 2):
         edge = int(np.flatnonzero(counts[inverse] > 2)[0])
-        raise ConfigError(f"{where}: an edge is shared by {int(counts[inverse[edge]])} cells (at "
-                          f"{_at(p, t, edge // t.shape[0])}): cells overlap; expected a mesh without folds or layers")
+        raise ConfigError(
+            f"{where}: an edge is shared by {int(counts[inverse[edge]])} cells (at "
+            f"{_at(p, t, edge // t.shape[0])}): cells overlap; expected a mesh without folds or layers"
+        )
     forward = directed[:, 0] < directed[:, 1]
     along = np.zeros(len(undirected), dtype=int)
     np.add.at(along, inverse, np.where(forward, 1, -1))
     folded = (counts[inverse] == 2) & (np.abs(along[inverse]) == 2)
     if np.any(folded):
         n = int(np.count_nonzero(folded)) // 2
-        raise ConfigError(f"{where}: the mesh folds over itself at {n} edge(s) (first at "
-                          f"{_at(p, t, int(np.flatnonzero(folded)[0]) // t.shape[0])}): two cells lie on the same "
-                          "side of an edge they share (cells overlap, or a cell is inverted); expected a planar mesh "
-                          "without overlaps")
+        raise ConfigError(
+            f"{where}: the mesh folds over itself at {n} edge(s) (first at "
+            f"{_at(p, t, int(np.flatnonzero(folded)[0]) // t.shape[0])}): two cells lie on the same "
+            "side of an edge they share (cells overlap, or a cell is inverted); expected a planar mesh "
+            "without overlaps"
+        )
 
 
 def check_pieces(p: np.ndarray, t: np.ndarray, where: str) -> None:
@@ -125,11 +146,14 @@ def check_pieces(p: np.ndarray, t: np.ndarray, where: str) -> None:
     for k in range(min(n, 4)):
         nodes = np.unique(t[:, label == k])
         lo, hi = p[:, nodes].min(axis=1), p[:, nodes].max(axis=1)
-        pieces.append(f"{np.count_nonzero(label == k)} cells in x {lo[0]:.4g}..{hi[0]:.4g}, "
-                      f"y {lo[1]:.4g}..{hi[1]:.4g} mm")
-    raise ConfigError(f"{where}: the mesh is in {n} pieces ({'; '.join(pieces)}{' ...' if n > 4 else ''}) that "
-                      "share no node; expected one piece (merge the nodes where the pieces meet, e.g. gmsh's "
-                      "Coherence)")
+        pieces.append(
+            f"{np.count_nonzero(label == k)} cells in x {lo[0]:.4g}..{hi[0]:.4g}, y {lo[1]:.4g}..{hi[1]:.4g} mm"
+        )
+    raise ConfigError(
+        f"{where}: the mesh is in {n} pieces ({'; '.join(pieces)}{' ...' if n > 4 else ''}) that "
+        "share no node; expected one piece (merge the nodes where the pieces meet, e.g. gmsh's "
+        "Coherence)"
+    )
 
 
 def specimen_memory(n_elements: int, points_per_element: int, rve_dof: float = 0.0) -> float:
@@ -142,8 +166,9 @@ def specimen_memory(n_elements: int, points_per_element: int, rve_dof: float = 0
     return BASE_BYTES + n_elements * BYTES_PER_ELEMENT + rve_dof * (points * BYTES_PER_POINT_DOF + BYTES_PER_DOF)
 
 
-def check_memory(what: str, n_elements: int, points_per_element: int, rve_dof: float = 0.0,
-                 available: int | None = None) -> float:
+def check_memory(
+    what: str, n_elements: int, points_per_element: int, rve_dof: float = 0.0, available: int | None = None
+) -> float:
     """Refuse a specimen whose :func:`specimen_memory` exceeds the memory available.
 
     Returns
@@ -161,11 +186,16 @@ def check_memory(what: str, n_elements: int, points_per_element: int, rve_dof: f
     need = specimen_memory(n_elements, points_per_element, rve_dof)
     free = available_memory() if available is None else available
     if need > free:
-        rve = (f" and an RVE of {rve_dof:,.0f} DOF at each of its {n_elements * points_per_element:,} quadrature "
-               "points" if rve_dof else "")
-        raise ConfigError(f"{what}: about {n_elements:,.0f} elements{rve} need about {need / 2**30:.3g} GiB of "
-                          f"memory, {free / 2**30:.3g} GiB is available; use fewer elements (--elements-across)"
-                          + (", a smaller RVE or the surrogate model" if rve_dof else ""))
+        rve = (
+            f" and an RVE of {rve_dof:,.0f} DOF at each of its {n_elements * points_per_element:,} quadrature points"
+            if rve_dof
+            else ""
+        )
+        raise ConfigError(
+            f"{what}: about {n_elements:,.0f} elements{rve} need about {need / 2**30:.3g} GiB of "
+            f"memory, {free / 2**30:.3g} GiB is available; use fewer elements (--elements-across)"
+            + (", a smaller RVE or the surrogate model" if rve_dof else "")
+        )
     return need
 
 

@@ -55,13 +55,33 @@ from espin.specimen.surrogate_file import write_samples
 
 __all__ = ["SpecimenResult", "SpecimenWriter", "SPECIMEN_OUTPUTS", "reopen_point", "CURVE_COLUMNS"]
 
-SPECIMEN_OUTPUTS = ("force_displacement.csv", "fields.pvd", "vtk/step_*.vtu", "force.png", "specimen.png",
-                    "yielded.png", "specimen.json", "config.toml", "rve.h5", "rve_points.h5",
-                    "surrogate_samples.csv")
+SPECIMEN_OUTPUTS = (
+    "force_displacement.csv",
+    "fields.pvd",
+    "vtk/step_*.vtu",
+    "force.png",
+    "specimen.png",
+    "yielded.png",
+    "specimen.json",
+    "config.toml",
+    "rve.h5",
+    "rve_points.h5",
+    "surrogate_samples.csv",
+)
 """The files a specimen test writes (glob patterns relative to its folder)."""
 
-CURVE_COLUMNS = ("step", "time_s", "grip_strain", "displacement_mm", "force_N", "gauge_strain", "gauge_stress_MPa",
-                 "iterations", "cuts", "substeps")
+CURVE_COLUMNS = (
+    "step",
+    "time_s",
+    "grip_strain",
+    "displacement_mm",
+    "force_N",
+    "gauge_strain",
+    "gauge_stress_MPa",
+    "iterations",
+    "cuts",
+    "substeps",
+)
 """Columns of ``force_displacement.csv``."""
 
 
@@ -71,8 +91,18 @@ def _green(F: np.ndarray) -> np.ndarray:
 
 
 def _row(step: SpecimenStep) -> str:
-    values = (step.index, step.time, step.grip_strain, step.displacement_mm, step.force_N, step.gauge_strain,
-              step.gauge_stress_MPa, step.iterations, step.cuts, step.substeps)
+    values = (
+        step.index,
+        step.time,
+        step.grip_strain,
+        step.displacement_mm,
+        step.force_N,
+        step.gauge_strain,
+        step.gauge_stress_MPa,
+        step.iterations,
+        step.cuts,
+        step.substeps,
+    )
     return ",".join(f"{v:d}" if isinstance(v, int) else f"{v:.10g}" for v in values) + "\n"
 
 
@@ -115,7 +145,7 @@ class SpecimenWriter:
             if path.stem[5:].isdigit() and int(path.stem[5:]) >= self.rows:
                 path.unlink(missing_ok=True)
         if len(self._vtk_steps) > self.rows:
-            self._vtk_steps = self._vtk_steps[:self.rows]
+            self._vtk_steps = self._vtk_steps[: self.rows]
             write_collection(self.folder / "fields.pvd", self._vtk_steps)
 
 
@@ -136,8 +166,12 @@ def write_step_vtu(membrane: Membrane, step: SpecimenStep, path: Path) -> Path:
     points = np.column_stack([mesh.p.T, np.zeros(mesh.nvertices)])
     displacement = np.column_stack([step.u[dofs_x], step.u[dofs_y], np.zeros(mesh.nvertices)])
     kind = "triangle" if isinstance(mesh, MeshTri) else "quad"
-    grid = meshio.Mesh(points, [(kind, mesh.t.T)], point_data={"displacement_mm": displacement},
-                       cell_data={k: [v] for k, v in element_fields(membrane, step).items()})
+    grid = meshio.Mesh(
+        points,
+        [(kind, mesh.t.T)],
+        point_data={"displacement_mm": displacement},
+        cell_data={k: [v] for k, v in element_fields(membrane, step).items()},
+    )
     return atomic_write(path, lambda tmp: meshio.write(tmp, grid, file_format="vtu"))
 
 
@@ -215,14 +249,17 @@ class SpecimenResult:
 
     def _summary(self) -> dict[str, str]:
         last = self.steps[-1]
-        return {"specimen": repr(self.specimen), "model": self.model,
-                "boundary": f"grips {self.grips}, lateral {self.lateral}",
-                "thickness": f"{self.thickness_mm:g} mm",
-                "quadrature points": str(self.membrane.n_points),
-                "grip strain": f"{last.grip_strain:.4g}",
-                "grip force": f"{last.force_N:.4g} N",
-                "gauge stress / strain": f"{last.gauge_stress_MPa:.4g} MPa at {last.gauge_strain:.4g}",
-                "wall time": f"{self.counts.get('seconds', float('nan')):.1f} s"}
+        return {
+            "specimen": repr(self.specimen),
+            "model": self.model,
+            "boundary": f"grips {self.grips}, lateral {self.lateral}",
+            "thickness": f"{self.thickness_mm:g} mm",
+            "quadrature points": str(self.membrane.n_points),
+            "grip strain": f"{last.grip_strain:.4g}",
+            "grip force": f"{last.force_N:.4g} N",
+            "gauge stress / strain": f"{last.gauge_stress_MPa:.4g} MPa at {last.gauge_strain:.4g}",
+            "wall time": f"{self.counts.get('seconds', float('nan')):.1f} s",
+        }
 
     def __repr__(self) -> str:
         return "SpecimenResult(" + ", ".join(f"{k}: {v}" for k, v in self._summary().items()) + ")"
@@ -259,8 +296,15 @@ class SpecimenResult:
         dofs = tuple(self.membrane.basis.nodal_dofs)
         plot_deformed(self.membrane.mesh, last.u, dofs, fields["P11"], "P11", folder / "specimen.png", where)
         if "yielded_fraction" in fields:
-            plot_deformed(self.membrane.mesh, last.u, dofs, fields["yielded_fraction"], "yielded_fraction",
-                          folder / "yielded.png", where)
+            plot_deformed(
+                self.membrane.mesh,
+                last.u,
+                dofs,
+                fields["yielded_fraction"],
+                "yielded_fraction",
+                folder / "yielded.png",
+                where,
+            )
 
 
 def _replay(network: Network, config: Config, times: np.ndarray, F: np.ndarray) -> SimulationResult:
@@ -270,17 +314,31 @@ def _replay(network: Network, config: Config, times: np.ndarray, F: np.ndarray) 
 
 def _write_json(result: SpecimenResult, path: Path) -> None:
     spec = result.specimen
-    data = {"specimen": spec.name, "dimensions_mm": spec.dimensions, "grip_length_mm": spec.grip_length_mm,
-            "gauge_length_mm": spec.gauge_length_mm, "gauge_width_mm": spec.gauge_width_mm,
-            "elements": spec.n_elements, "quadrature_points": result.membrane.n_points,
-            "thickness_mm": result.thickness_mm, "model": result.model, "grips": result.grips,
-            "lateral": result.lateral, "counts": result.counts, "mesh_notes": list(spec.notes)}
+    data = {
+        "specimen": spec.name,
+        "dimensions_mm": spec.dimensions,
+        "grip_length_mm": spec.grip_length_mm,
+        "gauge_length_mm": spec.gauge_length_mm,
+        "gauge_width_mm": spec.gauge_width_mm,
+        "elements": spec.n_elements,
+        "quadrature_points": result.membrane.n_points,
+        "thickness_mm": result.thickness_mm,
+        "model": result.model,
+        "grips": result.grips,
+        "lateral": result.lateral,
+        "counts": result.counts,
+        "mesh_notes": list(spec.notes),
+    }
     if result.surrogate is not None:
         identity = result.surrogate.identity
-        data["surrogate_samples"] = {"config_digest": identity.config_digest, "law": identity.law,
-                                     "strain_rate_per_s": identity.strain_rate_per_s,
-                                     "max_strain": identity.max_strain, "source": result.surrogate_source,
-                                     "mismatches": result.surrogate_mismatches}
+        data["surrogate_samples"] = {
+            "config_digest": identity.config_digest,
+            "law": identity.law,
+            "strain_rate_per_s": identity.strain_rate_per_s,
+            "max_strain": identity.max_strain,
+            "source": result.surrogate_source,
+            "mismatches": result.surrogate_mismatches,
+        }
     atomic_write_bytes(path, json.dumps(data, indent=1, default=float).encode("utf-8"))
 
 

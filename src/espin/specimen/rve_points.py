@@ -43,8 +43,9 @@ _NO_FREE = np.zeros((0, 2, 2))
 def rve_tolerance(config: Config, macro_rtol: float) -> Config:
     """The RVE config with ``solver.rtol`` and ``solver.atol`` at most 1e-3 of the macro tolerance."""
     limit = 1e-3 * macro_rtol
-    solver = config.solver.model_copy(update={"rtol": min(config.solver.rtol, limit),
-                                              "atol": min(config.solver.atol, limit)})
+    solver = config.solver.model_copy(
+        update={"rtol": min(config.solver.rtol, limit), "atol": min(config.solver.atol, limit)}
+    )
     return config.model_copy(update={"solver": solver})
 
 
@@ -72,8 +73,13 @@ class PointStates:
     stress: list[np.ndarray]
 
     def take(self, index: np.ndarray) -> PointStates:
-        return PointStates(self.time, self.F[index], [self.inner[i] for i in index],
-                           [self.plastic_stretch[i] for i in index], [self.stress[i] for i in index])
+        return PointStates(
+            self.time,
+            self.F[index],
+            [self.inner[i] for i in index],
+            [self.plastic_stretch[i] for i in index],
+            [self.stress[i] for i in index],
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,23 +118,37 @@ def _solve_chunk(chunk: _Chunk) -> _Solved:
     for i in range(len(chunk.F)):
         network = chunk.networks[i]
         solver = _solver(chunk.key, 0 if chunk.shared else int(chunk.points[i]), network, chunk.config)
-        start = StepState(chunk.start.time, chunk.start.inner[i], np.zeros(0), chunk.start.F[i],
-                          chunk.start.plastic_stretch[i], chunk.start.stress[i])
+        start = StepState(
+            chunk.start.time,
+            chunk.start.inner[i],
+            np.zeros(0),
+            chunk.start.F[i],
+            chunk.start.plastic_stretch[i],
+            chunk.start.stress[i],
+        )
         try:
             result = solver.solve(start, chunk.time, chunk.F[i], _NO_FREE, chunk.guess[i], np.zeros(0))
         except StepNotConverged as failure:
-            raise type(failure)(f"RVE point {int(chunk.points[i])}: {failure.reason}", failure.kind,
-                                iterations=failure.iterations, factorizations=failure.factorizations) from None
+            raise type(failure)(
+                f"RVE point {int(chunk.points[i])}: {failure.reason}",
+                failure.kind,
+                iterations=failure.iterations,
+                factorizations=failure.factorizations,
+            ) from None
         records.append(step_record(0, solver, result, 0.0, (result.iterations, result.factorizations, 1), threshold))
         results.append((result, solver.macroscopic_tangent(result)))
         errors.append(solver.time_error(start, result))
     return _Solved(
-        P=np.array([r.P for r in records]), A=np.array([A for _, A in results]),
-        inner=[r.state.inner for r, _ in results], plastic_stretch=[r.state.plastic_stretch for r, _ in results],
-        stress=[r.law.stress for r, _ in results], local_error=np.array(errors),
+        P=np.array([r.P for r in records]),
+        A=np.array([A for _, A in results]),
+        inner=[r.state.inner for r, _ in results],
+        plastic_stretch=[r.state.plastic_stretch for r, _ in results],
+        stress=[r.law.stress for r, _ in results],
+        local_error=np.array(errors),
         recruited_fraction=np.array([r.recruited_fraction for r in records]),
         yielded_fraction=np.array([r.yielded_fraction for r in records]),
-        iterations=np.array([r.iterations for r, _ in results]))
+        iterations=np.array([r.iterations for r, _ in results]),
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -174,16 +194,25 @@ def replay_point(network: Network, config: Config, times: np.ndarray, F: np.ndar
     Returns the :class:`StepRecord` of every entry (entry 0 is the start, usually F = I).
     """
     solver = EquilibriumSolver.from_config(network, config, make_linear_solver(config.solver.linear))
-    X = solver.asm.reference[:network.n_inner]
-    state = StepState(float(times[0]), X @ F[0].T, np.zeros(0), F[0], np.ones(network.n_elements),
-                      np.zeros(network.n_elements))
+    X = solver.asm.reference[: network.n_inner]
+    state = StepState(
+        float(times[0]), X @ F[0].T, np.zeros(0), F[0], np.ones(network.n_elements), np.zeros(network.n_elements)
+    )
     records = []
     for k, (t, F_k) in enumerate(zip(times, F, strict=True)):
         guess = X @ F_k.T + (state.inner - X @ state.F.T)
         result = solver.solve(state, float(t), F_k, _NO_FREE, guess, np.zeros(0))
         state = result.state
-        records.append(step_record(k, solver, result, float(F_k[0, 0] - 1.0),
-                                   (result.iterations, result.factorizations, 1), config.output.yield_threshold))
+        records.append(
+            step_record(
+                k,
+                solver,
+                result,
+                float(F_k[0, 0] - 1.0),
+                (result.iterations, result.factorizations, 1),
+                config.output.yield_threshold,
+            )
+        )
     return records
 
 
@@ -206,8 +235,15 @@ class RVEPoints:
         Tasks per worker and trial (more balance the load, fewer cost less pickling).
     """
 
-    def __init__(self, networks: Network | Sequence[Network], config: Config, n_points: int, *,
-                 pool: TaskPool | None = None, chunks_per_worker: int = 2) -> None:
+    def __init__(
+        self,
+        networks: Network | Sequence[Network],
+        config: Config,
+        n_points: int,
+        *,
+        pool: TaskPool | None = None,
+        chunks_per_worker: int = 2,
+    ) -> None:
         self.networks = [networks] * n_points if isinstance(networks, Network) else list(networks)
         if len(self.networks) != n_points:
             raise ValueError(f"{len(self.networks)} networks for {n_points} points")
@@ -218,16 +254,21 @@ class RVEPoints:
         self.chunks = max(1, min(n_points, chunks_per_worker * (1 if self.pool.serial else self.pool.workers)))
         self.key = f"{id(self)}-{np.random.default_rng().integers(1 << 62)}"
         self.shared = len({id(net) for net in self.networks}) == 1
-        inner = [net.node_position[:net.n_inner] - net.centre for net in self.networks]
+        inner = [net.node_position[: net.n_inner] - net.centre for net in self.networks]
         self._reference = inner  # [um]
-        self.state = PointStates(0.0, np.tile(np.eye(2), (n_points, 1, 1)), inner,
-                                 [np.ones(net.n_elements) for net in self.networks],
-                                 [np.zeros(net.n_elements) for net in self.networks])
+        self.state = PointStates(
+            0.0,
+            np.tile(np.eye(2), (n_points, 1, 1)),
+            inner,
+            [np.ones(net.n_elements) for net in self.networks],
+            [np.zeros(net.n_elements) for net in self.networks],
+        )
         self._error = 0.0
         self._trial: PointStates | None = None
         self._trial_fields: dict[str, np.ndarray] = {}
-        self.fields_committed: dict[str, np.ndarray] = {name: np.zeros(n_points)
-                                                        for name in ("yielded_fraction", "recruited_fraction")}
+        self.fields_committed: dict[str, np.ndarray] = {
+            name: np.zeros(n_points) for name in ("yielded_fraction", "recruited_fraction")
+        }
         self.solves = 0
         self.rve_iterations = 0
         self.history_time: list[float] = []  # every committed time step (the replays' program)
@@ -238,8 +279,20 @@ class RVEPoints:
         # Warm start: the last solution's non-affine part with the new affine part.
         guess = [w + X @ (F_p - F_last).T for w, X, F_p, F_last in zip(last.inner, self._reference, F, last.F)]
         parts = np.array_split(np.arange(self.n_points), self.chunks)
-        tasks = [_Chunk(self.key, part, [self.networks[i] for i in part], self.shared, self.config,
-                        self.state.take(part), [guess[i] for i in part], F[part], time) for part in parts]
+        tasks = [
+            _Chunk(
+                self.key,
+                part,
+                [self.networks[i] for i in part],
+                self.shared,
+                self.config,
+                self.state.take(part),
+                [guess[i] for i in part],
+                F[part],
+                time,
+            )
+            for part in parts
+        ]
         results: dict[int, _Solved] = {}
         for outcome in self.pool.map(_solve_chunk, tasks):
             if not outcome.ok:
@@ -250,9 +303,11 @@ class RVEPoints:
         self.rve_iterations += int(solved.iterations.sum())
         self._trial = PointStates(time, F.copy(), solved.inner, solved.plastic_stretch, solved.stress)
         self._error = float(solved.local_error.max())
-        self._trial_fields = {"yielded_fraction": solved.yielded_fraction,
-                              "recruited_fraction": solved.recruited_fraction,
-                              "rve_iterations": solved.iterations.astype(float)}
+        self._trial_fields = {
+            "yielded_fraction": solved.yielded_fraction,
+            "recruited_fraction": solved.recruited_fraction,
+            "rve_iterations": solved.iterations.astype(float),
+        }
         return solved.P, solved.A
 
     def time_error(self) -> float:
@@ -274,4 +329,3 @@ class RVEPoints:
 
     def fields(self) -> dict[str, np.ndarray]:
         return dict(self.fields_committed)
-

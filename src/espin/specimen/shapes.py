@@ -38,8 +38,16 @@ from espin.specimen.mesh_checks import (
     merge_nodes,
 )
 
-__all__ = ["Specimen", "strip", "dogbone", "dogbone_half_width", "holed_strip", "notched_strip",
-           "read_specimen", "SHAPES"]
+__all__ = [
+    "Specimen",
+    "strip",
+    "dogbone",
+    "dogbone_half_width",
+    "holed_strip",
+    "notched_strip",
+    "read_specimen",
+    "SHAPES",
+]
 
 _MERGE_TOL = 1e-9  # relative to the mesh size: nodes closer than this are one node, facets on a grip face
 
@@ -88,13 +96,16 @@ class Specimen:
         return float(0.5 * (self.mesh.p[0].min() + self.mesh.p[0].max()))
 
     def __repr__(self) -> str:
-        return (f"Specimen({self.name!r}: {self.n_elements} elements, {self.mesh.nvertices} nodes, "
-                f"grips {self.grip_length_mm:g} mm apart, gauge {self.gauge_length_mm:g} x "
-                f"{self.gauge_width_mm:g} mm)")
+        return (
+            f"Specimen({self.name!r}: {self.n_elements} elements, {self.mesh.nvertices} nodes, "
+            f"grips {self.grip_length_mm:g} mm apart, gauge {self.gauge_length_mm:g} x "
+            f"{self.gauge_width_mm:g} mm)"
+        )
 
 
 # ---------------------------------------------------------------------------------------------------
 # input checks
+
 
 def _positive(**values: float) -> None:
     for name, value in values.items():
@@ -103,14 +114,14 @@ def _positive(**values: float) -> None:
 
 
 def _count(elements_across: int) -> int:
-    if isinstance(elements_across, bool) or not isinstance(elements_across, (int, np.integer)) \
-            or elements_across < 1:
+    if isinstance(elements_across, bool) or not isinstance(elements_across, (int, np.integer)) or elements_across < 1:
         raise ConfigError(f"elements_across must be an integer >= 1, got {elements_across!r}")
     return int(elements_across)
 
 
 # ---------------------------------------------------------------------------------------------------
 # mapped blocks and their assembly into one mesh
+
 
 def _columns(bottom: np.ndarray, top: np.ndarray, n_rows: int) -> np.ndarray:
     """A block of nodes (2, n_columns, n_rows + 1) evenly spaced on straight lines from bottom to top points."""
@@ -156,21 +167,37 @@ def _tag_boundaries(mesh: skfem.Mesh, named: dict[str, np.ndarray] | None = None
     if named is None:
         x = mesh.p[0, mesh.facets[:, boundary]]
         tol = _MERGE_TOL * max(np.ptp(mesh.p[0]), np.ptp(mesh.p[1]))
-        named = {"grip_left": boundary[np.all(np.abs(x - mesh.p[0].min()) <= tol, axis=0)],
-                 "grip_right": boundary[np.all(np.abs(x - mesh.p[0].max()) <= tol, axis=0)]}
+        named = {
+            "grip_left": boundary[np.all(np.abs(x - mesh.p[0].min()) <= tol, axis=0)],
+            "grip_right": boundary[np.all(np.abs(x - mesh.p[0].max()) <= tol, axis=0)],
+        }
     edge = np.setdiff1d(boundary, np.concatenate(list(named.values())))
     return mesh.with_boundaries({**named, "edge": edge.astype(boundary.dtype)})
 
 
-def _specimen(name: str, blocks: list[np.ndarray], grip_length: float, gauge_length: float,
-              gauge_width: float, dimensions: dict[str, float]) -> Specimen:
+def _specimen(
+    name: str,
+    blocks: list[np.ndarray],
+    grip_length: float,
+    gauge_length: float,
+    gauge_width: float,
+    dimensions: dict[str, float],
+) -> Specimen:
     p, t = _assemble(blocks)
     if np.any(_corner_jacobians(p, t) <= 0):
-        raise ConfigError(f"{name}: the dimensions {dimensions} give inverted elements in the mapped mesh; "
-                          "use less extreme proportions (e.g. a longer specimen or a smaller notch)")
+        raise ConfigError(
+            f"{name}: the dimensions {dimensions} give inverted elements in the mapped mesh; "
+            "use less extreme proportions (e.g. a longer specimen or a smaller notch)"
+        )
     mesh = _tag_boundaries(skfem.MeshQuad(p, t))
-    return Specimen(name, mesh, float(grip_length), float(gauge_length), float(gauge_width),
-                    {k: float(v) for k, v in dimensions.items()})
+    return Specimen(
+        name,
+        mesh,
+        float(grip_length),
+        float(gauge_length),
+        float(gauge_width),
+        {k: float(v) for k, v in dimensions.items()},
+    )
 
 
 def _stations(length: float, spacing: float) -> np.ndarray:
@@ -181,8 +208,10 @@ def _stations(length: float, spacing: float) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------------
 # strip
 
-def strip(length_mm: float = 50.0, width_mm: float = 10.0, *, element_size_mm: float | None = None,
-          elements_across: int = 4) -> Specimen:
+
+def strip(
+    length_mm: float = 50.0, width_mm: float = 10.0, *, element_size_mm: float | None = None, elements_across: int = 4
+) -> Specimen:
     """A rectangular strip between the grips.
 
     Parameters
@@ -211,15 +240,29 @@ def strip(length_mm: float = 50.0, width_mm: float = 10.0, *, element_size_mm: f
     size = width_mm / n_across
     x = _stations(length_mm, size) - length_mm / 2
     bottom, top = np.vstack([x, np.full_like(x, -width_mm / 2)]), np.vstack([x, np.full_like(x, width_mm / 2)])
-    return _specimen("strip", [_columns(bottom, top, n_across)], length_mm, length_mm / 2, width_mm,
-                     {"length": length_mm, "width": width_mm, "element_size": size})
+    return _specimen(
+        "strip",
+        [_columns(bottom, top, n_across)],
+        length_mm,
+        length_mm / 2,
+        width_mm,
+        {"length": length_mm, "width": width_mm, "element_size": size},
+    )
 
 
 # ---------------------------------------------------------------------------------------------------
 # dogbone: ISO 527-2 type 5A
 
-_ISO_527_2_5A = {"overall_length": 75.0, "end_width": 12.5, "narrow_width": 4.0, "narrow_length": 25.0,
-                 "gauge_length": 20.0, "grip_distance": 50.0, "large_radius": 12.5, "small_radius": 8.0}
+_ISO_527_2_5A = {
+    "overall_length": 75.0,
+    "end_width": 12.5,
+    "narrow_width": 4.0,
+    "narrow_length": 25.0,
+    "gauge_length": 20.0,
+    "grip_distance": 50.0,
+    "large_radius": 12.5,
+    "small_radius": 8.0,
+}
 
 
 def _dogbone_dimensions(scale: float) -> dict[str, float]:
@@ -248,8 +291,7 @@ def dogbone_half_width(x: np.ndarray, scale: float = 1.0) -> np.ndarray:
     return np.where(u <= start, narrow, np.where(u <= inflection, inner, np.where(u < start + run, outer, wide)))
 
 
-def _graded_stations(breaks: list[float], half_width: Callable[[np.ndarray], np.ndarray],
-                     n_across: int) -> np.ndarray:
+def _graded_stations(breaks: list[float], half_width: Callable[[np.ndarray], np.ndarray], n_across: int) -> np.ndarray:
     """Stations from breaks[0] to breaks[-1], every break a station, about the local width / n_across apart."""
     pieces = []
     for a, b in zip(breaks[:-1], breaks[1:]):
@@ -310,8 +352,10 @@ def dogbone(scale: float = 1.0, *, elements_across: int = 4) -> Specimen:
 # ---------------------------------------------------------------------------------------------------
 # strip with a central circular hole
 
-def holed_strip(length_mm: float = 50.0, width_mm: float = 10.0, hole_diameter_mm: float = 3.0, *,
-                elements_across: int = 4) -> Specimen:
+
+def holed_strip(
+    length_mm: float = 50.0, width_mm: float = 10.0, hole_diameter_mm: float = 3.0, *, elements_across: int = 4
+) -> Specimen:
     """A strip with a central circular hole.
 
     The mesh is an O-grid: four mapped blocks from the hole to the square of side ``width`` around it
@@ -357,12 +401,19 @@ def holed_strip(length_mm: float = 50.0, width_mm: float = 10.0, hole_diameter_m
     y = np.linspace(-half, half, n_side + 1)
     right = np.stack(np.meshgrid(x, y, indexing="ij"))
     blocks += [right, -right]
-    return _specimen("holed_strip", blocks, length_mm, length_mm, width_mm,
-                     {"length": length_mm, "width": width_mm, "hole_diameter": hole_diameter_mm})
+    return _specimen(
+        "holed_strip",
+        blocks,
+        length_mm,
+        length_mm,
+        width_mm,
+        {"length": length_mm, "width": width_mm, "hole_diameter": hole_diameter_mm},
+    )
 
 
 # ---------------------------------------------------------------------------------------------------
 # strip with a U notch
+
 
 def _notch_pieces(half_width: float, depth: float, radius: float, reach: float) -> list[tuple]:
     """The top boundary over |x| <= reach as pieces ("line", p0, p1) or ("arc", centre, angle0, angle1)."""
@@ -372,8 +423,10 @@ def _notch_pieces(half_width: float, depth: float, radius: float, reach: float) 
     pieces: list[tuple] = [("line", (-reach, half_width), (-mouth, half_width))]
     if depth > radius:
         pieces.append(("line", (-radius, half_width), (-radius, centre_y)))
-    pieces += [("arc", (0.0, centre_y), math.pi - beta, 1.5 * math.pi),  # the root of the notch is a node
-               ("arc", (0.0, centre_y), 1.5 * math.pi, 2 * math.pi + beta)]
+    pieces += [
+        ("arc", (0.0, centre_y), math.pi - beta, 1.5 * math.pi),  # the root of the notch is a node
+        ("arc", (0.0, centre_y), 1.5 * math.pi, 2 * math.pi + beta),
+    ]
     if depth > radius:
         pieces.append(("line", (radius, centre_y), (radius, half_width)))
     pieces.append(("line", (mouth, half_width), (reach, half_width)))
@@ -399,16 +452,25 @@ def _outline(pieces: list[tuple], radius: float, spacings: list[float]) -> tuple
     """Arc lengths (n,) and points (2, n) along the pieces, each about its spacing apart, every piece end a node."""
     lengths = [_piece_length(piece, radius) for piece in pieces]
     starts = np.concatenate([[0.0], np.cumsum(lengths)])
-    fractions = [np.linspace(0.0, 1.0, max(1, math.ceil(length / spacing - 1e-9)) + 1)[:-1]
-                 for length, spacing in zip(lengths, spacings)]
+    fractions = [
+        np.linspace(0.0, 1.0, max(1, math.ceil(length / spacing - 1e-9)) + 1)[:-1]
+        for length, spacing in zip(lengths, spacings)
+    ]
     s = np.concatenate([start + length * f for start, length, f in zip(starts, lengths, fractions)] + [starts[-1:]])
-    points = np.hstack([_piece_points(piece, radius, f) for piece, f in zip(pieces, fractions)]
-                       + [np.array(pieces[-1][2])[:, None]])
+    points = np.hstack(
+        [_piece_points(piece, radius, f) for piece, f in zip(pieces, fractions)] + [np.array(pieces[-1][2])[:, None]]
+    )
     return s, points
 
 
-def notched_strip(length_mm: float = 50.0, width_mm: float = 10.0, notch_depth_mm: float = 2.0,
-                  notch_radius_mm: float = 1.0, *, elements_across: int = 4) -> Specimen:
+def notched_strip(
+    length_mm: float = 50.0,
+    width_mm: float = 10.0,
+    notch_depth_mm: float = 2.0,
+    notch_radius_mm: float = 1.0,
+    *,
+    elements_across: int = 4,
+) -> Specimen:
     """A strip with one U (round-bottomed) edge notch at mid-length on the top edge y = +width/2.
 
     The notch bottom is a circular arc of radius ``notch_radius_mm`` whose lowest point is at depth
@@ -446,16 +508,17 @@ def notched_strip(length_mm: float = 50.0, width_mm: float = 10.0, notch_depth_m
         ``notch_region`` (half-length of the region of fanned columns). ``mesh.boundaries["notch"]``:
         the facets of the notch outline (also in ``"edge"``; ``lateral = "fixed"`` leaves them free).
     """
-    _positive(length_mm=length_mm, width_mm=width_mm, notch_depth_mm=notch_depth_mm,
-              notch_radius_mm=notch_radius_mm)
+    _positive(length_mm=length_mm, width_mm=width_mm, notch_depth_mm=notch_depth_mm, notch_radius_mm=notch_radius_mm)
     n_across = _count(elements_across)
     if notch_depth_mm >= width_mm:
         raise ConfigError(f"notch_depth_mm must be in (0, width_mm = {width_mm:g}), got {notch_depth_mm!r}")
     radius, depth, half = notch_radius_mm, notch_depth_mm, width_mm / 2
     reach = min(length_mm / 2, 2 * (depth + radius))
     if radius >= reach:
-        raise ConfigError(f"notch_radius_mm must be < {reach:g} (the notch must fit within the length "
-                          f"{length_mm:g} mm), got {radius!r}")
+        raise ConfigError(
+            f"notch_radius_mm must be < {reach:g} (the notch must fit within the length "
+            f"{length_mm:g} mm), got {radius!r}"
+        )
     pieces = _notch_pieces(half, depth, radius, reach)
     fine = min((width_mm - depth) / n_across, math.pi * radius / n_across)
     spacings = [width_mm / n_across] + [fine] * (len(pieces) - 2) + [width_mm / n_across]
@@ -466,9 +529,14 @@ def notched_strip(length_mm: float = 50.0, width_mm: float = 10.0, notch_depth_m
         x = _stations(length_mm / 2 - reach, width_mm / n_across) + reach
         side = _columns(np.vstack([x, np.full_like(x, -half)]), np.vstack([x, np.full_like(x, half)]), n_across)
         blocks += [side, side[:, ::-1] * np.array([-1.0, 1.0])[:, None, None]]
-    specimen = _specimen("notched_strip", blocks, length_mm, length_mm, width_mm,
-                         {"length": length_mm, "width": width_mm, "notch_depth": depth, "notch_radius": radius,
-                          "notch_region": reach})
+    specimen = _specimen(
+        "notched_strip",
+        blocks,
+        length_mm,
+        length_mm,
+        width_mm,
+        {"length": length_mm, "width": width_mm, "notch_depth": depth, "notch_radius": radius, "notch_region": reach},
+    )
     # the notch outline (walls and bottom: below the top edge, above the bottom one), a part of "edge"
     mesh = specimen.mesh
     edge = mesh.boundaries["edge"]
@@ -481,11 +549,15 @@ def notched_strip(length_mm: float = 50.0, width_mm: float = 10.0, notch_depth_m
 # ---------------------------------------------------------------------------------------------------
 # user meshes
 
+
 def _named_lines(m, name: str) -> np.ndarray | None:
     """Node pairs (n, 2) of the line cells in the set or gmsh physical group ``name``, or None."""
     if name in m.cell_sets:
-        found = [block.data[np.asarray(idx, dtype=int)] for block, idx in zip(m.cells, m.cell_sets[name])
-                 if block.type == "line" and idx is not None]
+        found = [
+            block.data[np.asarray(idx, dtype=int)]
+            for block, idx in zip(m.cells, m.cell_sets[name])
+            if block.type == "line" and idx is not None
+        ]
         return np.vstack(found) if found else None
     physical = m.cell_data.get("gmsh:physical")
     if physical is None or name not in m.field_data:
@@ -514,13 +586,16 @@ def _facet_index(mesh: skfem.Mesh, pairs: np.ndarray, name: str, path: Path) -> 
     pos = np.clip(np.searchsorted(keys[order], wanted), 0, len(keys) - 1)
     found = order[pos]
     if np.any(keys[found] != wanted):
-        raise ConfigError(f"{path}: the line cells of {name!r} are not edges of the 2-D cells; "
-                          "expected line cells on the mesh boundary")
+        raise ConfigError(
+            f"{path}: the line cells of {name!r} are not edges of the 2-D cells; "
+            "expected line cells on the mesh boundary"
+        )
     return np.unique(found).astype(np.int32)
 
 
-def read_specimen(path: str | Path, *, gauge_length_mm: float | None = None,
-                  gauge_width_mm: float | None = None) -> Specimen:
+def read_specimen(
+    path: str | Path, *, gauge_length_mm: float | None = None, gauge_width_mm: float | None = None
+) -> Specimen:
     """A user mesh read with meshio (any format meshio reads: .msh, .vtu, .xdmf, ...).
 
     Parameters
@@ -565,8 +640,9 @@ def read_specimen(path: str | Path, *, gauge_length_mm: float | None = None,
     kinds = {block.type for block in m.cells} & {"triangle", "quad"}
     if len(kinds) != 1:
         found = sorted({block.type for block in m.cells})
-        raise ConfigError(f"specimen mesh {path} has cells {found}; expected 2-D cells of one kind, "
-                          "'triangle' or 'quad' (linear)")
+        raise ConfigError(
+            f"specimen mesh {path} has cells {found}; expected 2-D cells of one kind, 'triangle' or 'quad' (linear)"
+        )
     kind = kinds.pop()
     where = f"specimen mesh {path}"
     points = np.asarray(m.points, dtype=float)
@@ -591,13 +667,22 @@ def read_specimen(path: str | Path, *, gauge_length_mm: float | None = None,
     for name in ("grip_left", "grip_right"):
         if mesh.boundaries[name].size == 0:
             side = "smallest" if name == "grip_left" else "largest"
-            raise ConfigError(f"{where} has no boundary facet at the {side} x ({name}); expected "
-                              "straight grip faces normal to x at both ends, or line sets grip_left/grip_right")
+            raise ConfigError(
+                f"{where} has no boundary facet at the {side} x ({name}); expected "
+                "straight grip faces normal to x at both ends, or line sets grip_left/grip_right"
+            )
     length, width = float(np.ptp(mesh.p[0])), float(np.ptp(mesh.p[1]))
     merged = used.size - p.shape[1]
     notes = (f"{merged} node(s) closer than {MERGE_FRACTION:g} of the shortest edge merged",) if merged else ()
-    specimen = Specimen(path.name, mesh, length, gauge_length_mm or length, gauge_width_mm or width,
-                        {"length": length, "width": width}, notes)
+    specimen = Specimen(
+        path.name,
+        mesh,
+        length,
+        gauge_length_mm or length,
+        gauge_width_mm or width,
+        {"length": length, "width": width},
+        notes,
+    )
     _check_extensometer(specimen, where)
     return specimen
 
@@ -612,10 +697,12 @@ def _check_extensometer(specimen: Specimen, where: str) -> None:
     missed = marks[~inside_cells(p, specimen.mesh.t, marks)]
     if len(missed):
         shown = " and ".join(f"({x:.4g}, {y:.4g})" for x, y in missed)
-        raise ConfigError(f"{where}: the extensometer's gauge mark(s) at {shown} mm (the centre line, "
-                          f"{specimen.gauge_length_mm:g} mm apart around the middle) are not on the specimen; "
-                          "expected a specimen whose centre line is material there (give a shorter gauge_length_mm, "
-                          "or centre the mesh's gauge section)")
+        raise ConfigError(
+            f"{where}: the extensometer's gauge mark(s) at {shown} mm (the centre line, "
+            f"{specimen.gauge_length_mm:g} mm apart around the middle) are not on the specimen; "
+            "expected a specimen whose centre line is material there (give a shorter gauge_length_mm, "
+            "or centre the mesh's gauge section)"
+        )
 
 
 def check_size(shape: str, elements_across: int, options: dict[str, float]) -> None:
@@ -636,4 +723,8 @@ def points_per_element(specimen: Specimen) -> int:
 
 
 SHAPES: dict[str, Callable[..., Specimen]] = {
-    "strip": strip, "dogbone": dogbone, "holed_strip": holed_strip, "notched_strip": notched_strip}
+    "strip": strip,
+    "dogbone": dogbone,
+    "holed_strip": holed_strip,
+    "notched_strip": notched_strip,
+}

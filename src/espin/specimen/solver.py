@@ -159,8 +159,14 @@ def _outer_side_nodes(specimen: Specimen) -> np.ndarray:
 class _Constraints:
     """Which DOF are prescribed and their values at a grip strain."""
 
-    def __init__(self, membrane: Membrane, specimen: Specimen, grips: str, lateral: str,
-                 affine_F: Callable[[float], np.ndarray] | None) -> None:
+    def __init__(
+        self,
+        membrane: Membrane,
+        specimen: Specimen,
+        grips: str,
+        lateral: str,
+        affine_F: Callable[[float], np.ndarray] | None,
+    ) -> None:
         if grips not in GRIPS:
             raise ConfigError(f"grips = {grips!r}: must be one of {', '.join(GRIPS)}")
         if lateral not in LATERAL:
@@ -263,8 +269,16 @@ class _GripSteps:
     """The specimen under its grip program as a :class:`~espin.mechanics.march.StepProblem`:
     time t is grip strain / strain rate, each attempt one macro Newton solve."""
 
-    def __init__(self, membrane: Membrane, material: PointMaterial, constraints: _Constraints,
-                 program: GripProgram, rtol: float, max_iterations: int, start: MacroStep) -> None:
+    def __init__(
+        self,
+        membrane: Membrane,
+        material: PointMaterial,
+        constraints: _Constraints,
+        program: GripProgram,
+        rtol: float,
+        max_iterations: int,
+        start: MacroStep,
+    ) -> None:
         self.membrane, self.material, self.constraints, self.program = membrane, material, constraints, program
         self.rtol, self.iteration_limit = rtol, max_iterations
         self.state = start
@@ -272,8 +286,17 @@ class _GripSteps:
 
     def attempt(self, start: float, end: float) -> MacroStep:
         strain = end * self.program.strain_rate_per_s
-        return _newton(self.membrane, self.material, self.constraints, self.solves, self.state,
-                       self.constraints.values(strain), end, self.rtol, self.iteration_limit)
+        return _newton(
+            self.membrane,
+            self.material,
+            self.constraints,
+            self.solves,
+            self.state,
+            self.constraints.values(strain),
+            end,
+            self.rtol,
+            self.iteration_limit,
+        )
 
     def error(self, trial: MacroStep) -> float:
         return self.material.time_error()
@@ -363,15 +386,35 @@ def run_specimen(
     P, A = material.evaluate(F, 0.0)
     material.commit()
     f = membrane.internal_force(P)
-    problem = _GripSteps(membrane, material, constraints, program, rtol, max_iterations,
-                         MacroStep(u, F, P, f, membrane.tangent(A), 0, 0, []))
+    problem = _GripSteps(
+        membrane,
+        material,
+        constraints,
+        program,
+        rtol,
+        max_iterations,
+        MacroStep(u, F, P, f, membrane.tangent(A), 0, 0, []),
+    )
     steps: list[SpecimenStep] = []
 
     def record(index: int, time: float, state: MacroStep, counts: tuple[int, int, int], history: list[float]):
         strain = float(program.strain[index])
         force = float(state.f[constraints.moving].sum())
-        step = SpecimenStep(index, time, strain, strain * specimen.grip_length_mm, force, gauge.strain(state.u),
-                            force / area, *counts, history, state.u.copy(), state.F, state.P, material.fields())
+        step = SpecimenStep(
+            index,
+            time,
+            strain,
+            strain * specimen.grip_length_mm,
+            force,
+            gauge.strain(state.u),
+            force / area,
+            *counts,
+            history,
+            state.u.copy(),
+            state.F,
+            state.P,
+            material.fields(),
+        )
         steps.append(step)
         if on_step is not None:
             on_step(step)
@@ -383,8 +426,12 @@ def run_specimen(
 
     record(0, 0.0, problem.state, (0, 0, 0), [])
     try:
-        march(problem, program.strain[1:] / program.strain_rate_per_s,
-              StepPolicy(time_rtol=time_rtol, max_cuts=max_cuts), on_report=reached)
+        march(
+            problem,
+            program.strain[1:] / program.strain_rate_per_s,
+            StepPolicy(time_rtol=time_rtol, max_cuts=max_cuts),
+            on_report=reached,
+        )
     except MarchFailed as stopped:
         raise SpecimenFailed(_failure_message(stopped, program, max_cuts), steps) from None
     return steps
@@ -396,14 +443,27 @@ def _failure_message(stopped: MarchFailed, program: GripProgram, max_cuts: int) 
     strain = stopped.time * program.strain_rate_per_s
     where = f"step {stopped.tally.index} of {program.steps} (grip strain {strain:.4g})"
     if failure.kind == StepFailureKind.STIFF:
-        return (f"{where}: {failure.reason}; the plastic flow is too fast to follow: check fiber.flow_rate_per_s "
-                "and fiber.flow_resistance_MPa, or raise solver.time_rtol")
-    return (f"{where} did not converge after {max_cuts} halvings in a row: {failure.reason}. Try more steps, or a "
-            "smaller max_strain")
+        return (
+            f"{where}: {failure.reason}; the plastic flow is too fast to follow: check fiber.flow_rate_per_s "
+            "and fiber.flow_resistance_MPa, or raise solver.time_rtol"
+        )
+    return (
+        f"{where} did not converge after {max_cuts} halvings in a row: {failure.reason}. Try more steps, or a "
+        "smaller max_strain"
+    )
 
 
-def _newton(membrane: Membrane, material: PointMaterial, constraints: _Constraints, solves: _MacroSolves,
-            start: MacroStep, prescribed: np.ndarray, time: float, rtol: float, max_iterations: int) -> MacroStep:
+def _newton(
+    membrane: Membrane,
+    material: PointMaterial,
+    constraints: _Constraints,
+    solves: _MacroSolves,
+    start: MacroStep,
+    prescribed: np.ndarray,
+    time: float,
+    rtol: float,
+    max_iterations: int,
+) -> MacroStep:
     """One time step from the converged ``start`` to the ``prescribed`` values at ``time``.
 
     Raises
@@ -434,5 +494,8 @@ def _newton(membrane: Membrane, material: PointMaterial, constraints: _Constrain
         K = membrane.tangent(A)
         u[free] -= solves.factorize(K[free][:, free])(f[free])
         factorizations += 1
-    raise StepNotConverged(f"Newton stalled (max |r| {history[0]:.3g} -> {history[-1]:.3g} N in "
-                           f"{len(history) - 1} iterations)", history=history, factorizations=factorizations)
+    raise StepNotConverged(
+        f"Newton stalled (max |r| {history[0]:.3g} -> {history[-1]:.3g} N in {len(history) - 1} iterations)",
+        history=history,
+        factorizations=factorizations,
+    )

@@ -41,12 +41,19 @@ from espin.mechanics.linear_solvers import make_linear_solver
 from espin.mechanics.loading import path_program
 from espin.specimen.surrogate_file import SampleIdentity, mat_identity, read_samples, write_samples
 
-__all__ = ["Surrogate", "SurrogateMaterial", "build_surrogate", "read_surrogate", "DEFAULT_PATHS", "DEFAULT_SPEEDS",
-           "sample_rows"]
+__all__ = [
+    "Surrogate",
+    "SurrogateMaterial",
+    "build_surrogate",
+    "read_surrogate",
+    "DEFAULT_PATHS",
+    "DEFAULT_SPEEDS",
+    "sample_rows",
+]
 
-DEFAULT_PATHS = tuple((1.0, lateral, shear) for lateral in (-0.6, -0.3, 0.0, 0.35, 0.7)
-                      for shear in (-0.5, 0.0, 0.5)) + (
-    (0.0, 1.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0), (0.5, 1.0, 0.0), (-0.3, 1.0, 0.0))
+DEFAULT_PATHS = tuple(
+    (1.0, lateral, shear) for lateral in (-0.6, -0.3, 0.0, 0.35, 0.7) for shear in (-0.5, 0.0, 0.5)
+) + ((0.0, 1.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0), (0.5, 1.0, 0.0), (-0.3, 1.0, 0.0))
 """Directions (G11, G22, G12) of the stretch paths U = I + t G, scaled so the largest |G_ij| is
 1: stretches along the loading axis with lateral contraction or extension and shear, and
 lateral stretch, contraction and shear alone."""
@@ -95,17 +102,26 @@ def _run_path(path: _Path) -> np.ndarray | _PathFailure:
     of the path (the stretch parameter t of U = I + t G) and why.
     """
     try:
-        result = run_program(path.network, path.config, make_linear_solver(path.config.solver.linear),
-                             program=path_program(path.time, path.U, strain=path.stretch))
+        result = run_program(
+            path.network,
+            path.config,
+            make_linear_solver(path.config.solver.linear),
+            program=path_program(path.time, path.U, strain=path.stretch),
+        )
     except SimulationFailed as failure:
-        return _PathFailure(f"step {failure.step} of {failure.n_steps} (path strain {failure.strain:.4g}, time "
-                            f"{failure.time:.4g} s) did not converge: {failure.reason}", float(failure.strain))
-    return sample_rows(result.F[1:], result.P[1:], path.strain_rate_per_s,
-                       result.yielded_fraction[1:], result.recruited_fraction[1:])
+        return _PathFailure(
+            f"step {failure.step} of {failure.n_steps} (path strain {failure.strain:.4g}, time "
+            f"{failure.time:.4g} s) did not converge: {failure.reason}",
+            float(failure.strain),
+        )
+    return sample_rows(
+        result.F[1:], result.P[1:], path.strain_rate_per_s, result.yielded_fraction[1:], result.recruited_fraction[1:]
+    )
 
 
-def sample_rows(F: np.ndarray, P: np.ndarray, strain_rate_per_s: float, yielded: np.ndarray,
-                recruited: np.ndarray) -> np.ndarray:
+def sample_rows(
+    F: np.ndarray, P: np.ndarray, strain_rate_per_s: float, yielded: np.ndarray, recruited: np.ndarray
+) -> np.ndarray:
     """Rows (E11, E22, E12, strain rate [1/s], S11, S22, S12 [MPa], yielded and recruited
     fractions) of recorded steps with deformation gradients F (n, 2, 2) and nominal stresses P
     (n, 2, 2) [MPa]."""
@@ -163,8 +179,12 @@ class Surrogate:
     def __post_init__(self) -> None:
         values = np.column_stack([self.S] + [self.fields[name] for name in _FIELDS])
         origin = np.all(self.E == 0.0, axis=1)
-        interpolants = [RBFInterpolator(self.E[(self.speed == v) | origin], values[(self.speed == v) | origin],
-                                        kernel="thin_plate_spline") for v in self.speeds]
+        interpolants = [
+            RBFInterpolator(
+                self.E[(self.speed == v) | origin], values[(self.speed == v) | origin], kernel="thin_plate_spline"
+            )
+            for v in self.speeds
+        ]
         object.__setattr__(self, "_interpolants", interpolants)
 
     def _values(self, E: np.ndarray, speed: np.ndarray) -> np.ndarray:
@@ -180,8 +200,9 @@ class Surrogate:
         rows = np.arange(len(E))
         return (1.0 - weight) * at[upper - 1, rows] + weight * at[upper, rows]
 
-    def stress(self, F: np.ndarray, U_start: np.ndarray | None = None, dt: float = 0.0
-               ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    def stress(
+        self, F: np.ndarray, U_start: np.ndarray | None = None, dt: float = 0.0
+    ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """P (n, 2, 2) [MPa], A (n, 2, 2, 2, 2) [MPa] and the fractions at F (n, 2, 2), over a time
         step ``dt`` [s] from stretch tensors ``U_start`` (n, 2, 2) (None or dt = 0: at speed 1).
 
@@ -206,15 +227,13 @@ class Surrogate:
         values = self._values(E_all, np.maximum(speed, 1e-12)).reshape(7, n, -1)
         S = _symmetric(values[0, :, :3])
         # dS/dE_c for c = (11, 22, 12); E12 is one value standing for E12 and E21.
-        dS = [_symmetric((values[1 + 2 * c, :, :3] - values[2 + 2 * c, :, :3]) / (2.0 * _DIFFERENCE))
-              for c in range(3)]
+        dS = [_symmetric((values[1 + 2 * c, :, :3] - values[2 + 2 * c, :, :3]) / (2.0 * _DIFFERENCE)) for c in range(3)]
         D = np.zeros((n, 2, 2, 2, 2))  # dS_MJ / dE_LQ, symmetric in LQ
         D[:, :, :, 0, 0] = dS[0]
         D[:, :, :, 1, 1] = dS[1]
         D[:, :, :, 0, 1] = D[:, :, :, 1, 0] = 0.5 * dS[2]
         P = F @ S
-        A = (np.einsum("ik,nLJ->niJkL", np.eye(2), S)
-             + np.einsum("niM,nMJLQ,nkQ->niJkL", F, D, F))
+        A = np.einsum("ik,nLJ->niJkL", np.eye(2), S) + np.einsum("niM,nMJLQ,nkQ->niJkL", F, D, F)
         fields = {name: np.clip(values[0, :, 3 + i], 0.0, 1.0) for i, name in enumerate(_FIELDS)}
         return P, A, fields
 
@@ -223,15 +242,26 @@ class Surrogate:
         return SurrogateMaterial(self, n_points)
 
     @classmethod
-    def from_runs(cls, identity: SampleIdentity, runs: dict[int, np.ndarray], paths: np.ndarray,
-                  seconds: float = 0.0) -> Surrogate:
+    def from_runs(
+        cls, identity: SampleIdentity, runs: dict[int, np.ndarray], paths: np.ndarray, seconds: float = 0.0
+    ) -> Surrogate:
         """The surrogate of the finished paths ``runs`` of a build (rows as in the samples file)
         and the unstrained origin."""
         table = np.concatenate([runs[k] for k in sorted(runs)])
         speed = np.concatenate([np.full(len(runs[k]), identity.speeds[k // identity.directions]) for k in sorted(runs)])
         fields = {name: np.r_[0.0, table[:, 7 + i]] for i, name in enumerate(_FIELDS)}
-        return cls(np.vstack([np.zeros(3), table[:, :3]]), np.vstack([np.zeros(3), table[:, 4:7]]), np.r_[1.0, speed],
-                   fields, paths, identity.speeds, identity.strain_rate_per_s, seconds, identity, dict(runs))
+        return cls(
+            np.vstack([np.zeros(3), table[:, :3]]),
+            np.vstack([np.zeros(3), table[:, 4:7]]),
+            np.r_[1.0, speed],
+            fields,
+            paths,
+            identity.speeds,
+            identity.strain_rate_per_s,
+            seconds,
+            identity,
+            dict(runs),
+        )
 
 
 class SurrogateMaterial:
@@ -276,11 +306,19 @@ class _PathFailure:
     strain: float
 
 
-def build_surrogate(network: Network, config: Config, max_strain: float, *, reach: float = 3.0, steps: int = 24,
-                    paths: Sequence[tuple[float, float, float]] = DEFAULT_PATHS,
-                    speeds: Sequence[float] = DEFAULT_SPEEDS, pool: TaskPool | None = None,
-                    samples_path: str | Path | None = None, report: Callable[[str], None] | None = None
-                    ) -> Surrogate:
+def build_surrogate(
+    network: Network,
+    config: Config,
+    max_strain: float,
+    *,
+    reach: float = 3.0,
+    steps: int = 24,
+    paths: Sequence[tuple[float, float, float]] = DEFAULT_PATHS,
+    speeds: Sequence[float] = DEFAULT_SPEEDS,
+    pool: TaskPool | None = None,
+    samples_path: str | Path | None = None,
+    report: Callable[[str], None] | None = None,
+) -> Surrogate:
     """Run the RVE along stretch paths and build the surrogate (module docstring).
 
     Parameters
@@ -325,12 +363,14 @@ def build_surrogate(network: Network, config: Config, max_strain: float, *, reac
         raise ConfigError("paths: at least three non-zero directions (G11, G22, G12) are needed")
     rates = sorted(float(v) for v in speeds)
     if not rates or rates[0] <= 0.0 or len(set(rates)) != len(rates):
-        raise ConfigError(f"speeds = {', '.join(f'{v:g}' for v in speeds)}: distinct positive factors of the "
-                          "strain rate are needed")
+        raise ConfigError(
+            f"speeds = {', '.join(f'{v:g}' for v in speeds)}: distinct positive factors of the strain rate are needed"
+        )
     G /= np.abs(G).max(axis=1, keepdims=True)
     rate = config.loading.strain_rate_per_s
-    identity = SampleIdentity(*mat_identity(config), rate, float(max_strain), float(reach), int(steps), len(G),
-                              tuple(rates))
+    identity = SampleIdentity(
+        *mat_identity(config), rate, float(max_strain), float(reach), int(steps), len(G), tuple(rates)
+    )
     shape = np.linspace(0.0, 1.0, steps + 1) ** 2  # dense at small strain: the yield knee
     tasks, ends = [], []
     for speed in rates:
@@ -348,8 +388,10 @@ def build_surrogate(network: Network, config: Config, max_strain: float, *, reac
 
     def name(k: int) -> str:
         g = G[k % len(G)]
-        return (f"path {k + 1} of {len(tasks)} (U = I + t G, G = ({g[0]:g}, {g[1]:g}, {g[2]:g}), to t = "
-                f"{ends[k]:.3g}, at {rates[k // len(G)]:g} x the strain rate)")
+        return (
+            f"path {k + 1} of {len(tasks)} (U = I + t G, G = ({g[0]:g}, {g[1]:g}, {g[2]:g}), to t = "
+            f"{ends[k]:.3g}, at {rates[k // len(G)]:g} x the strain rate)"
+        )
 
     def status() -> str:
         elapsed = time_module.perf_counter() - start
@@ -358,9 +400,11 @@ def build_surrogate(network: Network, config: Config, max_strain: float, *, reac
         return f"surrogate: {len(runs)} of {len(tasks)} RVE paths done{left}"
 
     say = report or (lambda line: None)
-    say(f"surrogate: {len(tasks)} RVE paths ({len(G)} directions x {len(rates)} speeds, {steps} steps each, to "
+    say(
+        f"surrogate: {len(tasks)} RVE paths ({len(G)} directions x {len(rates)} speeds, {steps} steps each, to "
         f"{reach:g} x the grip strain {max_strain:g}) on {pool.description}"
-        + (f"; {len(runs)} finished paths reused from {samples_path}" if runs else ""))
+        + (f"; {len(runs)} finished paths reused from {samples_path}" if runs else "")
+    )
     for outcome in pool.map(_run_path, [tasks[k] for k in todo]):
         k = todo[outcome.index]
         if not outcome.ok or isinstance(outcome.value, _PathFailure):
@@ -372,8 +416,9 @@ def build_surrogate(network: Network, config: Config, max_strain: float, *, reac
     return Surrogate.from_runs(identity, runs, G, time_module.perf_counter() - start)
 
 
-def _kept_runs(samples_path: str | Path | None, identity: SampleIdentity,
-               report: Callable[[str], None] | None) -> dict[int, np.ndarray]:
+def _kept_runs(
+    samples_path: str | Path | None, identity: SampleIdentity, report: Callable[[str], None] | None
+) -> dict[int, np.ndarray]:
     """The finished paths of this build already in ``samples_path`` (none when there is no file or
     it is of another build, which the build then replaces, saying so)."""
     if samples_path is None or not Path(samples_path).is_file():
@@ -381,35 +426,45 @@ def _kept_runs(samples_path: str | Path | None, identity: SampleIdentity,
     kept = read_samples(samples_path)
     if kept.identity != identity:
         if report is not None:
-            report(f"surrogate: {samples_path} holds the paths of another build (another mat or settings); "
-                   "starting again")
+            report(
+                f"surrogate: {samples_path} holds the paths of another build (another mat or settings); starting again"
+            )
         return {}
     return dict(kept.runs)
 
 
-def _failure(name: str, outcome, end: float, identity: SampleIdentity, finished: int,
-             samples_path: str | Path | None) -> str:
+def _failure(
+    name: str, outcome, end: float, identity: SampleIdentity, finished: int, samples_path: str | Path | None
+) -> str:
     """The message of a failed path: which, where, why, what to try and what is kept."""
     failure = outcome.value if isinstance(outcome.value, _PathFailure) else None
     why = failure.message if failure is not None else str(outcome.error).removeprefix("SolverError: ")
     grip = identity.max_strain
     if failure is not None and failure.strain > grip:
         reach = np.floor(9.0 * failure.strain / grip) / 10.0
-        advice = (f"a smaller reach (--surrogate-reach {reach:g}: the paths go to {identity.reach:g} x the grip "
-                  f"strain, this one failed at {failure.strain / grip:.2g} x)" if reach >= 1.0 else
-                  f"a smaller --max-strain (below {failure.strain:.3g})")
+        advice = (
+            f"a smaller reach (--surrogate-reach {reach:g}: the paths go to {identity.reach:g} x the grip "
+            f"strain, this one failed at {failure.strain / grip:.2g} x)"
+            if reach >= 1.0
+            else f"a smaller --max-strain (below {failure.strain:.3g})"
+        )
     elif failure is not None:
         advice = f"a smaller --max-strain (this path failed at strain {failure.strain:.3g}, below the grip strain)"
     else:
         advice = "a smaller --max-strain or --surrogate-reach"
-    kept = (f"; the {finished} finished paths are kept in {samples_path} (the same command into the same folder "
-            "resumes from them)" if samples_path is not None and finished else "")
-    return (f"surrogate: the RVE run along {name} failed: {why}. Try {advice}, or --model fe2 (each point's RVE "
-            f"follows its own path){kept}")
+    kept = (
+        f"; the {finished} finished paths are kept in {samples_path} (the same command into the same folder "
+        "resumes from them)"
+        if samples_path is not None and finished
+        else ""
+    )
+    return (
+        f"surrogate: the RVE run along {name} failed: {why}. Try {advice}, or --model fe2 (each point's RVE "
+        f"follows its own path){kept}"
+    )
 
 
-def read_surrogate(path: str | Path, config: Config, max_strain: float, allow_mismatch: bool = False
-                   ) -> Surrogate:
+def read_surrogate(path: str | Path, config: Config, max_strain: float, allow_mismatch: bool = False) -> Surrogate:
     """A surrogate from the samples file of an earlier run (``surrogate_samples.csv``), for a
     specimen of the mat ``config`` pulled to the grip strain ``max_strain``.
 
@@ -435,14 +490,18 @@ def read_surrogate(path: str | Path, config: Config, max_strain: float, allow_mi
     """
     samples = read_samples(path)
     if not samples.complete:
-        raise InputError(f"surrogate_from: {path}: holds {len(samples.runs)} of the build's "
-                         f"{samples.identity.n_paths} paths (an interrupted build); rerun that build (the same "
-                         "command into the same folder) to finish it")
+        raise InputError(
+            f"surrogate_from: {path}: holds {len(samples.runs)} of the build's "
+            f"{samples.identity.n_paths} paths (an interrupted build); rerun that build (the same "
+            "command into the same folder) to finish it"
+        )
     mismatches = samples.identity.mismatches(surrogate_identity(config, max_strain))
     if mismatches and not allow_mismatch:
-        raise ConfigError(f"surrogate_from: {path}: " + "; ".join(mismatches) + ". Build the surrogate for this "
-                          "mat (without --surrogate-from), or pass --allow-surrogate-mismatch to use these samples "
-                          "anyway")
+        raise ConfigError(
+            f"surrogate_from: {path}: " + "; ".join(mismatches) + ". Build the surrogate for this "
+            "mat (without --surrogate-from), or pass --allow-surrogate-mismatch to use these samples "
+            "anyway"
+        )
     return Surrogate.from_runs(samples.identity, samples.runs, np.zeros((0, 3)))
 
 
@@ -450,5 +509,12 @@ def surrogate_identity(config: Config, max_strain: float) -> SampleIdentity:
     """The identity a build of the mat ``config`` for the grip strain ``max_strain`` would have
     (default paths, speeds, reach and steps; only the mat, the strain rate and the strain are
     compared with a file's)."""
-    return SampleIdentity(*mat_identity(config), config.loading.strain_rate_per_s, float(max_strain), 3.0, 24,
-                          len(DEFAULT_PATHS), DEFAULT_SPEEDS)
+    return SampleIdentity(
+        *mat_identity(config),
+        config.loading.strain_rate_per_s,
+        float(max_strain),
+        3.0,
+        24,
+        len(DEFAULT_PATHS),
+        DEFAULT_SPEEDS,
+    )

@@ -42,8 +42,18 @@ from espin.core.textfiles import TextFormat, parse_number, read_text, text_lines
 __all__ = ["SAMPLE_COLUMNS", "SampleIdentity", "SampleFile", "mat_identity", "write_samples", "read_samples"]
 
 SCHEMA_LINE = "# espin surrogate samples, schema 2"
-SAMPLE_COLUMNS = ("path", "E11", "E22", "E12", "strain_rate_per_s", "S11_MPa", "S22_MPa", "S12_MPa",
-                  "yielded_fraction", "recruited_fraction")
+SAMPLE_COLUMNS = (
+    "path",
+    "E11",
+    "E22",
+    "E12",
+    "strain_rate_per_s",
+    "S11_MPa",
+    "S22_MPa",
+    "S12_MPa",
+    "yielded_fraction",
+    "recruited_fraction",
+)
 """Columns of ``surrogate_samples.csv``: the path (module docstring), the Green-Lagrange strain,
 the path's speed as a strain rate [1/s], the second Piola-Kirchhoff stress [MPa] and the
 fractions."""
@@ -51,9 +61,14 @@ MAX_BYTES = 64 * 2**20
 """Largest samples file read [bytes] (a default build writes about 0.3 MB)."""
 
 _FORMAT = TextFormat(
-    what="surrogate samples file", max_bytes=MAX_BYTES, max_line_chars=1000, key="surrogate_from",
-    expected=("expected the surrogate_samples.csv of an espin surrogate run (espin 0.x writes it with a header "
-              "naming its mat)"),
+    what="surrogate samples file",
+    max_bytes=MAX_BYTES,
+    max_line_chars=1000,
+    key="surrogate_from",
+    expected=(
+        "expected the surrogate_samples.csv of an espin surrogate run (espin 0.x writes it with a header "
+        "naming its mat)"
+    ),
     size_hint="a surrogate's samples take well under a MB; is this the samples file?",
     line_hint="a row is ten numbers; is this the samples file?",
 )
@@ -99,10 +114,16 @@ class SampleIdentity:
 
     def header(self) -> dict[str, str]:
         """The header's ``key = value`` pairs (without the checksum)."""
-        return {"config_digest": self.config_digest, "law": self.law,
-                "strain_rate_per_s": f"{self.strain_rate_per_s:.12g}", "max_strain": f"{self.max_strain:.12g}",
-                "reach": f"{self.reach:.12g}", "steps": str(self.steps), "directions": str(self.directions),
-                "speeds": " ".join(f"{v:.12g}" for v in self.speeds)}
+        return {
+            "config_digest": self.config_digest,
+            "law": self.law,
+            "strain_rate_per_s": f"{self.strain_rate_per_s:.12g}",
+            "max_strain": f"{self.max_strain:.12g}",
+            "reach": f"{self.reach:.12g}",
+            "steps": str(self.steps),
+            "directions": str(self.directions),
+            "speeds": " ".join(f"{v:.12g}" for v in self.speeds),
+        }
 
     def mismatches(self, other: SampleIdentity) -> list[str]:
         """What differs between these samples and a run that would use them (``other``), in words;
@@ -111,14 +132,20 @@ class SampleIdentity:
         if self.law != other.law:
             found.append(f"the samples are of the fiber law {self.law}, this run's is {other.law}")
         elif self.config_digest != other.config_digest:
-            found.append("the samples are of another mat (its rve or solver settings differ: config digest "
-                         f"{self.config_digest[:12]}, this run's {other.config_digest[:12]})")
+            found.append(
+                "the samples are of another mat (its rve or solver settings differ: config digest "
+                f"{self.config_digest[:12]}, this run's {other.config_digest[:12]})"
+            )
         if not np.isclose(self.strain_rate_per_s, other.strain_rate_per_s, rtol=1e-9):
-            found.append(f"the samples are at the strain rate {self.strain_rate_per_s:g} /s, this run's is "
-                         f"{other.strain_rate_per_s:g} /s")
+            found.append(
+                f"the samples are at the strain rate {self.strain_rate_per_s:g} /s, this run's is "
+                f"{other.strain_rate_per_s:g} /s"
+            )
         if self.max_strain * (1.0 + 1e-9) < other.max_strain:
-            found.append(f"the samples were built for a grip strain of {self.max_strain:g}, this run pulls to "
-                         f"{other.max_strain:g} (beyond them the surrogate extrapolates)")
+            found.append(
+                f"the samples were built for a grip strain of {self.max_strain:g}, this run pulls to "
+                f"{other.max_strain:g} (beyond them the surrogate extrapolates)"
+            )
         return found
 
 
@@ -147,8 +174,9 @@ def mat_identity(config: Config) -> tuple[str, str]:
     ``fiber`` and ``solver`` sections and the loading's strain rate (the rest of ``[loading]``
     and ``[output]`` do not change the samples); the law lists the fiber parameters."""
     rate = config.loading.strain_rate_per_s
-    mat = config.model_copy(update={"loading": LoadingConfig(strain_rate_per_s=rate), "output": OutputConfig(),
-                                    "targets": None})
+    mat = config.model_copy(
+        update={"loading": LoadingConfig(strain_rate_per_s=rate), "output": OutputConfig(), "targets": None}
+    )
     law = ", ".join(f"{name}={value:g}" for name, value in config.fiber.model_dump().items())
     return config_digest(mat), law
 
@@ -187,9 +215,12 @@ def read_samples(path: str | Path) -> SampleFile:
     text = read_text(path, _FORMAT)
     lines = text.split("\n")
     if not lines or lines[0].strip() != SCHEMA_LINE:
-        raise _FORMAT.fail(path, f"its first line is not {SCHEMA_LINE!r}: not a samples file, or one written "
-                                 "by an espin that did not yet name the mat in it; build the surrogate again "
-                                 "(without --surrogate-from)")
+        raise _FORMAT.fail(
+            path,
+            f"its first line is not {SCHEMA_LINE!r}: not a samples file, or one written "
+            "by an espin that did not yet name the mat in it; build the surrogate again "
+            "(without --surrogate-from)",
+        )
     header: dict[str, str] = {}
     for line in lines[1:]:
         if not line.startswith("#"):
@@ -198,12 +229,15 @@ def read_samples(path: str | Path) -> SampleFile:
         if sep:
             header[key.strip()] = value.strip()
     identity = _identity(path, header)
-    body = text[text.index("\n" + _data_head()) + 1:] if ("\n" + _data_head()) in text else ""
+    body = text[text.index("\n" + _data_head()) + 1 :] if ("\n" + _data_head()) in text else ""
     if not body:
         raise _FORMAT.fail(path, f"no header line {_data_head()!r} after the comments; {_FORMAT.expected}")
     if hashlib.sha256(body.encode()).hexdigest() != header.get("data_sha256"):
-        raise _FORMAT.fail(path, "its data do not match its checksum (data_sha256): the file was edited or cut "
-                                 "after espin wrote it; build the surrogate again, or restore the file")
+        raise _FORMAT.fail(
+            path,
+            "its data do not match its checksum (data_sha256): the file was edited or cut "
+            "after espin wrote it; build the surrogate again, or restore the file",
+        )
     rows = []
     for number, line in text_lines(path, body, _FORMAT, skip_rows=1):
         fields = line.split(",")
@@ -234,17 +268,31 @@ def _identity(path: Path, header: Mapping[str, str]) -> SampleIdentity:
     parsed = [parse_number(text) for text in texts]
     read = [value for value in parsed if value is not None]
     if len(read) != len(texts) or not (read[3].is_integer() and read[4].is_integer()):
-        raise _FORMAT.fail(path, "its header holds a value that is not a number where one is expected "
-                                 f"({', '.join(f'{k} = {v}' for k, v in header.items() if k != 'law')})")
+        raise _FORMAT.fail(
+            path,
+            "its header holds a value that is not a number where one is expected "
+            f"({', '.join(f'{k} = {v}' for k, v in header.items() if k != 'law')})",
+        )
     rate, max_strain, reach, steps, directions, *speed_list = read
     speeds = tuple(speed_list)
-    identity = SampleIdentity(header["config_digest"], header["law"], rate, max_strain, reach, int(steps),
-                              int(directions), speeds)
+    identity = SampleIdentity(
+        header["config_digest"], header["law"], rate, max_strain, reach, int(steps), int(directions), speeds
+    )
     numbers = (identity.strain_rate_per_s, identity.max_strain, identity.reach, *speeds)
-    if (len(identity.config_digest) != 64 or not all(np.isfinite(numbers)) or min(numbers) <= 0.0
-            or identity.steps < 2 or identity.directions < 1 or not speeds or list(speeds) != sorted(set(speeds))):
-        raise _FORMAT.fail(path, "its header is not that of a surrogate build (a 64-digit config_digest, positive "
-                                 "strain rate, max_strain, reach and increasing speeds, steps >= 2)")
+    if (
+        len(identity.config_digest) != 64
+        or not all(np.isfinite(numbers))
+        or min(numbers) <= 0.0
+        or identity.steps < 2
+        or identity.directions < 1
+        or not speeds
+        or list(speeds) != sorted(set(speeds))
+    ):
+        raise _FORMAT.fail(
+            path,
+            "its header is not that of a surrogate build (a 64-digit config_digest, positive "
+            "strain rate, max_strain, reach and increasing speeds, steps >= 2)",
+        )
     return identity
 
 
@@ -257,13 +305,17 @@ def _paths(path: Path, identity: SampleIdentity, table: np.ndarray) -> dict[int,
     for start, end in zip(starts, np.r_[starts[1:], len(table)]):
         k = index[start]
         if k != int(k) or not 0 <= k < identity.n_paths or int(k) in runs:
-            raise _FORMAT.fail(path, f"path {k:g} is out of range (0 to {identity.n_paths - 1}) or its rows are "
-                                     "not together: the file was reordered or merged")
+            raise _FORMAT.fail(
+                path,
+                f"path {k:g} is out of range (0 to {identity.n_paths - 1}) or its rows are "
+                "not together: the file was reordered or merged",
+            )
         rows = table[start:end, 1:]
         speed = identity.speeds[int(k) // identity.directions] * identity.strain_rate_per_s
         if len(rows) != identity.steps:
-            raise _FORMAT.fail(path, f"path {int(k)} has {len(rows)} rows, a path has {identity.steps}: the file "
-                                     "was cut or edited")
+            raise _FORMAT.fail(
+                path, f"path {int(k)} has {len(rows)} rows, a path has {identity.steps}: the file was cut or edited"
+            )
         if not np.allclose(rows[:, 3], speed, rtol=1e-9):
             raise _FORMAT.fail(path, f"path {int(k)} is not at its speed ({speed:g} /s)")
         if not np.all(np.isfinite(rows)) or np.any((rows[:, 7:] < -1e-9) | (rows[:, 7:] > 1.0 + 1e-9)):

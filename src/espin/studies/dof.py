@@ -112,9 +112,7 @@ def _vertices_on_nodes(mat: FiberMat, crosslinks: Crosslinks, tolerance: float) 
     return len(vertex), int(np.count_nonzero(nearest < tolerance))
 
 
-def count_dof(
-    mat: FiberMat, crosslinks: Crosslinks, network: Network, elements_per_segment: int = 1
-) -> DofCount:
+def count_dof(mat: FiberMat, crosslinks: Crosslinks, network: Network, elements_per_segment: int = 1) -> DofCount:
     """Count the DOF of espin's network and of a beam model of the same mat (paper 4.3).
 
     Parameters
@@ -190,11 +188,18 @@ def dof_study(
     for (size_ratio, n_layers, seed), config in zip(cases, configs):
         rve = generate(config, allow_large=True)  # only generated: the tensile test's memory is not needed
         count = count_dof(rve.mat, rve.crosslinks, rve.network, elements_per_segment)
-        rows.append({
-            "size_ratio": float(size_ratio), "layers": int(n_layers), "seed": int(seed),
-            "n_fibers": rve.mat.n_fibers, "n_crosslinks": rve.network.n_inner,
-            "espin_dof": count.espin_dof, "beam_dof": count.beam_dof, "ratio": count.ratio,
-        })
+        rows.append(
+            {
+                "size_ratio": float(size_ratio),
+                "layers": int(n_layers),
+                "seed": int(seed),
+                "n_fibers": rve.mat.n_fibers,
+                "n_crosslinks": rve.network.n_inner,
+                "espin_dof": count.espin_dof,
+                "beam_dof": count.beam_dof,
+                "ratio": count.ratio,
+            }
+        )
     return pd.DataFrame(rows)
 
 
@@ -218,9 +223,7 @@ def dof_fit(table: pd.DataFrame, column: str = "espin_dof", layers: int | None =
     if layers is None:
         choices = table["layers"].unique()
         if len(choices) != 1:
-            raise ConfigError(
-                f"the table has several numbers of layers {sorted(choices)}: choose one with layers="
-            )
+            raise ConfigError(f"the table has several numbers of layers {sorted(choices)}: choose one with layers=")
         layers = int(choices[0])
     rows = table[table["layers"] == layers]
     if rows["size_ratio"].nunique() < 3:
@@ -266,14 +269,31 @@ def plot_dof_study(table: pd.DataFrame, path: str | Path, *, dpi: float = 150.0)
         sizes = stats.index.to_numpy(dtype=float)
         smooth = np.linspace(0.0, sizes.max(), 200)
         for column, marker, label in (("espin_dof", "o", "espin"), ("beam_dof", "s", "beam FE")):
-            top.errorbar(sizes, stats[column]["mean"], yerr=stats[column]["std"].fillna(0.0), fmt=marker,
-                         color=colour, mfc="none" if column == "beam_dof" else colour,
-                         label=f"{label}, $N_l$ = {n_layers}")
+            top.errorbar(
+                sizes,
+                stats[column]["mean"],
+                yerr=stats[column]["std"].fillna(0.0),
+                fmt=marker,
+                color=colour,
+                mfc="none" if column == "beam_dof" else colour,
+                label=f"{label}, $N_l$ = {n_layers}",
+            )
             if len(sizes) >= 3:
-                top.plot(smooth, dof_fit(rows, column, n_layers)(smooth), color=colour,
-                         ls="-" if column == "espin_dof" else "--", lw=1)
-        bottom.errorbar(sizes, stats["ratio"]["mean"], yerr=stats["ratio"]["std"].fillna(0.0), fmt="o-",
-                        color=colour, label=f"$N_l$ = {n_layers}")
+                top.plot(
+                    smooth,
+                    dof_fit(rows, column, n_layers)(smooth),
+                    color=colour,
+                    ls="-" if column == "espin_dof" else "--",
+                    lw=1,
+                )
+        bottom.errorbar(
+            sizes,
+            stats["ratio"]["mean"],
+            yerr=stats["ratio"]["std"].fillna(0.0),
+            fmt="o-",
+            color=colour,
+            label=f"$N_l$ = {n_layers}",
+        )
     top.set_ylabel("degrees of freedom")
     top.ticklabel_format(axis="y", style="sci", scilimits=(0, 0))
     top.legend(fontsize="small")

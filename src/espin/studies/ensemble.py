@@ -72,8 +72,9 @@ MAX_TASKS = 100_000
 """Most tasks one study plans (each is a whole tensile test)."""
 
 
-def plan_tasks(base: Config, points: Sequence[Mapping[str, Any]], seeds: Sequence[int], *,
-               allow_large: bool = False) -> list[TensileTask]:
+def plan_tasks(
+    base: Config, points: Sequence[Mapping[str, Any]], seeds: Sequence[int], *, allow_large: bool = False
+) -> list[TensileTask]:
     """Every (point, seed) task, each config validated before any work starts.
 
     Parameters
@@ -104,8 +105,10 @@ def plan_tasks(base: Config, points: Sequence[Mapping[str, Any]], seeds: Sequenc
     if len(set(seeds)) != len(seeds):
         raise ConfigError(f"seeds: must be distinct (got {list(seeds)})")
     if len(points) * len(seeds) > MAX_TASKS:
-        raise ConfigError(f"grid and realizations: {len(points):,} points x {len(seeds):,} seeds = "
-                          f"{len(points) * len(seeds):,} tasks, more than {MAX_TASKS:,}; split the study")
+        raise ConfigError(
+            f"grid and realizations: {len(points):,} points x {len(seeds):,} seeds = "
+            f"{len(points) * len(seeds):,} tasks, more than {MAX_TASKS:,}; split the study"
+        )
     tasks: list[TensileTask] = []
     digests: dict[Path, str] = {}
     for point in points:
@@ -204,8 +207,20 @@ class Ensemble:
             row = {name: record["parameters"].get(name) for name in self.parameter_names}
             row.update({k: v for k, v in record.items() if k not in ("parameters", "strain", "stress_MPa")})
             rows.append(row)
-        columns = [*self.parameter_names, "seed", *PROPERTIES, "has_yield", "r_squared", "note", "n_dof",
-                   "n_fibers", "n_crosslinks", "iterations", "seconds", "key"]
+        columns = [
+            *self.parameter_names,
+            "seed",
+            *PROPERTIES,
+            "has_yield",
+            "r_squared",
+            "note",
+            "n_dof",
+            "n_fibers",
+            "n_crosslinks",
+            "iterations",
+            "seconds",
+            "key",
+        ]
         return pd.DataFrame(rows, columns=columns)
 
     def summary(self) -> pd.DataFrame:
@@ -308,8 +323,7 @@ def run_ensemble(
                         (folder / "failed" / f"{task.key}.json").unlink(missing_ok=True)
                 else:
                     failures[task.key] = _failure(task, outcome)
-                    log.info("task %s (%s, seed %d) failed: %s", task.key, task.parameters, task.seed,
-                             outcome.error)
+                    log.info("task %s (%s, seed %d) failed: %s", task.key, task.parameters, task.seed, outcome.error)
                     if folder is not None:
                         _write_json(folder / "failed" / f"{task.key}.json", failures[task.key])
                 ensemble = _collect(tasks, done, failures, names, len(tasks) - len(todo), folder)
@@ -341,14 +355,26 @@ def _notebook_bar(total: int) -> Callable[[TaskOutcome, TensileTask], None] | No
     return show
 
 
-def _collect(tasks: Sequence[TensileTask], done: dict[str, dict[str, Any]], failures: dict[str, dict[str, Any]],
-             names: list[str], skipped: int, folder: Path | None) -> Ensemble:
+def _collect(
+    tasks: Sequence[TensileTask],
+    done: dict[str, dict[str, Any]],
+    failures: dict[str, dict[str, Any]],
+    names: list[str],
+    skipped: int,
+    folder: Path | None,
+) -> Ensemble:
     unplanned = 0
     if folder is not None and (folder / "tasks").is_dir():
         planned = {t.key for t in tasks}
         unplanned = sum(path.stem not in planned for path in (folder / "tasks").glob("*.json"))
-    return Ensemble([done[t.key] for t in tasks if t.key in done],
-                    [failures[t.key] for t in tasks if t.key in failures], names, skipped, unplanned, folder)
+    return Ensemble(
+        [done[t.key] for t in tasks if t.key in done],
+        [failures[t.key] for t in tasks if t.key in failures],
+        names,
+        skipped,
+        unplanned,
+        folder,
+    )
 
 
 def _finished_records(folder: Path, tasks: Sequence[TensileTask]) -> dict[str, dict[str, Any]]:
@@ -413,8 +439,11 @@ def _is_finite_number(value: Any) -> bool:
 
 def _is_curve(values: Any) -> bool:
     """A non-empty list of numbers."""
-    return (isinstance(values, list) and bool(values)
-            and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values))
+    return (
+        isinstance(values, list)
+        and bool(values)
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+    )
 
 
 def _checked(outcome: TaskOutcome, task: TensileTask) -> TaskOutcome:
@@ -441,8 +470,12 @@ def _remove_stale_temporaries(folder: Path) -> None:
         if not directory.is_dir():
             continue
         for path in directory.iterdir():
-            if (_TEMPORARY.match(path.name) and path.is_file() and not path.is_symlink()
-                    and now - path.stat().st_mtime > STALE_TEMPORARY_S):
+            if (
+                _TEMPORARY.match(path.name)
+                and path.is_file()
+                and not path.is_symlink()
+                and now - path.stat().st_mtime > STALE_TEMPORARY_S
+            ):
                 path.unlink(missing_ok=True)
                 removed += 1
     if removed:
@@ -450,8 +483,13 @@ def _remove_stale_temporaries(folder: Path) -> None:
 
 
 def _failure(task: TensileTask, outcome: TaskOutcome) -> dict[str, Any]:
-    return {"key": task.key, "parameters": task.parameters, "seed": task.seed,
-            "error": outcome.error, "traceback": outcome.traceback}
+    return {
+        "key": task.key,
+        "parameters": task.parameters,
+        "seed": task.seed,
+        "error": outcome.error,
+        "traceback": outcome.traceback,
+    }
 
 
 def _write_json(path: Path, data: dict[str, Any]) -> None:

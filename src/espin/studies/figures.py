@@ -21,8 +21,10 @@ PROPERTY_LABELS = {
     "post_yield_modulus_MPa": ("post-yield modulus", "$H$ [MPa]"),
 }
 
-def plot_rve_size(summary: pd.DataFrame, folder: str | Path, *, layers_for_sizes: int,
-                  size_for_layers: float, dpi: float = 150.0) -> dict[str, Path]:
+
+def plot_rve_size(
+    summary: pd.DataFrame, folder: str | Path, *, layers_for_sizes: int, size_for_layers: float, dpi: float = 150.0
+) -> dict[str, Path]:
     """One figure per property, as the paper's Figs. A.15-A.17.
 
     Panels: (a) mean +- sd versus L_tilde at ``layers_for_sizes`` layers, (b) versus N_l at
@@ -39,10 +41,12 @@ def plot_rve_size(summary: pd.DataFrame, folder: str | Path, *, layers_for_sizes
     for name, (title, unit) in PROPERTY_LABELS.items():
         fig = Figure(figsize=(8.0, 6.0), layout="constrained")
         axes = fig.subplots(2, 2)
-        for column, (table, x, xlabel) in enumerate((
-            (by_size, "rve.size_ratio", rf"RVE size $\tilde L = L / D$  ($N_l$ = {layers_for_sizes})"),
-            (by_layers, "rve.layers", rf"layers $N_l$  ($\tilde L$ = {size_for_layers:g})"),
-        )):
+        for column, (table, x, xlabel) in enumerate(
+            (
+                (by_size, "rve.size_ratio", rf"RVE size $\tilde L = L / D$  ($N_l$ = {layers_for_sizes})"),
+                (by_layers, "rve.layers", rf"layers $N_l$  ($\tilde L$ = {size_for_layers:g})"),
+            )
+        ):
             top, bottom = axes[0, column], axes[1, column]
             if table.empty:
                 top.set_axis_off()
@@ -68,8 +72,9 @@ def plot_rve_size(summary: pd.DataFrame, folder: str | Path, *, layers_for_sizes
     return files
 
 
-def plot_curve_band(strain: np.ndarray, stress: np.ndarray, path: str | Path, *, label: str = "",
-                    dpi: float = 150.0) -> Path:
+def plot_curve_band(
+    strain: np.ndarray, stress: np.ndarray, path: str | Path, *, label: str = "", dpi: float = 150.0
+) -> Path:
     """Mean curve (line) and +- one sample sd (shaded) of stacked curves ``stress`` (n, n_points)
     [MPa] over ``strain`` (dimensionless), Fig. A.18; ``label`` (mathtext allowed) names the
     RVE in the title."""
@@ -78,8 +83,15 @@ def plot_curve_band(strain: np.ndarray, stress: np.ndarray, path: str | Path, *,
     sd = stress.std(axis=0, ddof=1) if len(stress) > 1 else np.zeros_like(mean)
     fig = Figure(figsize=(5.5, 4.0), layout="constrained")
     ax = fig.subplots()
-    ax.fill_between(100 * strain, mean - sd, mean + sd, color="C0", alpha=0.3, lw=0,
-                    label=f"mean ± sd, n = {len(stress)} realizations")
+    ax.fill_between(
+        100 * strain,
+        mean - sd,
+        mean + sd,
+        color="C0",
+        alpha=0.3,
+        lw=0,
+        label=f"mean ± sd, n = {len(stress)} realizations",
+    )
     ax.plot(100 * strain, mean, color="C0")
     ax.set_xlabel("strain [%]")
     ax.set_ylabel("stress [MPa]")
@@ -88,8 +100,9 @@ def plot_curve_band(strain: np.ndarray, stress: np.ndarray, path: str | Path, *,
     return save_figure(fig, path, dpi)
 
 
-def plot_sweep(summary: pd.DataFrame, parameters: list[str], folder: str | Path,
-               *, dpi: float = 150.0) -> dict[str, Path]:
+def plot_sweep(
+    summary: pd.DataFrame, parameters: list[str], folder: str | Path, *, dpi: float = 150.0
+) -> dict[str, Path]:
     """Each property versus each swept parameter: one figure per property, one panel per parameter.
 
     In the panel of a parameter, each combination of the other parameters is one line (mean
@@ -115,8 +128,14 @@ def plot_sweep(summary: pd.DataFrame, parameters: list[str], folder: str | Path,
                     values = values if isinstance(values, tuple) else (values,)
                     group = group.sort_values(parameter)
                     label = ", ".join(parameter_value(p, v) for p, v in zip(others, values)) or None
-                    ax.errorbar(group[parameter], group[f"{name}_mean"], yerr=group[f"{name}_sd"].fillna(0.0),
-                                marker="o", capsize=3, label=label)
+                    ax.errorbar(
+                        group[parameter],
+                        group[f"{name}_mean"],
+                        yerr=group[f"{name}_sd"].fillna(0.0),
+                        marker="o",
+                        capsize=3,
+                        label=label,
+                    )
             ax.set_xlabel(parameter_label(parameter))
             ax.set_ylabel(unit)
             if ax.get_legend_handles_labels()[1]:

@@ -115,8 +115,10 @@ def rve_size_study(
     flat = dotted_overrides(overrides)
     fixed = sorted(k for k in flat if k in ("rve.size_ratio", "rve.size_um", "rve.layers"))
     if fixed:
-        raise ConfigError(f"{', '.join(fixed)}: set by the study's sizes (size_ratios, layer_counts, "
-                          "layers_for_sizes, size_for_layers), not as an override")
+        raise ConfigError(
+            f"{', '.join(fixed)}: set by the study's sizes (size_ratios, layer_counts, "
+            "layers_for_sizes, size_for_layers), not as an override"
+        )
     place = TaskPlace(workers, scheduler, blas_threads, security)
     base = resolve_config(base, **flat)
     if not size_ratios and not layer_counts:
@@ -126,8 +128,14 @@ def rve_size_study(
     points = list({tuple(p.items()): p for p in points}.values())  # the shared point once
     seeds = realization_seeds(base, realizations, seed_start)
     tasks = plan_tasks(base, points, seeds, allow_large=allow_large)
-    plan = {"study": "rve-size", "size_ratios": list(size_ratios), "layer_counts": list(layer_counts),
-            "layers_for_sizes": layers_for_sizes, "size_for_layers": size_for_layers, "seeds": seeds}
+    plan = {
+        "study": "rve-size",
+        "size_ratios": list(size_ratios),
+        "layer_counts": list(layer_counts),
+        "layers_for_sizes": layers_for_sizes,
+        "size_for_layers": size_for_layers,
+        "seeds": seeds,
+    }
     with _claimed(folder, "rve-size", base, overwrite, tasks) as claimed:
         result = _run(tasks, base, plan, folder, place, on_outcome, claimed)
         ensemble = result.ensemble
@@ -135,14 +143,18 @@ def rve_size_study(
             from espin.studies.figures import plot_curve_band, plot_rve_size
 
             folder = Path(folder)
-            for name, path in plot_rve_size(result.summary, folder, layers_for_sizes=int(layers_for_sizes),
-                                            size_for_layers=float(size_for_layers)).items():
+            for name, path in plot_rve_size(
+                result.summary, folder, layers_for_sizes=int(layers_for_sizes), size_for_layers=float(size_for_layers)
+            ).items():
                 result.files[name] = path
-            largest = max(ensemble.records,
-                          key=lambda r: (r["parameters"]["rve.size_ratio"], r["parameters"]["rve.layers"]))
+            largest = max(
+                ensemble.records, key=lambda r: (r["parameters"]["rve.size_ratio"], r["parameters"]["rve.layers"])
+            )
             strain, stress = ensemble.curves(**largest["parameters"])
-            label = (rf"$\tilde L$ = {largest['parameters']['rve.size_ratio']:g}, "
-                     rf"$N_l$ = {largest['parameters']['rve.layers']}")
+            label = (
+                rf"$\tilde L$ = {largest['parameters']['rve.size_ratio']:g}, "
+                rf"$N_l$ = {largest['parameters']['rve.layers']}"
+            )
             result.files["curves"] = plot_curve_band(strain, stress, folder / "rve_size_curves.png", label=label)
     return result
 
@@ -211,28 +223,38 @@ def sweep(
     seeds = realization_seeds(base, realizations, seed_start)
     tasks = plan_tasks(base, points, seeds, allow_large=allow_large)
     with _claimed(folder, "sweep", base, overwrite, tasks) as claimed:
-        result = _run(tasks, base, {"study": "sweep", "grid": grid, "seeds": seeds}, folder, place, on_outcome,
-                      claimed)
+        result = _run(tasks, base, {"study": "sweep", "grid": grid, "seeds": seeds}, folder, place, on_outcome, claimed)
         if folder is not None and result.ensemble.records:
             from espin.studies.figures import plot_sweep
 
             folder = Path(folder)
             if table_format == "parquet":
                 table = result.table
-                result.files["table"] = atomic_write(folder / "sweep.parquet",
-                                                     lambda tmp: table.to_parquet(tmp, index=False))
+                result.files["table"] = atomic_write(
+                    folder / "sweep.parquet", lambda tmp: table.to_parquet(tmp, index=False)
+                )
             if keys:
                 result.files.update(plot_sweep(result.summary, keys, folder))
     return result
 
 
-STUDY_OUTPUTS = ("study.toml", "plan.json", "results.csv", "summary.csv", "sweep.parquet", "sweep_*.png",
-                 "rve_size_*.png", "tasks/*.json", "failed/*.json")
+STUDY_OUTPUTS = (
+    "study.toml",
+    "plan.json",
+    "results.csv",
+    "summary.csv",
+    "sweep.parquet",
+    "sweep_*.png",
+    "rve_size_*.png",
+    "tasks/*.json",
+    "failed/*.json",
+)
 """The files a study writes (glob patterns relative to its folder)."""
 
 
-def _claimed(folder: str | Path | None, command: str, base: Config, overwrite: bool,
-             tasks: list[TensileTask]) -> contextlib.AbstractContextManager[OutputFolder | None]:
+def _claimed(
+    folder: str | Path | None, command: str, base: Config, overwrite: bool, tasks: list[TensileTask]
+) -> contextlib.AbstractContextManager[OutputFolder | None]:
     """The study's claim on ``folder`` (resumed when it holds the same study, grown or not), or
     nothing.
 
@@ -252,11 +274,14 @@ def _claimed(folder: str | Path | None, command: str, base: Config, overwrite: b
             earlier = set()  # an unreadable plan is the claim's to judge (the manifest's command)
         dropped = earlier - {task.key for task in tasks}
         if dropped:
-            raise ConfigError(f"output folder {folder} holds another study: {len(dropped)} of its {len(earlier)} "
-                              "tasks are not in this one (a study may only grow in a folder of its own); pass "
-                              "--overwrite (overwrite=True in Python) to replace it, or choose another folder")
-    return OutputFolder.claim(folder, command, config_digest(base), STUDY_OUTPUTS, overwrite=overwrite,
-                              resume="same-command")
+            raise ConfigError(
+                f"output folder {folder} holds another study: {len(dropped)} of its {len(earlier)} "
+                "tasks are not in this one (a study may only grow in a folder of its own); pass "
+                "--overwrite (overwrite=True in Python) to replace it, or choose another folder"
+            )
+    return OutputFolder.claim(
+        folder, command, config_digest(base), STUDY_OUTPUTS, overwrite=overwrite, resume="same-command"
+    )
 
 
 def _grid_values(key: str, values: Any) -> list[Any]:
@@ -271,8 +296,15 @@ def _grid_values(key: str, values: Any) -> list[Any]:
     return values
 
 
-def _run(tasks: list[TensileTask], base: Config, plan: dict[str, Any], folder: str | Path | None,
-         place: TaskPlace, on_outcome: OnOutcome | None, claimed: OutputFolder | None) -> StudyResult:
+def _run(
+    tasks: list[TensileTask],
+    base: Config,
+    plan: dict[str, Any],
+    folder: str | Path | None,
+    place: TaskPlace,
+    on_outcome: OnOutcome | None,
+    claimed: OutputFolder | None,
+) -> StudyResult:
     """Write the plan (before any work), run the ensemble where ``place`` says, write the summary;
     the folder's status ``partial`` or ``failed`` when tasks failed."""
     files: dict[str, Path] = {}

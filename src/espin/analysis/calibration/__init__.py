@@ -183,9 +183,19 @@ def fit(
     # the pool's options are checked first; its workers start with the first simulation
     pool = TaskPlace(workers, scheduler, 1, security).pool()
     problem = _problem(
-        curve, base=base, parameters=parameters, bounds=bounds, fixed=fixed, realizations=realizations,
-        seeds=seeds, strain_rate_per_s=strain_rate_per_s, step_strain=step_strain, eta_points=eta_points,
-        eta_tolerance=eta_tolerance, read_options=read_options or {}, average_grid=average_grid,
+        curve,
+        base=base,
+        parameters=parameters,
+        bounds=bounds,
+        fixed=fixed,
+        realizations=realizations,
+        seeds=seeds,
+        strain_rate_per_s=strain_rate_per_s,
+        step_strain=step_strain,
+        eta_points=eta_points,
+        eta_tolerance=eta_tolerance,
+        read_options=read_options or {},
+        average_grid=average_grid,
         large_strain=large_strain,
     )
     with pool:

@@ -78,8 +78,7 @@ def _is_path(value: Any) -> bool:
     return isinstance(value, (str, Path))
 
 
-def _read_files(paths: Sequence[str | Path], read_options: Mapping[str, Any],
-                grid: AverageGrid) -> tuple[Any, str]:
+def _read_files(paths: Sequence[str | Path], read_options: Mapping[str, Any], grid: AverageGrid) -> tuple[Any, str]:
     """The curve of one file, or the average of several; and where its points came from."""
     from espin.analysis.experiments import _shared_strains, average_curves, read_curve
 
@@ -90,9 +89,12 @@ def _read_files(paths: Sequence[str | Path], read_options: Mapping[str, Any],
     if isinstance(grid, str):
         if grid != "measured":
             raise ConfigError(f'average_grid: "measured", a number of points or strains (got {grid!r})')
-        where = (f"the measured strains, common to the {n} specimens" if _shared_strains(curves) else
-                 f"the union of the {n} specimens' measured strains within their common range "
-                 "(each interpolated at the others' strains)")
+        where = (
+            f"the measured strains, common to the {n} specimens"
+            if _shared_strains(curves)
+            else f"the union of the {n} specimens' measured strains within their common range "
+            "(each interpolated at the others' strains)"
+        )
         return average_curves(curves, grid="measured"), where
     if isinstance(grid, (int, np.integer)) and not isinstance(grid, bool):
         if grid < 2:
@@ -101,8 +103,9 @@ def _read_files(paths: Sequence[str | Path], read_options: Mapping[str, Any],
     return average_curves(curves, grid=grid), "the given averaging grid (interpolated)"
 
 
-def _measured(curve: CurveLike, rate: float, read_options: Mapping[str, Any],
-              grid: AverageGrid = "measured") -> FittedCurve:
+def _measured(
+    curve: CurveLike, rate: float, read_options: Mapping[str, Any], grid: AverageGrid = "measured"
+) -> FittedCurve:
     """A validated :class:`FittedCurve` (no model yet) from any accepted curve form."""
     source, points_from = "arrays", "given"
     if _is_path(curve) or (isinstance(curve, Sequence) and curve and all(_is_path(c) for c in curve)):
@@ -129,8 +132,9 @@ def _measured(curve: CurveLike, rate: float, read_options: Mapping[str, Any],
     return _validated_curve(rate, strain, stress, sd, source, points_from)
 
 
-def _validated_curve(rate: float, strain: Any, stress: Any, sd: Any, source: str,
-                     points_from: str = "given") -> FittedCurve:
+def _validated_curve(
+    rate: float, strain: Any, stress: Any, sd: Any, source: str, points_from: str = "given"
+) -> FittedCurve:
     strain = np.asarray(strain, dtype=float)
     stress = np.asarray(stress, dtype=float)
     sd = None if sd is None else np.asarray(sd, dtype=float)
@@ -154,22 +158,23 @@ def _validated_curve(rate: float, strain: Any, stress: Any, sd: Any, source: str
 
 
 def _measured_curves(
-    curve: CurveLike | Mapping[float, CurveLike], rate: float | None, base: Config,
-    read_options: Mapping[str, Any], grid: AverageGrid = "measured",
+    curve: CurveLike | Mapping[float, CurveLike],
+    rate: float | None,
+    base: Config,
+    read_options: Mapping[str, Any],
+    grid: AverageGrid = "measured",
 ) -> list[FittedCurve]:
     """The curves to fit, each with its strain rate (a mapping gives one curve per rate)."""
     if isinstance(curve, Mapping):
         if rate is not None:
             raise ConfigError(
-                "strain_rate_per_s: give it for a single curve, or give curves as a mapping "
-                "rate -> curve, not both"
+                "strain_rate_per_s: give it for a single curve, or give curves as a mapping rate -> curve, not both"
             )
         if not curve:
             raise ConfigError("curve: the mapping rate -> curve is empty")
         curves = [_measured(c, float(r), read_options, grid) for r, c in sorted(curve.items())]
     else:
-        curves = [_measured(curve, base.loading.strain_rate_per_s if rate is None else rate, read_options,
-                            grid)]
+        curves = [_measured(curve, base.loading.strain_rate_per_s if rate is None else rate, read_options, grid)]
     rates = [c.strain_rate_per_s for c in curves]
     if len(set(rates)) != len(rates):
         raise ConfigError(f"curve: each strain rate may appear once (got {rates})")
@@ -228,13 +233,18 @@ def synthetic_curve(
     generator = np.random.default_rng(rng)
     specimens = []
     for seed in seeds:
-        task = _Task(config_to_toml(apply_overrides(config, {"rve.seed": int(seed)})), fiber, rate,
-                     steps, curve.strain)
+        task = _Task(config_to_toml(apply_overrides(config, {"rve.seed": int(seed)})), fiber, rate, steps, curve.strain)
         stress, failure = _simulate_task(task)
         if failure is not None:
             raise SolverError(f"synthetic_curve: seed {seed}: {failure}")
         specimens.append(stress + noise_sd_MPa * generator.standard_normal(stress.size))
     stacked = np.array(specimens)
     sd = stacked.std(axis=0, ddof=1) if len(seeds) > 1 else None
-    return FittedCurve(rate, curve.strain, stacked.mean(axis=0), sd, source=f"synthetic, seeds {list(seeds)}",
-                       points_from=f"synthetic, {steps.count} load steps of at most {step_strain:g}")
+    return FittedCurve(
+        rate,
+        curve.strain,
+        stacked.mean(axis=0),
+        sd,
+        source=f"synthetic, seeds {list(seeds)}",
+        points_from=f"synthetic, {steps.count} load steps of at most {step_strain:g}",
+    )

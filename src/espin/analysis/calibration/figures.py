@@ -39,6 +39,7 @@ class Fit(Protocol):
     @property
     def eta_profile(self) -> np.ndarray | None: ...
 
+
 FIBER_STEPS = 400
 """Steps of the single-fiber pull (backward Euler; fine enough to be step-independent)."""
 
@@ -49,14 +50,23 @@ def _curves(ax: Axes, result: Fit) -> None:
         x = 100.0 * curve.strain
         rate = f"{curve.strain_rate_per_s:.3g} 1/s"
         if curve.sd_MPa is not None:
-            ax.fill_between(x, curve.stress_MPa - curve.sd_MPa, curve.stress_MPa + curve.sd_MPa,
-                            color="0.8", linewidth=0, label="measured, mean ± sd of the specimens" if k == 0 else None)
-        ax.plot(x, curve.stress_MPa, "o", color="k", markersize=3, markerfacecolor="none",
-                label=f"measured, {rate}")
+            ax.fill_between(
+                x,
+                curve.stress_MPa - curve.sd_MPa,
+                curve.stress_MPa + curve.sd_MPa,
+                color="0.8",
+                linewidth=0,
+                label="measured, mean ± sd of the specimens" if k == 0 else None,
+            )
+        ax.plot(x, curve.stress_MPa, "o", color="k", markersize=3, markerfacecolor="none", label=f"measured, {rate}")
         model, model_sd = cast(np.ndarray, curve.model_MPa), cast(np.ndarray, curve.model_sd_MPa)  # a fit's curves
         ax.fill_between(x, model - model_sd, model + model_sd, color=f"C{k}", alpha=0.25, linewidth=0)
-        ax.plot(x, model, color=f"C{k}",
-                label=f"model, {rate} (mean ± sd, n = {len(result.seeds)} RVE{'s' if len(result.seeds) != 1 else ''})")
+        ax.plot(
+            x,
+            model,
+            color=f"C{k}",
+            label=f"model, {rate} (mean ± sd, n = {len(result.seeds)} RVE{'s' if len(result.seeds) != 1 else ''})",
+        )
     ax.set_xlabel("strain [%]")
     ax.set_ylabel(f"mat stress ({result.config.output.stress_measure}) [MPa]")
     ax.set_xlim(left=0.0)
@@ -72,10 +82,13 @@ def _fiber(ax: Axes, result: Fit) -> None:
 
     law = FiberLaw.from_config(result.config.fiber)
     for k, curve in enumerate(result.curves):
-        history = pull_fiber(law, *constant_rate_history(1.0 + curve.max_strain, curve.strain_rate_per_s,
-                                                         FIBER_STEPS))
-        ax.plot(100.0 * (history.stretch - 1.0), history.stress, color=f"C{k}",
-                label=f"strain rate {curve.strain_rate_per_s:.3g} 1/s")
+        history = pull_fiber(law, *constant_rate_history(1.0 + curve.max_strain, curve.strain_rate_per_s, FIBER_STEPS))
+        ax.plot(
+            100.0 * (history.stretch - 1.0),
+            history.stress,
+            color=f"C{k}",
+            label=f"strain rate {curve.strain_rate_per_s:.3g} 1/s",
+        )
     ax.set_xlabel(r"fiber stretch $\lambda - 1$ [%]")
     ax.set_ylabel("fiber stress $t$ [MPa]")
     ax.set_xlim(left=0.0)

@@ -22,6 +22,7 @@ log = logging.getLogger(__package__)
 PENALTY_FACTOR = 10.0
 """A measured point the model did not reach (failed simulation) costs this times max |stress|."""
 
+
 @dataclass(frozen=True, eq=False)
 class _Evaluation:
     """The model at one parameter point.
@@ -78,19 +79,27 @@ class _Model:
         per_point = len(problem.seeds) * len(problem.curves)
         evaluations = []
         for i, (eta, fiber) in enumerate(points):
-            values = [o.value for o in outcomes[i * per_point:(i + 1) * per_point]]
+            values = [o.value for o in outcomes[i * per_point : (i + 1) * per_point]]
             evaluations.append(self._record(eta, fiber, values, stage))
         return evaluations
 
     def _record(self, eta: float, fiber: dict[str, float], values: list, stage: str) -> _Evaluation:
         n_curves = len(self.problem.curves)
-        rows = [np.concatenate([v[0] for v in values[r * n_curves:(r + 1) * n_curves]])
-                for r in range(len(self.problem.seeds))]
+        rows = [
+            np.concatenate([v[0] for v in values[r * n_curves : (r + 1) * n_curves]])
+            for r in range(len(self.problem.seeds))
+        ]
         failures = tuple(v[1] for v in values if v[1] is not None)
         self.failed_simulations += len(failures)
         evaluation = _Evaluation(eta, dict(fiber), np.array(rows), failures)
-        record = {"evaluation": len(self.history) + 1, "stage": stage, ETA_KEY: eta, **fiber,
-                  "sse_MPa2": _sse(self.residual(evaluation)), "failed_simulations": len(failures)}
+        record = {
+            "evaluation": len(self.history) + 1,
+            "stage": stage,
+            ETA_KEY: eta,
+            **fiber,
+            "sse_MPa2": _sse(self.residual(evaluation)),
+            "failed_simulations": len(failures),
+        }
         self.history.append(record)
         if failures:
             log.warning("%d simulation(s) failed at %s: %s", len(failures), _describe(eta, fiber), failures[0])

@@ -123,9 +123,7 @@ def _check_bounds(key: str, bound: Sequence[float]) -> tuple[float, float]:
     if not lo < hi:
         raise ConfigError(f"bounds for {key}: low must be < high (got {lo:g}, {hi:g})")
     if not (p.admits(lo) and p.admits(hi)):
-        raise ConfigError(
-            f"bounds for {key} ({p.symbol}): ({lo:g}, {hi:g}) leave the allowed range {p.allowed}"
-        )
+        raise ConfigError(f"bounds for {key} ({p.symbol}): ({lo:g}, {hi:g}) leave the allowed range {p.allowed}")
     return lo, hi
 
 
@@ -140,8 +138,9 @@ def _check_moduli(base: Config, bounds: Mapping[str, tuple[float, float]]) -> No
         )
 
 
-def _bounds_table(config: Config, keys: Sequence[str],
-                 bounds: Mapping[str, Any] | None) -> dict[str, tuple[float, float]]:
+def _bounds_table(
+    config: Config, keys: Sequence[str], bounds: Mapping[str, Any] | None
+) -> dict[str, tuple[float, float]]:
     """(low, high) of every fitted key: the given ones checked, the others by default."""
     stray = sorted(set(_keys_of(bounds, "bounds")) - set(keys))
     if stray:

@@ -80,8 +80,9 @@ def _seed_list(config: Config, realizations: int | None, seeds: Sequence[int] | 
     return tuple(int(s) for s in seeds)
 
 
-def _checked_steps(config: Config, curves: Sequence[FittedCurve], step_strain: float,
-                   large_strain: bool) -> tuple[_Steps, ...]:
+def _checked_steps(
+    config: Config, curves: Sequence[FittedCurve], step_strain: float, large_strain: bool
+) -> tuple[_Steps, ...]:
     """Each curve's load steps, its loading validated as the simulations will run it."""
     if not (isinstance(step_strain, (int, float)) and math.isfinite(step_strain) and 0 < step_strain <= 0.1):
         raise ConfigError(f"step_strain: the largest load step must be in (0, 0.1] (got {step_strain!r})")
@@ -103,10 +104,21 @@ def _checked_steps(config: Config, curves: Sequence[FittedCurve], step_strain: f
 
 
 def _problem(
-    curve: Any, *, base: Config | str | Path, parameters: Sequence[str], bounds: Mapping[str, Any] | None,
-    fixed: Mapping[str, float] | None, realizations: int | None, seeds: Sequence[int] | None,
-    strain_rate_per_s: float | None, step_strain: float, eta_points: int, eta_tolerance: float,
-    read_options: Mapping[str, Any], average_grid: AverageGrid = "measured", large_strain: bool = False,
+    curve: Any,
+    *,
+    base: Config | str | Path,
+    parameters: Sequence[str],
+    bounds: Mapping[str, Any] | None,
+    fixed: Mapping[str, float] | None,
+    realizations: int | None,
+    seeds: Sequence[int] | None,
+    strain_rate_per_s: float | None,
+    step_strain: float,
+    eta_points: int,
+    eta_tolerance: float,
+    read_options: Mapping[str, Any],
+    average_grid: AverageGrid = "measured",
+    large_strain: bool = False,
 ) -> _Problem:
     from espin.geometry.rve import resolve_config
 
@@ -138,9 +150,7 @@ def _problem(
     seeds = _seed_list(config, realizations, seeds)
     steps = _checked_steps(config, curves, step_strain, large_strain)
     if eta_points < 2 or not 0 < eta_tolerance < 0.1:
-        raise ConfigError(
-            f"eta_points must be >= 2 and eta_tolerance in (0, 0.1) (got {eta_points}, {eta_tolerance})"
-        )
+        raise ConfigError(f"eta_points must be >= 2 and eta_tolerance in (0, 0.1) (got {eta_points}, {eta_tolerance})")
     return _Problem(
         base=config,
         keys=tuple(k for k in FIT_PARAMETERS if k in keys),

@@ -136,12 +136,15 @@ class FitResult:
         """One line: each fitted value (the paper's symbol, +- 1 sd, unit), RMS residual [MPa],
         R^2, simulations run; the sds are left out when the line would reach 200 characters."""
         n = len(self.warnings)
-        tail = (f"; RMS {self.rmse_MPa:.3g} MPa, R^2 {self.r_squared:.4f}, {self.simulations} simulations, "
-                f"{n} warning{'s' * (n != 1)})")
+        tail = (
+            f"; RMS {self.rmse_MPa:.3g} MPa, R^2 {self.r_squared:.4f}, {self.simulations} simulations, "
+            f"{n} warning{'s' * (n != 1)})"
+        )
         for with_sd in (True, False):
             values = ", ".join(
                 f"{FIT_PARAMETERS[key].symbol} {self.values[key]:.4g}"
-                + (f" +- {self.uncertainties[key]:.3g}" if with_sd else "") + _unit(key)
+                + (f" +- {self.uncertainties[key]:.3g}" if with_sd else "")
+                + _unit(key)
                 for key in self.parameters
             )
             text = f"FitResult({values}{tail}"
@@ -156,9 +159,15 @@ class FitResult:
         for key in self.parameters:
             low, high = self.interval(key)
             bound = f", at the {self.at_bound[key]} bound" if self.at_bound[key] else ""
-            rows.append((f"{FIT_PARAMETERS[key].symbol} ({key})",
-                         (f"{self.values[key]:.4g} +- {self.uncertainties[key]:.3g}{_unit(key)} "
-                          f"(1 sd: {low:.4g} .. {high:.4g}{bound})")))
+            rows.append(
+                (
+                    f"{FIT_PARAMETERS[key].symbol} ({key})",
+                    (
+                        f"{self.values[key]:.4g} +- {self.uncertainties[key]:.3g}{_unit(key)} "
+                        f"(1 sd: {low:.4g} .. {high:.4g}{bound})"
+                    ),
+                )
+            )
         rows += [
             ("RMS residual", f"{self.rmse_MPa:.4g} MPa"),
             ("R^2", f"{self.r_squared:.4f}"),
@@ -238,14 +247,20 @@ class FitResult:
             "rmse_MPa": number(self.rmse_MPa),
             "seeds": list(self.seeds),
             "curves": [
-                {"strain_rate_per_s": c.strain_rate_per_s, "points": int(c.strain.size),
-                 "points_from": c.points_from, "max_strain": c.max_strain, "source": c.source,
-                 **steps}
+                {
+                    "strain_rate_per_s": c.strain_rate_per_s,
+                    "points": int(c.strain.size),
+                    "points_from": c.points_from,
+                    "max_strain": c.max_strain,
+                    "source": c.source,
+                    **steps,
+                }
                 for c, steps in zip(self.curves, self.load_steps)
             ],
             "stress_measure": self.config.output.stress_measure,
-            "eta_profile": None if self.eta_profile is None else
-            [[float(eta), number(sse)] for eta, sse in self.eta_profile],
+            "eta_profile": None
+            if self.eta_profile is None
+            else [[float(eta), number(sse)] for eta, sse in self.eta_profile],
             "failed_etas": list(self.failed_etas),
             "history": [{k: number(v) if isinstance(v, float) else v for k, v in h.items()} for h in self.history],
             "simulations": self.simulations,
@@ -274,8 +289,9 @@ class FitResult:
         from espin.core.config import config_digest
         from espin.core.output_folder import OutputFolder
 
-        with OutputFolder.claim(folder, "fit", config_digest(self.config), FIT_OUTPUTS, overwrite=overwrite,
-                                resume="same-inputs"):
+        with OutputFolder.claim(
+            folder, "fit", config_digest(self.config), FIT_OUTPUTS, overwrite=overwrite, resume="same-inputs"
+        ):
             return self.write_files(folder)
 
     def write_files(self, folder: str | Path) -> dict[str, Path]:
@@ -307,16 +323,20 @@ def _curve_table(curve: FittedCurve, seeds: Sequence[int]) -> Any:
     import pandas as pd
 
     missing = np.full(curve.strain.shape, np.nan)
-    return pd.DataFrame({
-        "strain_rate_per_s": curve.strain_rate_per_s,
-        "strain": curve.strain,
-        "stress_MPa": curve.stress_MPa,
-        "sd_MPa": missing if curve.sd_MPa is None else curve.sd_MPa,
-        "model_MPa": curve.model_MPa,
-        "model_sd_MPa": curve.model_sd_MPa,
-        # A fit's curves carry the model (its realizations included).
-        **{f"model_seed{seed}_MPa": row for seed, row in zip(seeds, cast(np.ndarray, curve.model_realizations_MPa))},
-    })
+    return pd.DataFrame(
+        {
+            "strain_rate_per_s": curve.strain_rate_per_s,
+            "strain": curve.strain,
+            "stress_MPa": curve.stress_MPa,
+            "sd_MPa": missing if curve.sd_MPa is None else curve.sd_MPa,
+            "model_MPa": curve.model_MPa,
+            "model_sd_MPa": curve.model_sd_MPa,
+            # A fit's curves carry the model (its realizations included).
+            **{
+                f"model_seed{seed}_MPa": row for seed, row in zip(seeds, cast(np.ndarray, curve.model_realizations_MPa))
+            },
+        }
+    )
 
 
 def _model_curves(problem: _Problem, evaluation: _Evaluation) -> tuple[FittedCurve, ...]:
@@ -324,11 +344,21 @@ def _model_curves(problem: _Problem, evaluation: _Evaluation) -> tuple[FittedCur
     curves, start = [], 0
     ddof = 1 if len(problem.seeds) > 1 else 0
     for c in problem.curves:
-        block = evaluation.per_realization[:, start:start + c.strain.size]
+        block = evaluation.per_realization[:, start : start + c.strain.size]
         start += c.strain.size
-        curves.append(FittedCurve(c.strain_rate_per_s, c.strain, c.stress_MPa, c.sd_MPa,
-                                  block.mean(axis=0), block.std(axis=0, ddof=ddof), c.source,
-                                  c.points_from, block.copy()))
+        curves.append(
+            FittedCurve(
+                c.strain_rate_per_s,
+                c.strain,
+                c.stress_MPa,
+                c.sd_MPa,
+                block.mean(axis=0),
+                block.std(axis=0, ddof=ddof),
+                c.source,
+                c.points_from,
+                block.copy(),
+            )
+        )
     return tuple(curves)
 
 
@@ -336,8 +366,9 @@ def _fitted_config(problem: _Problem, values: Mapping[str, float]) -> Config:
     """The base config with the fitted values, the first seed, loaded like the first curve (its
     program of load steps): ``espin simulate`` reproduces the first realization's curve."""
     first = problem.curves[0]
-    return _loading_config(problem.base, problem.steps[0], first.strain_rate_per_s,
-                           {**values, "rve.seed": problem.seeds[0]})
+    return _loading_config(
+        problem.base, problem.steps[0], first.strain_rate_per_s, {**values, "rve.seed": problem.seeds[0]}
+    )
 
 
 def _at_bound(problem: _Problem, values: Mapping[str, float]) -> dict[str, str | None]:
@@ -350,32 +381,46 @@ def _at_bound(problem: _Problem, values: Mapping[str, float]) -> dict[str, str |
     return flags
 
 
-def _warnings(problem: _Problem, values: Mapping[str, float], total: Mapping[str, float],
-              at_bound: Mapping[str, str | None], correlation: np.ndarray, notes: Sequence[str],
-              failed_etas: Sequence[Mapping[str, Any]]) -> tuple[str, ...]:
+def _warnings(
+    problem: _Problem,
+    values: Mapping[str, float],
+    total: Mapping[str, float],
+    at_bound: Mapping[str, str | None],
+    correlation: np.ndarray,
+    notes: Sequence[str],
+    failed_etas: Sequence[Mapping[str, Any]],
+) -> tuple[str, ...]:
     """What a user should know before trusting the values (each also logged)."""
     out = []
     for key in problem.keys:
         symbol = FIT_PARAMETERS[key].symbol
         if at_bound[key]:
-            out.append(f"{key} ({symbol}) = {values[key]:.4g} is at its {at_bound[key]} bound "
-                       f"{problem.bounds[key][at_bound[key] == 'upper']:.4g}: the data do not pin it "
-                       "inside the bounds (widen them, or fix it)")
+            out.append(
+                f"{key} ({symbol}) = {values[key]:.4g} is at its {at_bound[key]} bound "
+                f"{problem.bounds[key][at_bound[key] == 'upper']:.4g}: the data do not pin it "
+                "inside the bounds (widen them, or fix it)"
+            )
         relative = total[key] / abs(values[key]) if values[key] else math.inf
         if relative > UNIDENTIFIABLE_SD:  # NaN (no sd): said by the note that explains it
-            out.append(f"{key} ({symbol}): relative sd {relative:.3g} > {UNIDENTIFIABLE_SD:g}: not "
-                       "identifiable from these data; fix it")
+            out.append(
+                f"{key} ({symbol}): relative sd {relative:.3g} > {UNIDENTIFIABLE_SD:g}: not "
+                "identifiable from these data; fix it"
+            )
     p = len(problem.keys)
     for i in range(p):
         for j in range(i + 1, p):
             c = correlation[i, j]
             if np.isfinite(c) and abs(c) > UNIDENTIFIABLE_CORRELATION:
                 a, b = (FIT_PARAMETERS[problem.keys[k]].symbol for k in (i, j))
-                out.append(f"corr({a}, {b}) = {c:+.3f}: {a} and {b} are not separately identifiable "
-                           "(the data fix a combination); fix one of them")
+                out.append(
+                    f"corr({a}, {b}) = {c:+.3f}: {a} and {b} are not separately identifiable "
+                    "(the data fix a combination); fix one of them"
+                )
     if failed_etas:
-        out.append(f"the fit failed at {len(failed_etas)} eta(s) "
-                   f"({', '.join(f'{f[ETA_KEY]:.4g}' for f in failed_etas)}); their SSE counted as infinite")
+        out.append(
+            f"the fit failed at {len(failed_etas)} eta(s) "
+            f"({', '.join(f'{f[ETA_KEY]:.4g}' for f in failed_etas)}); their SSE counted as infinite"
+        )
     out.extend(notes)
     for message in out:
         log.warning(message)
@@ -389,8 +434,14 @@ def _combined(misfit: dict[str, float], spread: dict[str, float] | None, n: int)
     return {k: math.hypot(misfit[k], spread[k] / math.sqrt(n)) for k in misfit}
 
 
-def _result(problem: _Problem, model: _Model, search: _Search, uncertainty: _Uncertainty,
-            fixed: Mapping[str, float], elapsed_s: float) -> FitResult:
+def _result(
+    problem: _Problem,
+    model: _Model,
+    search: _Search,
+    uncertainty: _Uncertainty,
+    fixed: Mapping[str, float],
+    elapsed_s: float,
+) -> FitResult:
     best = search.best
     values = {ETA_KEY: best.eta, **best.evaluation.fiber} if problem.fits_eta else dict(best.evaluation.fiber)
     values = {k: float(values[k]) for k in problem.keys}
@@ -407,8 +458,9 @@ def _result(problem: _Problem, model: _Model, search: _Search, uncertainty: _Unc
         eta_profile_sd=uncertainty.eta_profile_sd,
         eta_resolution=eta_resolution(problem) if problem.fits_eta else None,
         at_bound=at_bound,
-        warnings=_warnings(problem, values, total, at_bound, uncertainty.correlation, uncertainty.notes,
-                           search.failed_etas),
+        warnings=_warnings(
+            problem, values, total, at_bound, uncertainty.correlation, uncertainty.notes, search.failed_etas
+        ),
         correlation=uncertainty.correlation,
         bounds=dict(problem.bounds),
         fixed={parameter_key(k): float(v) for k, v in fixed.items()},

@@ -65,14 +65,13 @@ def _jacobian(model: _Model, eta: float, z: np.ndarray, at: _Evaluation, stage: 
         )
     lo, hi = problem.internal_bounds()
     steps = np.where(z + FD_STEP <= hi, FD_STEP, -FD_STEP)
-    evaluations = model.evaluate([(eta, problem.fiber_values(z + h * e)) for h, e in zip(steps, np.eye(z.size))],
-                                 stage)
+    evaluations = model.evaluate([(eta, problem.fiber_values(z + h * e)) for h, e in zip(steps, np.eye(z.size))], stage)
     failed = [j for j, e in enumerate(evaluations) if e.failures and lo[j] <= z[j] - steps[j] <= hi[j]]
     if failed:
-        log.warning("Jacobian at %s: %d column(s) failed; trying the other sign", _describe(eta, at.fiber),
-                    len(failed))
-        again = model.evaluate([(eta, problem.fiber_values(z - steps[j] * np.eye(z.size)[j])) for j in failed],
-                               stage + " retry")
+        log.warning("Jacobian at %s: %d column(s) failed; trying the other sign", _describe(eta, at.fiber), len(failed))
+        again = model.evaluate(
+            [(eta, problem.fiber_values(z - steps[j] * np.eye(z.size)[j])) for j in failed], stage + " retry"
+        )
         for j, evaluation in zip(failed, again):
             if not evaluation.failures:
                 evaluations[j], steps[j] = evaluation, -steps[j]
@@ -115,8 +114,7 @@ def _fit_fiber(model: _Model, eta: float, z0: np.ndarray, stage: str) -> _FiberF
     )
     evaluation = at(solution.x)
     log.info("eta %.5g: %s (%d evaluations)", eta, solution.message, solution.nfev)
-    return _FiberFit(eta, solution.x, evaluation, _sse(model.residual(evaluation)), solution.jac,
-                     solution.message)
+    return _FiberFit(eta, solution.x, evaluation, _sse(model.residual(evaluation)), solution.jac, solution.message)
 
 
 # --------------------------------------------------------------------------------------------
@@ -159,8 +157,10 @@ def _search(model: _Model) -> _Search:
             if not fitted.evaluation.failures:
                 solved.append(fitted)
                 return fitted.sse
-            message = (f"the best point at this eta, {_describe(eta, fitted.evaluation.fiber)}, has "
-                       f"failed simulations: {fitted.evaluation.failures[0]}")
+            message = (
+                f"the best point at this eta, {_describe(eta, fitted.evaluation.fiber)}, has "
+                f"failed simulations: {fitted.evaluation.failures[0]}"
+            )
         log.warning("%s = %.6g: the fit failed there, SSE counted as infinite: %s", ETA_KEY, eta, message)
         failed.append({ETA_KEY: eta, "stage": stage, "message": message})
         return worst
@@ -174,8 +174,12 @@ def _search(model: _Model) -> _Search:
         )
     k = int(np.argmin([sse[eta] for eta in grid]))
     bracket = (grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)])
-    minimize_scalar(lambda eta: profile(eta, "eta bracket"), bounds=bracket, method="bounded",
-                    options={"xatol": problem.eta_tolerance})
+    minimize_scalar(
+        lambda eta: profile(eta, "eta bracket"),
+        bounds=bracket,
+        method="bounded",
+        options={"xatol": problem.eta_tolerance},
+    )
     return _Search(min(solved, key=lambda f: f.sse), solved, failed)
 
 

@@ -55,9 +55,13 @@ class _Steps:
 
     def describe(self) -> dict[str, float | int]:
         """What fit.json reports of the steps."""
-        return {"load_steps": self.count, "step_strain": self.step_strain,
-                "fine_steps_to_strain": self.fine_until, "largest_step_strain": self.largest,
-                "points_ending_a_segment": self.on_data}
+        return {
+            "load_steps": self.count,
+            "step_strain": self.step_strain,
+            "fine_steps_to_strain": self.fine_until,
+            "largest_step_strain": self.largest,
+            "points_ending_a_segment": self.on_data,
+        }
 
 
 def _load_steps(strain: np.ndarray, step_strain: float, fine_until: float) -> _Steps:
@@ -106,15 +110,15 @@ def _steps_are_time_steps(config: Config) -> Config:
     return apply_overrides(config, {"solver.time_rtol": "off"})
 
 
-def _loading_config(config: Config, steps: _Steps, rate: float,
-                    overrides: Mapping[str, Any] | None = None) -> Config:
+def _loading_config(config: Config, steps: _Steps, rate: float, overrides: Mapping[str, Any] | None = None) -> Config:
     """``config`` with ``overrides``, loaded by the curve's program instead of the shorthand;
     validated (a ConfigError names the bad key)."""
     data = config.model_dump(mode="json", exclude_none=True, exclude_unset=True)
     for key in _SHORTHAND:
         data.get("loading", {}).pop(key, None)
-    return apply_overrides(config_from_dict(data, "(fit)"),
-                           {**(overrides or {}), "loading.program": steps.program(rate)})
+    return apply_overrides(
+        config_from_dict(data, "(fit)"), {**(overrides or {}), "loading.program": steps.program(rate)}
+    )
 
 
 @dataclass(frozen=True, eq=False)

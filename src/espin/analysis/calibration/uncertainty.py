@@ -50,13 +50,15 @@ def _full_jacobian(model: _Model, best: _FiberFit, notes: list[str]) -> np.ndarr
         eta_column = (up.mean - down.mean) / (2 * d)
     elif up.failures and down.failures:
         eta_column = np.full(best.evaluation.mean.shape, np.nan)
-        notes.append(f"the eta secant failed on both sides of {ETA_KEY} = {best.eta:.6g} "
-                     f"({up.failures[0]}): no Gauss-Newton sd")
+        notes.append(
+            f"the eta secant failed on both sides of {ETA_KEY} = {best.eta:.6g} ({up.failures[0]}): no Gauss-Newton sd"
+        )
     else:
         side = down if up.failures else up
         eta_column = (side.mean - best.evaluation.mean) / (side.eta - best.eta)
-        notes.append(f"the eta secant failed at {ETA_KEY} = {(up if up.failures else down).eta:.6g}; "
-                     "one-sided secant used")
+        notes.append(
+            f"the eta secant failed at {ETA_KEY} = {(up if up.failures else down).eta:.6g}; one-sided secant used"
+        )
     for note in notes:
         log.warning(note)
     return np.column_stack([eta_column, best.jacobian])
@@ -95,5 +97,4 @@ def _uncertainty(model: _Model, best: _FiberFit, solved: Sequence[_FiberFit]) ->
     if problem.fits_eta:
         spacing = np.diff(problem.bounds[ETA_KEY])[0] / (problem.eta_points - 1)
         eta_sd = _eta_profile_sd(solved, best, s2, spacing)
-    return _Uncertainty(dict(zip(problem.keys, (sd_z * to_value).tolist())), spread, correlation, eta_sd,
-                        tuple(notes))
+    return _Uncertainty(dict(zip(problem.keys, (sd_z * to_value).tolist())), spread, correlation, eta_sd, tuple(notes))

@@ -296,8 +296,7 @@ def calibrate_geometry(
             f"({base_side:.4g} um): the calibration measured layers of {search_side:.4g} um, while "
             "espin generate with this config measures its whole layer (a smaller window)"
         )
-    measurement = VirtualMeasurement(window, float(min_chord), seed_list, 1,
-                                     targets.contour_length_um)
+    measurement = VirtualMeasurement(window, float(min_chord), seed_list, 1, targets.contour_length_um)
     if targets.has_orientation:
         orientation, orientation_target, found = _orientation_spec(targets)
         notes += [n for n in found if not n.startswith("warning: ")]
@@ -311,9 +310,11 @@ def calibrate_geometry(
     # 3. Tortuosity and long-range shape: the walk.
     image = image if image is not None else measured_image(targets_or_path)
     if image is None and targets.contour_length_um is not None:
-        notes.append("no measured image at hand (a fibers.csv, or the image named in "
-                     "measurement.toml was not found): no tracer correction, rendered check or "
-                     "comparison.png; the fitted walk is wavier than the image's (docs/geometry_calibration.md)")
+        notes.append(
+            "no measured image at hand (a fibers.csv, or the image named in "
+            "measurement.toml was not found): no tracer correction, rendered check or "
+            "comparison.png; the fitted walk is wavier than the image's (docs/geometry_calibration.md)"
+        )
     if walk != "auto" and not targets.has_tortuosity:
         notes.append(f"walk = {walk} is not used: the targets have no tortuosity to fit a walk to")
     fitted: WalkFit | None = None
@@ -329,18 +330,26 @@ def calibrate_geometry(
                 f"it must exceed {SEGMENT_RATIO_MIN / SEGMENT_RATIO_MAX_FRACTION:g} D"
             )
         if walk == "auto" and crossing_target(targets) is None:
-            notes.append("walk: the targets carry no long-range shape (fibers crossing the image "
-                         "edge to edge), which alone tells the walks apart: the paper walk is kept")
-        dev = next(d for d in (max_deviation_deg, start.max_deviation_deg,
-                               WALK_DEFAULTS["paper"]["max_deviation_deg"]) if d is not None)
-        length = next(r for r in (start.waviness_length_ratio,
-                                  WALK_DEFAULTS["smooth"]["waviness_length_ratio"]) if r is not None)
+            notes.append(
+                "walk: the targets carry no long-range shape (fibers crossing the image "
+                "edge to edge), which alone tells the walks apart: the paper walk is kept"
+            )
+        dev = next(
+            d
+            for d in (max_deviation_deg, start.max_deviation_deg, WALK_DEFAULTS["paper"]["max_deviation_deg"])
+            if d is not None
+        )
+        length = next(
+            r for r in (start.waviness_length_ratio, WALK_DEFAULTS["smooth"]["waviness_length_ratio"]) if r is not None
+        )
 
         def fit_walks(goal: GeometryTargets) -> WalkFit:
-            objective = _Objective(measurement, rve, search_side, _tortuosity_target(goal),
-                                   crossing_target(goal), sr, progress)
-            return _fit_walks(objective, walk, fit, sr, dev, length, largest_segment,
-                              segment_ratios, window / calibrated_d)
+            objective = _Objective(
+                measurement, rve, search_side, _tortuosity_target(goal), crossing_target(goal), sr, progress
+            )
+            return _fit_walks(
+                objective, walk, fit, sr, dev, length, largest_segment, segment_ratios, window / calibrated_d
+            )
 
         fitted = fit_walks(targets)
         evaluations += fitted.evaluations
@@ -351,8 +360,9 @@ def calibrate_geometry(
                 progress("rendering the fitted walk and measuring it like the image (tracer bias)")
             draft_rve = _with_walk(rve, fitted)
             draft = config_from_dict(_with_section(base_config, draft_rve, {}), "(geometry calibration)")
-            search_targets, bias = tracer_corrected(targets, measure_renderings(draft, image),
-                                                    measurement.measure(draft_rve, search_side)["tortuosity"])
+            search_targets, bias = tracer_corrected(
+                targets, measure_renderings(draft, image), measurement.measure(draft_rve, search_side)["tortuosity"]
+            )
             tracer = {"tortuosity_bias": bias, "first_walk": fitted.scores[fitted.chosen].walk}
             # Both None (no tortuosity sample) compare equal, as meant; numpy's stubs refuse None.
             if not np.array_equal(search_targets.tortuosity, targets.tortuosity):  # type: ignore[arg-type]
@@ -365,13 +375,17 @@ def calibrate_geometry(
         parameters |= {f"rve.{k}": v for k, v in keys.items()}
         parameters["rve.segment_ratio"] = float(rve["segment_ratio"])
         if fitted.chosen == "paper":
-            parameters["persistence_ratio"] = persistence_ratio(keys["segment_ratio"],
-                                                                keys["max_deviation_deg"])
+            parameters["persistence_ratio"] = persistence_ratio(keys["segment_ratio"], keys["max_deviation_deg"])
         if len(fitted.scores) > 1:
-            notes.append("walk: " + ", ".join(
-                f"{name} score {sc.score:.3g} (tortuosity KS {sc.ks:.3f}, U-turns "
-                f"{sc.u_turn_fraction:.3f}, straightness {sc.straightness:.4f})"
-                for name, sc in fitted.scores.items()) + f" -> {fitted.chosen}")
+            notes.append(
+                "walk: "
+                + ", ".join(
+                    f"{name} score {sc.score:.3g} (tortuosity KS {sc.ks:.3f}, U-turns "
+                    f"{sc.u_turn_fraction:.3f}, straightness {sc.straightness:.4f})"
+                    for name, sc in fitted.scores.items()
+                )
+                + f" -> {fitted.chosen}"
+            )
 
     # 4. Orientation: correct the deposition kappa for the widening by the walk.
     if targets.has_orientation:
@@ -379,8 +393,9 @@ def calibrate_geometry(
         if isinstance(spec, dict) and correct_orientation:
             vm = spec["von_mises"]
             order = dict(orientation_target.summary)["order"]
-            kappa, problem, n = _correct_kappa(measurement, rve, check_side, vm["mean_deg"],
-                                               vm["kappa"], order, progress)
+            kappa, problem, n = _correct_kappa(
+                measurement, rve, check_side, vm["mean_deg"], vm["kappa"], order, progress
+            )
             evaluations += n
             spec = {"von_mises": {"mean_deg": vm["mean_deg"], "kappa": kappa}}
             rve["orientation"] = spec
@@ -391,9 +406,14 @@ def calibrate_geometry(
     # 5. The written config and its match, measured on mats of that config.
     output = {"window_ratio": float(f"{window / calibrated_d:.6g}")}
     config = config_from_dict(
-        _with_section(base_config, rve, output,
-                      _targets_section(search_targets, window, float(min_chord), tracer.get("tortuosity_bias"))),
-        "(calibrated)")
+        _with_section(
+            base_config,
+            rve,
+            output,
+            _targets_section(search_targets, window, float(min_chord), tracer.get("tortuosity_bias")),
+        ),
+        "(calibrated)",
+    )
     parameters["output.window_ratio"] = output["window_ratio"]
     parameters["fitted"] = _fitted(targets, fit, fitted.chosen if fitted else None)
     seen = measurement.measure(_base_rve_data(config), check_side)
@@ -407,7 +427,8 @@ def calibrate_geometry(
                 f"the calibrated mat's mean tortuosity {means[1]:.3f} differs from the target's "
                 f"{means[0]:.3f} by more than {TORTUOSITY_MEAN_TOLERANCE:g}: the KS distance "
                 "matches the bulk of the distribution, and the walk's tail (fibers curling "
-                "within the window) is heavier than the target's")
+                "within the window) is heavier than the target's"
+            )
     if targets.has_orientation:
         matches.append(orientation_target.compare(seen["orientation_deg"]))
     if targets.has_diameter:
@@ -415,42 +436,63 @@ def calibrate_geometry(
     whole = None
     if targets.has_tortuosity and measurement.piece_lengths_um is not None:
         # What the pieces say of whole fibers across the window (a hand tracing's measure).
-        t = VirtualMeasurement(window, float(min_chord), seed_list, layers).measure(
-            _base_rve_data(config), check_side)["tortuosity"]
+        t = VirtualMeasurement(window, float(min_chord), seed_list, layers).measure(_base_rve_data(config), check_side)[
+            "tortuosity"
+        ]
         evaluations += 1
         # The walk's portions have a long tail (fibers curling inside the window): the median
         # gives the half-normal scale robustly (median = scale * 0.6745).
         if len(t):
             median = float(np.median(t))
-            whole = {"mean": float(np.mean(t)), "median": median,
-                     "halfnorm_scale_from_median": (median - 1.0) / HALFNORM_MEDIAN,
-                     "n": int(len(t))}
+            whole = {
+                "mean": float(np.mean(t)),
+                "median": median,
+                "halfnorm_scale_from_median": (median - 1.0) / HALFNORM_MEDIAN,
+                "n": int(len(t)),
+            }
     if image is not None and rendered_check:
         if progress is not None:
             progress("rendering the calibrated mat and measuring it like the image")
         tracer["rendered_check"] = measure_renderings(config, image).check(targets)
     search = {
         "tracer": tracer or None,
-        "window_um": window, "window_source": window_source, "min_chord_um": float(min_chord),
-        "seeds": list(seed_list), "layers": layers, "search_side_um": search_side,
-        "check_side_um": check_side, "sampling": measurement.sampling,
-        "sampling_description": sampling, "whole_portion_tortuosity": whole,
+        "window_um": window,
+        "window_source": window_source,
+        "min_chord_um": float(min_chord),
+        "seeds": list(seed_list),
+        "layers": layers,
+        "search_side_um": search_side,
+        "check_side_um": check_side,
+        "sampling": measurement.sampling,
+        "sampling_description": sampling,
+        "whole_portion_tortuosity": whole,
         "evaluations": evaluations,
-        "elapsed_s": time.perf_counter() - started, "notes": notes,
+        "elapsed_s": time.perf_counter() - started,
+        "notes": notes,
     }
     for w in warnings:
         log.info("calibration warning: %s", w)
     log.debug("virtual measurement: %s", sampling)
-    return GeometryCalibration(config, base_config, targets, parameters, tuple(matches),
-                               fitted.valley if fitted else (), search, tuple(warnings), image)
+    return GeometryCalibration(
+        config,
+        base_config,
+        targets,
+        parameters,
+        tuple(matches),
+        fitted.valley if fitted else (),
+        search,
+        tuple(warnings),
+        image,
+    )
 
 
 def measured_image(source: Any) -> MeasuredImage | None:
     """The analysed image behind the targets: an SEMMeasurement's, or the one a measure
     folder's ``measurement.toml`` names (None when unknown or not found)."""
     if hasattr(source, "image") and hasattr(source, "um_per_px"):
-        return MeasuredImage(np.asarray(source.image), float(source.um_per_px),
-                             Path(str(getattr(source, "source", "image"))).name)
+        return MeasuredImage(
+            np.asarray(source.image), float(source.um_per_px), Path(str(getattr(source, "source", "image"))).name
+        )
     if isinstance(source, (str, Path)) and Path(source).is_dir():
         from espin.imaging.geometry_calibration.comparison import MeasuredView
 
@@ -464,8 +506,9 @@ def _sampling_description(measurement: VirtualMeasurement) -> str:
     """How the virtual mats are measured, for the report."""
     lengths = measurement.piece_lengths_um
     if lengths is None:
-        return ("whole fiber portions in the window, edge to edge (the targets carry no piece "
-                "lengths)")
-    return (f"length-matched pieces: contour lengths drawn from the {len(lengths)} measured "
-            f"pieces (median {np.median(lengths):.3g} um), placed uniformly along the window "
-            "portions")
+        return "whole fiber portions in the window, edge to edge (the targets carry no piece lengths)"
+    return (
+        f"length-matched pieces: contour lengths drawn from the {len(lengths)} measured "
+        f"pieces (median {np.median(lengths):.3g} um), placed uniformly along the window "
+        "portions"
+    )

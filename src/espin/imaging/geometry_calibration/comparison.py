@@ -64,7 +64,7 @@ class MeasuredView:
         """The analysed rows of the image, grey levels in [0, 1]."""
         from espin.imaging.image import read_image
 
-        return read_image(self.path)[self.rows[0]:self.rows[1]]
+        return read_image(self.path)[self.rows[0] : self.rows[1]]
 
 
 def render_like(config: Config, shape: tuple[int, int], um_per_px: float, seed: int = 0) -> np.ndarray:
@@ -78,14 +78,14 @@ def render_like(config: Config, shape: tuple[int, int], um_per_px: float, seed: 
     # Only the statistics of the layers matter: the drawn layers alone, on a layer at least
     # as large as the field of view.
     layers = min(RENDERED_LAYERS, config.rve.layers)
-    rve = config.rve.model_copy(update={"size_um": max(side, config.rve.side_um), "size_ratio": None,
-                                        "layers": layers})
+    rve = config.rve.model_copy(update={"size_um": max(side, config.rve.side_um), "size_ratio": None, "layers": layers})
     rendered = render_sem(deposit(rve), um_per_px=um_per_px, side_um=side, layers=layers, seed=seed)
-    return rendered.image[:shape[0], :shape[1]]
+    return rendered.image[: shape[0], : shape[1]]
 
 
-def save_comparison(image: np.ndarray, rendering: np.ndarray, um_per_px: float, path: str | Path,
-                    image_label: str, rendering_label: str) -> Path:
+def save_comparison(
+    image: np.ndarray, rendering: np.ndarray, um_per_px: float, path: str | Path, image_label: str, rendering_label: str
+) -> Path:
     """Write the image and the rendering side by side, on one scale [um], as a PNG."""
     from matplotlib.figure import Figure
 
@@ -99,11 +99,15 @@ def save_comparison(image: np.ndarray, rendering: np.ndarray, um_per_px: float, 
     axes = fig.subplots(1, 2, sharex=True, sharey=True)
     for ax, picture, label in ((axes[0], image, image_label), (axes[1], rendering, rendering_label)):
         low, high = np.percentile(picture, [0.5, 99.5])
-        ax.imshow(picture, cmap="gray", vmin=low, vmax=max(high, low + 1e-9), extent=extent,
-                  interpolation="antialiased")
+        ax.imshow(
+            picture, cmap="gray", vmin=low, vmax=max(high, low + 1e-9), extent=extent, interpolation="antialiased"
+        )
         ax.set_title(label, fontsize=10)
         ax.set_xlabel("x [µm]")
     axes[0].set_ylabel("y [µm]")
-    fig.suptitle(f"same pixel size ({um_per_px:.4g} µm/px) and field of view "
-                 f"({cols * um_per_px:.3g} × {rows * um_per_px:.3g} µm)", fontsize=10)
+    fig.suptitle(
+        f"same pixel size ({um_per_px:.4g} µm/px) and field of view "
+        f"({cols * um_per_px:.3g} × {rows * um_per_px:.3g} µm)",
+        fontsize=10,
+    )
     return save_figure(fig, path, dpi=110)

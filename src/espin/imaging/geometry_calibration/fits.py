@@ -91,9 +91,7 @@ def fit_axial_von_mises(orientation_deg: np.ndarray) -> tuple[float, float, floa
     return math.degrees(director) % 180.0, _kappa_from_order(order), min(p, 1.0)
 
 
-def truncated_normal_parameters(
-    mean_um: float, sd_um: float, lower_um: float | None = None
-) -> tuple[float, float]:
+def truncated_normal_parameters(mean_um: float, sd_um: float, lower_um: float | None = None) -> tuple[float, float]:
     """Parent normal (mu, sigma) whose truncation below ``lower_um`` has this mean and sd.
 
     Parameters

@@ -54,9 +54,14 @@ class DistributionMatch:
     summary: tuple[tuple[str, float, float], ...]
 
 
-def _compare(quantity: str, virtual: np.ndarray, sample: np.ndarray | None,
-             cdf: Callable[[np.ndarray], np.ndarray] | None, label: str,
-             target_summary: tuple[tuple[str, float], ...]) -> DistributionMatch:
+def _compare(
+    quantity: str,
+    virtual: np.ndarray,
+    sample: np.ndarray | None,
+    cdf: Callable[[np.ndarray], np.ndarray] | None,
+    label: str,
+    target_summary: tuple[tuple[str, float], ...],
+) -> DistributionMatch:
     """KS distance (and p-value against a sample) of ``virtual`` against its target."""
     from scipy import stats
 
@@ -67,8 +72,7 @@ def _compare(quantity: str, virtual: np.ndarray, sample: np.ndarray | None,
         ks, p = _one_sample_ks(virtual, cast(Callable, cdf)), None  # a target without a sample has a law
     virtual_summary = dict(_summary(quantity, virtual))
     rows = tuple((name, float(t), float(virtual_summary[name])) for name, t in target_summary)
-    return DistributionMatch(quantity, label, None if sample is None else len(sample), len(virtual),
-                             ks, p, rows)
+    return DistributionMatch(quantity, label, None if sample is None else len(sample), len(virtual), ks, p, rows)
 
 
 @dataclass(frozen=True)
@@ -147,8 +151,9 @@ def _tortuosity_target(targets: GeometryTargets) -> _Target:
     if targets.tortuosity is not None:
         return _sample_target("tortuosity", targets.tortuosity, targets.source)
     law = targets.tortuosity_distribution()
-    return _Target("tortuosity", None, law.cdf, f"halfnorm(loc=1, scale={targets.tortuosity_scale:g})",
-                   _distribution_summary(law))
+    return _Target(
+        "tortuosity", None, law.cdf, f"halfnorm(loc=1, scale={targets.tortuosity_scale:g})", _distribution_summary(law)
+    )
 
 
 def _diameter_target(targets: GeometryTargets) -> _Target:
@@ -158,11 +163,11 @@ def _diameter_target(targets: GeometryTargets) -> _Target:
 
     mean, sd = cast(float, targets.diameter_mean_um), targets.diameter_sd_um or 0.0  # no sample: a mean
     if sd == 0.0:
-        return _Target("diameter_um", None, _Fixed(mean),
-                       f"fixed {mean:g} um", (("mean", mean), ("sd", 0.0), ("median", mean)))
+        return _Target(
+            "diameter_um", None, _Fixed(mean), f"fixed {mean:g} um", (("mean", mean), ("sd", 0.0), ("median", mean))
+        )
     law = stats.norm(mean, sd)
-    return _Target("diameter_um", None, law.cdf, f"normal({mean:g}, {sd:g}) um",
-                   _distribution_summary(law))
+    return _Target("diameter_um", None, law.cdf, f"normal({mean:g}, {sd:g}) um", _distribution_summary(law))
 
 
 def _orientation_spec(targets: GeometryTargets) -> tuple[str | dict[str, Any], _Target, list[str]]:
@@ -180,15 +185,16 @@ def _orientation_spec(targets: GeometryTargets) -> tuple[str | dict[str, Any], _
         spec: str | dict[str, Any] = "uniform"
         if fitted.orientation_model == "von_mises":
             spec = {"von_mises": {"mean_deg": round(mean, 2) % 180.0, "kappa": round(kappa, 4)}}
-        notes.append(f"orientation sample: AIC uniform {fitted.orientation_aic_uniform:.1f}, von Mises "
-                     f"{fitted.orientation_aic_von_mises:.1f} (Rayleigh p = {p:.3g}) -> "
-                     f"{'uniform' if spec == 'uniform' else 'von Mises'}")
+        notes.append(
+            f"orientation sample: AIC uniform {fitted.orientation_aic_uniform:.1f}, von Mises "
+            f"{fitted.orientation_aic_von_mises:.1f} (Rayleigh p = {p:.3g}) -> "
+            f"{'uniform' if spec == 'uniform' else 'von Mises'}"
+        )
         return spec, _sample_target("orientation_deg", targets.orientation_deg, targets.source), notes
     if targets.orientation_uniform:
         spec = "uniform"
     else:
-        spec = {"von_mises": {"mean_deg": targets.orientation_mean_deg,
-                              "kappa": targets.orientation_kappa}}
+        spec = {"von_mises": {"mean_deg": targets.orientation_mean_deg, "kappa": targets.orientation_kappa}}
     law = orientation_distribution("uniform" if spec == "uniform" else VonMises.model_validate(spec))
     # Summary of the exact distribution: director and order I1/I0(kappa).
     from scipy import special
@@ -197,10 +203,11 @@ def _orientation_spec(targets: GeometryTargets) -> tuple[str | dict[str, Any], _
         summary: tuple[tuple[str, float], ...] = (("order", 0.0),)
     else:
         k = targets.orientation_kappa
-        summary = (("director_deg", cast(float, targets.orientation_mean_deg)),
-                   ("order", float(special.i1e(k) / special.i0e(k))))
-    return spec, _Target("orientation_deg", None, lambda x: law.cdf(np.radians(x)), law.label,
-                         summary), notes
+        summary = (
+            ("director_deg", cast(float, targets.orientation_mean_deg)),
+            ("order", float(special.i1e(k) / special.i0e(k))),
+        )
+    return spec, _Target("orientation_deg", None, lambda x: law.cdf(np.radians(x)), law.label, summary), notes
 
 
 @dataclass(frozen=True)

@@ -29,9 +29,15 @@ MIN_PORTIONS = 1000
 """Default least number of traced fiber portions the virtual mats of one evaluation give."""
 
 
-def check_options(fit: str, segment_ratio: float | None, max_deviation_deg: float | None,
-                  seeds: int, min_portions: int, window_um: float | None,
-                  walk: str = "auto") -> None:
+def check_options(
+    fit: str,
+    segment_ratio: float | None,
+    max_deviation_deg: float | None,
+    seeds: int,
+    min_portions: int,
+    window_um: float | None,
+    walk: str = "auto",
+) -> None:
     """Refuse, before any work, search options out of range or in contradiction.
 
     Raises
@@ -44,8 +50,10 @@ def check_options(fit: str, segment_ratio: float | None, max_deviation_deg: floa
     if walk not in ("auto", "paper", "smooth"):
         raise ConfigError(f"walk must be auto, paper or smooth, got {walk!r}")
     if walk == "smooth" and (max_deviation_deg is not None or fit != "deviation"):
-        raise ConfigError("fit and max_deviation_deg set the paper walk: do not give them with "
-                          "walk = smooth (its waviness and correlation length are both searched)")
+        raise ConfigError(
+            "fit and max_deviation_deg set the paper walk: do not give them with "
+            "walk = smooth (its waviness and correlation length are both searched)"
+        )
     if fit in ("deviation", "both") and max_deviation_deg is not None:
         raise ConfigError("max_deviation_deg is searched with fit = deviation or both: do not fix it")
     if fit in ("segment", "both") and segment_ratio is not None:
@@ -65,16 +73,14 @@ def check_options(fit: str, segment_ratio: float | None, max_deviation_deg: floa
 def _window(targets: GeometryTargets, window_um: float | None, config: Config) -> tuple[float, str]:
     if targets.window_um is not None and window_um is not None:
         raise ConfigError(
-            "the observation window comes from field_of_view_um of the measurement; "
-            "do not give window_um as well"
+            "the observation window comes from field_of_view_um of the measurement; do not give window_um as well"
         )
     if targets.window_um is not None:
         w, h = cast(tuple[float, float], targets.field_of_view_um)  # the window comes from it
         return targets.window_um, f"square of equal mean chord to the {w:g} x {h:g} um field of view"
     if window_um is not None:
         return float(window_um), "window_um"
-    return config.output.window_ratio * config.rve.diameter_um, \
-        f"default {config.output.window_ratio:g} D"
+    return config.output.window_ratio * config.rve.diameter_um, f"default {config.output.window_ratio:g} D"
 
 
 def _diameter_keys(targets: GeometryTargets, base: Config) -> tuple[dict[str, Any], str | None]:
@@ -100,9 +106,11 @@ def _diameter_keys(targets: GeometryTargets, base: Config) -> tuple[dict[str, An
         log_likelihood = _diameter_log_likelihoods(sample, mean, sd, explicit_min)
         if max(log_likelihood.values()) > -math.inf:  # else the normal's error below
             family = max(log_likelihood, key=log_likelihood.__getitem__)
-        note = ("diameter family: " + ", ".join(f"{name} log-likelihood {value:.1f}"
-                                                 for name, value in log_likelihood.items())
-                + f" -> {family}")
+        note = (
+            "diameter family: "
+            + ", ".join(f"{name} log-likelihood {value:.1f}" for name, value in log_likelihood.items())
+            + f" -> {family}"
+        )
     mu, sigma = (mean, sd) if family == "lognormal" else truncated_normal_parameters(mean, sd, explicit_min)
     keys: dict[str, Any] = {"diameter_distribution": family}
     if sample is None and (mu, sigma) == (mean, sd):
@@ -110,8 +118,7 @@ def _diameter_keys(targets: GeometryTargets, base: Config) -> tuple[dict[str, An
     return keys | {"diameter_um": float(f"{mu:.4g}"), "diameter_sd_um": float(f"{sigma:.4g}")}, note
 
 
-def _diameter_log_likelihoods(sample: np.ndarray, mean: float, sd: float,
-                              lower: float | None) -> dict[str, float]:
+def _diameter_log_likelihoods(sample: np.ndarray, mean: float, sd: float, lower: float | None) -> dict[str, float]:
     """Log-likelihood of a diameter sample [um] under the two families the deposition draws,
     each truncated below at ``lower`` (default 0.1 of its mean) and of the sample's moments."""
     from scipy import stats
@@ -142,8 +149,11 @@ def _fitted(targets: GeometryTargets, fit: str, walk: str | None) -> list[str]:
     if walk == "smooth":
         keys += ["rve.walk", "rve.waviness_deg", "rve.waviness_length_ratio"]
     elif walk == "paper":
-        keys += {"deviation": ["rve.max_deviation_deg"], "segment": ["rve.segment_ratio"],
-                 "both": ["rve.segment_ratio", "rve.max_deviation_deg"]}[fit]
+        keys += {
+            "deviation": ["rve.max_deviation_deg"],
+            "segment": ["rve.segment_ratio"],
+            "both": ["rve.segment_ratio", "rve.max_deviation_deg"],
+        }[fit]
     if targets.has_orientation:
         keys.append("rve.orientation")
     return keys
@@ -170,8 +180,9 @@ def _written_data(config: Config) -> dict[str, Any]:
     return data
 
 
-def _with_section(base: Config, rve: dict[str, Any], output: dict[str, Any],
-                  targets: dict[str, Any] | None = None) -> dict[str, Any]:
+def _with_section(
+    base: Config, rve: dict[str, Any], output: dict[str, Any], targets: dict[str, Any] | None = None
+) -> dict[str, Any]:
     """The base config's given keys with the rve and output keys replaced, and its
     ``[targets]`` replaced by ``targets`` (left out when None: the base's targets describe
     the base's geometry, not the calibrated one)."""
@@ -184,8 +195,9 @@ def _with_section(base: Config, rve: dict[str, Any], output: dict[str, Any],
     return data
 
 
-def _targets_section(targets: GeometryTargets, window_um: float, min_chord_um: float,
-                     tortuosity_shift: float | None = None) -> dict[str, Any]:
+def _targets_section(
+    targets: GeometryTargets, window_um: float, min_chord_um: float, tortuosity_shift: float | None = None
+) -> dict[str, Any]:
     """The ``[targets]`` a calibrated config carries: what it was calibrated to, so that
     ``espin generate`` grades its mats against them (docs/configuration.md). With
     ``tortuosity_shift`` the tortuosity sample is the tracer-corrected one (``espin
@@ -197,20 +209,22 @@ def _targets_section(targets: GeometryTargets, window_um: float, min_chord_um: f
     ``rve.orientation``, which generate grades against anyway); the observation window and
     shortest chord; and the long-range shape (U-turn fraction, straightness) when measured.
     """
+
     def sample(values: np.ndarray) -> list[float]:
         return [float(f"{v:.6g}") for v in np.asarray(values, dtype=float)]
 
     source = targets.source[:300]
     if tortuosity_shift is not None:
-        source += (f"; tortuosity corrected for the SEM tracer (quantile map, median shift "
-                   f"{tortuosity_shift:+.4f})")
-    out: dict[str, Any] = {"source": source[:500], "window_um": float(f"{window_um:.6g}"),
-                           "min_chord_um": float(f"{min_chord_um:.6g}")}
+        source += f"; tortuosity corrected for the SEM tracer (quantile map, median shift {tortuosity_shift:+.4f})"
+    out: dict[str, Any] = {
+        "source": source[:500],
+        "window_um": float(f"{window_um:.6g}"),
+        "min_chord_um": float(f"{min_chord_um:.6g}"),
+    }
     if targets.diameter_um is not None:
         out["diameter_um"] = sample(targets.diameter_um)
     elif targets.diameter_mean_um is not None:
-        out |= {"diameter_mean_um": targets.diameter_mean_um,
-                "diameter_sd_um": targets.diameter_sd_um or 0.0}
+        out |= {"diameter_mean_um": targets.diameter_mean_um, "diameter_sd_um": targets.diameter_sd_um or 0.0}
     if targets.orientation_deg is not None:
         out["orientation_deg"] = [v % 180.0 for v in sample(targets.orientation_deg)]  # 179.9999996 -> 0
     if targets.tortuosity is not None:

@@ -20,8 +20,16 @@ from espin.imaging.geometry_calibration.matching import DistributionMatch
 from espin.imaging.geometry_calibration.options import _written_data
 from espin.imaging.geometry_calibration.search import ValleyPoint
 
-__all__ = ["SCHEMA", "SCHEMA_VERSION", "MECHANICS_NOTE", "CALIBRATION_OUTPUTS", "GeometryCalibration",
-           "MeasuredImage", "output_files", "claim_output"]
+__all__ = [
+    "SCHEMA",
+    "SCHEMA_VERSION",
+    "MECHANICS_NOTE",
+    "CALIBRATION_OUTPUTS",
+    "GeometryCalibration",
+    "MeasuredImage",
+    "output_files",
+    "claim_output",
+]
 
 SCHEMA = "espin.geometry_calibration"
 SCHEMA_VERSION = 1
@@ -94,8 +102,13 @@ class GeometryCalibration:
 
     def _fitted_text(self) -> list[tuple[str, str]]:
         """(config key, value) of the searched parameters."""
-        return [(key, f"{self.parameters[key]:.4g}" if isinstance(self.parameters[key], float)
-                 else str(self.parameters[key])) for key in self.parameters["fitted"]]
+        return [
+            (
+                key,
+                f"{self.parameters[key]:.4g}" if isinstance(self.parameters[key], float) else str(self.parameters[key]),
+            )
+            for key in self.parameters["fitted"]
+        ]
 
     def __repr__(self) -> str:
         """One line: the fitted parameters, the KS distance of each matched distribution, the
@@ -103,16 +116,18 @@ class GeometryCalibration:
         fitted = ", ".join(f"{key.removeprefix('rve.')} {value}" for key, value in self._fitted_text())
         ks = ", ".join(f"{m.quantity} {m.ks:.3f}" for m in self.matches)
         warned = f", {len(self.warnings)} warnings" if self.warnings else ""
-        return (f"GeometryCalibration({fitted}; KS {ks}; window {self.search.get('window_um', math.nan):.4g} um"
-                f"{warned})")
+        return f"GeometryCalibration({fitted}; KS {ks}; window {self.search.get('window_um', math.nan):.4g} um{warned})"
 
     def _repr_html_(self) -> str:
         """The fitted parameters and the KS distances as an HTML table (Jupyter)."""
         from espin.core.html import html_table
 
-        rows = [*self._fitted_text(), *((f"KS {m.quantity}", f"{m.ks:.4f}") for m in self.matches),
-                ("observation window", f"{self.search.get('window_um', math.nan):.4g} um"),
-                *(("warning", w) for w in self.warnings)]
+        rows = [
+            *self._fitted_text(),
+            *((f"KS {m.quantity}", f"{m.ks:.4f}") for m in self.matches),
+            ("observation window", f"{self.search.get('window_um', math.nan):.4g} um"),
+            *(("warning", w) for w in self.warnings),
+        ]
         return html_table(f"GeometryCalibration of {self.targets.source}", rows)
 
     def match(self, quantity: str) -> DistributionMatch:
@@ -143,24 +158,36 @@ class GeometryCalibration:
     def format_table(self) -> str:
         """Plain-text report for the command line."""
         s = self.search
-        lines = [f"targets: {self.targets.source}; observation window {s['window_um']:.4g} um "
-                 f"({s['window_source']}), chords >= {s['min_chord_um']:.3g} um",
-                 f"virtual measurement: {s['sampling_description']}", "parameters"]
+        lines = [
+            f"targets: {self.targets.source}; observation window {s['window_um']:.4g} um "
+            f"({s['window_source']}), chords >= {s['min_chord_um']:.3g} um",
+            f"virtual measurement: {s['sampling_description']}",
+            "parameters",
+        ]
         fitted = set(self.parameters["fitted"])
         for key, value in self.parameters.items():
             if key == "fitted":
                 continue
-            shown = json.dumps(value) if isinstance(value, dict) else f"{value:.6g}" \
-                if isinstance(value, float) else str(value)
+            shown = (
+                json.dumps(value)
+                if isinstance(value, dict)
+                else f"{value:.6g}"
+                if isinstance(value, float)
+                else str(value)
+            )
             lines.append(f"  {key:<24} {shown}{'   (fitted)' if key in fitted else ''}")
-        lines.append("match in the observation window (KS distance: 0 same, 1 disjoint; p: "
-                     "two-sample KS p-value, descriptive only - the parameters were fitted to "
-                     "this sample and the virtual pieces are not independent, so p is optimistic)")
+        lines.append(
+            "match in the observation window (KS distance: 0 same, 1 disjoint; p: "
+            "two-sample KS p-value, descriptive only - the parameters were fitted to "
+            "this sample and the virtual pieces are not independent, so p is optimistic)"
+        )
         for m in self.matches:
             n_target = "-" if m.n_target is None else f"{m.n_target:,}"
             p = "-" if m.p_value is None else f"{m.p_value:.2g}"
-            lines.append(f"  {m.quantity:<16} KS {m.ks:.4f}  descriptive p {p:<7} target {m.target} "
-                         f"(n {n_target}), virtual n {m.n_virtual:,}")
+            lines.append(
+                f"  {m.quantity:<16} KS {m.ks:.4f}  descriptive p {p:<7} target {m.target} "
+                f"(n {n_target}), virtual n {m.n_virtual:,}"
+            )
             for name, target, virtual in m.summary:
                 lines.append(f"      {name:<14} target {target:<10.4g} virtual {virtual:.4g}")
         whole = s.get("whole_portion_tortuosity")
@@ -170,35 +197,47 @@ class GeometryCalibration:
                 f"edge, as tracing fibers by hand measures them; inferred from the pieces through "
                 f"the walk): tortuosity median {whole['median']:.4g} (half-normal scale "
                 f"{whole['halfnorm_scale_from_median']:.3g} from the median), mean "
-                f"{whole['mean']:.4g} (n {whole['n']:,})")
+                f"{whole['mean']:.4g} (n {whole['n']:,})"
+            )
         tracer = s.get("tracer") or {}
         if "tortuosity_bias" in tracer:
-            lines.append(f"tracer bias: renderings of the first fitted walk ({_walk_text(tracer['first_walk'])}) "
-                         f"measured like the image against their true pieces map the measured tortuosity to the "
-                         f"true one quantile by quantile (median shift {tracer['tortuosity_bias']:+.4f}); the "
-                         "tortuosity target above is the sample so corrected")
+            lines.append(
+                f"tracer bias: renderings of the first fitted walk ({_walk_text(tracer['first_walk'])}) "
+                f"measured like the image against their true pieces map the measured tortuosity to the "
+                f"true one quantile by quantile (median shift {tracer['tortuosity_bias']:+.4f}); the "
+                "tortuosity target above is the sample so corrected"
+            )
         check = tracer.get("rendered_check")
         if check:
-            ks = ", ".join(f"{k.removeprefix('ks_')} {check[k]:.3f}" for k in
-                           ("ks_diameter_um", "ks_orientation_deg", "ks_tortuosity") if check[k] is not None)
-            lines.append(f"rendered check ({check['renderings']} synthetic SEM images of the calibrated "
-                         f"mat measured like the image, {check['fibers']} traced fibers, against the "
-                         f"image's {len(self.targets.tortuosity) if self.targets.tortuosity is not None else '-'}): "
-                         f"KS {ks}; edge to edge {check['n_crossing']} fibers, U-turns "
-                         f"{_fmt(check['u_turn_fraction'])} (image {_fmt(check['target_u_turn_fraction'])} of "
-                         f"{check['target_n_crossing']}), straightness {_fmt(check['straightness'])} "
-                         f"(image {_fmt(check['target_straightness'])})")
+            ks = ", ".join(
+                f"{k.removeprefix('ks_')} {check[k]:.3f}"
+                for k in ("ks_diameter_um", "ks_orientation_deg", "ks_tortuosity")
+                if check[k] is not None
+            )
+            lines.append(
+                f"rendered check ({check['renderings']} synthetic SEM images of the calibrated "
+                f"mat measured like the image, {check['fibers']} traced fibers, against the "
+                f"image's {len(self.targets.tortuosity) if self.targets.tortuosity is not None else '-'}): "
+                f"KS {ks}; edge to edge {check['n_crossing']} fibers, U-turns "
+                f"{_fmt(check['u_turn_fraction'])} (image {_fmt(check['target_u_turn_fraction'])} of "
+                f"{check['target_n_crossing']}), straightness {_fmt(check['straightness'])} "
+                f"(image {_fmt(check['target_straightness'])})"
+            )
         if self.valley:
-            lines.append("tortuosity valley (segment length and deviation are only identifiable "
-                         "together, through the persistence length)")
-            lines.append(f"  {'segment_ratio':>13} {'max_deviation_deg':>17} "
-                         f"{'persistence / D':>15} {'KS':>7}")
+            lines.append(
+                "tortuosity valley (segment length and deviation are only identifiable "
+                "together, through the persistence length)"
+            )
+            lines.append(f"  {'segment_ratio':>13} {'max_deviation_deg':>17} {'persistence / D':>15} {'KS':>7}")
             for v in self.valley:
-                lines.append(f"  {v.segment_ratio:>13.3g} {v.max_deviation_deg:>17.2f} "
-                             f"{v.persistence_ratio:>15.1f} {v.ks:>7.4f}")
-        lines.append(f"search: {len(s['seeds'])} seeds x {s['layers']} layers, RVE side "
-                     f"{s['search_side_um']:.4g} um (search) / {s['check_side_um']:.4g} um "
-                     f"(match), {s['evaluations']} evaluations, {s['elapsed_s']:.1f} s")
+                lines.append(
+                    f"  {v.segment_ratio:>13.3g} {v.max_deviation_deg:>17.2f} {v.persistence_ratio:>15.1f} {v.ks:>7.4f}"
+                )
+        lines.append(
+            f"search: {len(s['seeds'])} seeds x {s['layers']} layers, RVE side "
+            f"{s['search_side_um']:.4g} um (search) / {s['check_side_um']:.4g} um "
+            f"(match), {s['evaluations']} evaluations, {s['elapsed_s']:.1f} s"
+        )
         lines += [f"  {n}" for n in s["notes"]]
         lines += [f"warning: {w}" for w in self.warnings]
         lines.append(f"note: {MECHANICS_NOTE}")
@@ -272,19 +311,28 @@ class GeometryCalibration:
         picture = self.image.pixels
         rendering = render_like(self.config, picture.shape, self.image.um_per_px, seed=self.config.rve.seed)
         walk = self.config.rve.walk
-        return save_comparison(picture, rendering, self.image.um_per_px, path,
-                               f"measured: {self.image.label}",
-                               f"calibrated mat ({walk} walk), top {RENDERED_LAYERS} layers, synthetic SEM")
+        return save_comparison(
+            picture,
+            rendering,
+            self.image.um_per_px,
+            path,
+            f"measured: {self.image.label}",
+            f"calibrated mat ({walk} walk), top {RENDERED_LAYERS} layers, synthetic SEM",
+        )
 
     def _header_lines(self) -> list[str]:
         from espin.core.version import __version__
 
-        lines = [f"Written by espin {__version__} calibrate-geometry from {self.targets.source}.",
-                 "Deposition parameters fitted to the measured geometry (observation window "
-                 f"{self.search['window_um']:.4g} um):"]
+        lines = [
+            f"Written by espin {__version__} calibrate-geometry from {self.targets.source}.",
+            "Deposition parameters fitted to the measured geometry (observation window "
+            f"{self.search['window_um']:.4g} um):",
+        ]
         lines += [f"  {m.quantity}: KS {m.ks:.4f}" for m in self.matches]
-        lines += ["New deposition parameters change the mechanics: fit the fiber parameters",
-                  "again (espin fit) before using stresses of this mat."]
+        lines += [
+            "New deposition parameters change the mechanics: fit the fiber parameters",
+            "again (espin fit) before using stresses of this mat.",
+        ]
         return lines
 
 
@@ -301,15 +349,22 @@ def output_files(path: str | Path) -> dict[str, Path]:
     if path.suffix == ".toml":
         if path.is_dir():
             raise ConfigError(f"{path} is a folder: give a .toml file or a folder name without .toml")
-        return {"config": path, "report": path.with_name(f"{path.stem}.calibration.json"),
-                "comparison": path.with_name(f"{path.stem}.comparison.png")}
+        return {
+            "config": path,
+            "report": path.with_name(f"{path.stem}.calibration.json"),
+            "comparison": path.with_name(f"{path.stem}.comparison.png"),
+        }
     if path.exists() and not path.is_dir():
         raise ConfigError(
             f"{path} is an existing file: a path without .toml is a folder "
             "(config.toml, calibration.json, calibration.txt); give a .toml file or a folder"
         )
-    return {"config": path / "config.toml", "report": path / "calibration.json",
-            "table": path / "calibration.txt", "comparison": path / "comparison.png"}
+    return {
+        "config": path / "config.toml",
+        "report": path / "calibration.json",
+        "table": path / "calibration.txt",
+        "comparison": path / "comparison.png",
+    }
 
 
 def claim_output(path: str | Path, digest: str, *, overwrite: bool = False) -> AbstractContextManager:
@@ -341,9 +396,11 @@ def claim_output(path: str | Path, digest: str, *, overwrite: bool = False) -> A
     existing = [str(f) for f in files.values() if f.exists()]
     if existing and not overwrite:
         one = len(existing) == 1
-        raise ConfigError(f"{' and '.join(existing)} already exist{'s' if one else ''}; pass --overwrite "
-                          f"(overwrite=True in Python) to replace {'it' if one else 'them'}, or choose "
-                          "another -o path")
+        raise ConfigError(
+            f"{' and '.join(existing)} already exist{'s' if one else ''}; pass --overwrite "
+            f"(overwrite=True in Python) to replace {'it' if one else 'them'}, or choose "
+            "another -o path"
+        )
     return nullcontext()
 
 

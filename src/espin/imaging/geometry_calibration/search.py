@@ -103,17 +103,28 @@ def smooth_walk(waviness_deg: float, waviness_length_ratio: float, segment_ratio
     """Config keys of a smooth walk, its segment the shorter of ``segment_ratio`` and the
     correlation length over :data:`SEGMENTS_PER_WAVINESS_LENGTH` (three digits)."""
     segment = min(segment_ratio, waviness_length_ratio / SEGMENTS_PER_WAVINESS_LENGTH)
-    return {"walk": "smooth", "waviness_deg": waviness_deg,
-            "waviness_length_ratio": waviness_length_ratio, "segment_ratio": float(f"{segment:.3g}")}
+    return {
+        "walk": "smooth",
+        "waviness_deg": waviness_deg,
+        "waviness_length_ratio": waviness_length_ratio,
+        "segment_ratio": float(f"{segment:.3g}"),
+    }
 
 
 class _Objective:
     """Score of a walk against the tortuosity (and the long-range shape), cached.
     ``segment_ratio`` is the longest segment [D] of the smooth walk."""
 
-    def __init__(self, measurement: VirtualMeasurement, rve: dict[str, Any], side_um: float,
-                 target: _Target, crossing: CrossingTarget | None, segment_ratio: float,
-                 progress: Callable[[str], None] | None) -> None:
+    def __init__(
+        self,
+        measurement: VirtualMeasurement,
+        rve: dict[str, Any],
+        side_um: float,
+        target: _Target,
+        crossing: CrossingTarget | None,
+        segment_ratio: float,
+        progress: Callable[[str], None] | None,
+    ) -> None:
         self.measurement, self.rve, self.side_um = measurement, rve, side_um
         self.target, self.crossing, self.progress = target, crossing, progress
         self.cache: dict[tuple[Any, ...], WalkScore] = {}
@@ -133,24 +144,25 @@ class _Objective:
             score = (ks / self.target.ks_noise(self.n_virtual)) ** 2
             if self.crossing is not None:
                 score += self.crossing.misfit(seen["crossing"])
-            result = WalkScore(dict(walk), ks, float(seen["crossing"][1]), float(seen["crossing"][2]),
-                               float(score))
+            result = WalkScore(dict(walk), ks, float(seen["crossing"][1]), float(seen["crossing"][2]), float(score))
             self.cache[key] = result
             if self.progress is not None:
                 shown = ", ".join(f"{k} {v:.3g}" for k, v in walk.items() if k != "walk")
-                self.progress(f"{walk['walk']} walk, {shown}: KS {ks:.4f}, U-turns "
-                              f"{result.u_turn_fraction:.3f}, straightness {result.straightness:.4f}")
+                self.progress(
+                    f"{walk['walk']} walk, {shown}: KS {ks:.4f}, U-turns "
+                    f"{result.u_turn_fraction:.3f}, straightness {result.straightness:.4f}"
+                )
         return self.cache[key]
 
     def __call__(self, segment_ratio: float, max_deviation_deg: float) -> float:
         """Score of the paper walk (segment_ratio, max_deviation_deg)."""
-        return self.evaluate({"walk": "paper", "segment_ratio": segment_ratio,
-                              "max_deviation_deg": max_deviation_deg}).score
+        return self.evaluate(
+            {"walk": "paper", "segment_ratio": segment_ratio, "max_deviation_deg": max_deviation_deg}
+        ).score
 
     def smooth(self, waviness_deg: float, waviness_length_ratio: float) -> float:
         """Score of the smooth walk, with segments of :func:`smooth_walk`."""
-        return self.evaluate(smooth_walk(waviness_deg, waviness_length_ratio,
-                                         self.segment_ratio)).score
+        return self.evaluate(smooth_walk(waviness_deg, waviness_length_ratio, self.segment_ratio)).score
 
 
 def _grid_then_refine(f: Callable[[float], float], grid: np.ndarray, xatol: float) -> tuple[float, float]:
@@ -162,8 +174,7 @@ def _grid_then_refine(f: Callable[[float], float], grid: np.ndarray, xatol: floa
     lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
     best_x, best_f = float(grid[i]), float(values[i])
     if hi > lo:
-        res = optimize.minimize_scalar(f, bounds=(lo, hi), method="bounded",
-                                       options={"xatol": xatol})
+        res = optimize.minimize_scalar(f, bounds=(lo, hi), method="bounded", options={"xatol": xatol})
         if res.fun < best_f:
             best_x, best_f = float(res.x), float(res.fun)
     return best_x, best_f
@@ -186,9 +197,15 @@ def _at_bound(value: float, low: float, high: float, tol: float) -> bool:
     return value <= low + tol or value >= high - tol
 
 
-def _correct_kappa(measurement: VirtualMeasurement, rve: dict[str, Any], side_um: float,
-                   mean_deg: float, kappa: float, order: float,
-                   progress: Callable[[str], None] | None) -> tuple[float, str | None, int]:
+def _correct_kappa(
+    measurement: VirtualMeasurement,
+    rve: dict[str, Any],
+    side_um: float,
+    mean_deg: float,
+    kappa: float,
+    order: float,
+    progress: Callable[[str], None] | None,
+) -> tuple[float, str | None, int]:
     """Deposition kappa whose visible order matches ``order`` (the target's).
 
     Returns the kappa, a warning if the order is out of reach, and the evaluations made.
@@ -213,19 +230,29 @@ def _correct_kappa(measurement: VirtualMeasurement, rve: dict[str, Any], side_um
         return kappa, None, calls[0]
     highest = counted(KAPPA_MAX)
     if highest < order:
-        return KAPPA_MAX, (
-            f"the visible orientation order {order:.3f} is out of reach: even kappa = {KAPPA_MAX:g} "
-            f"at deposition gives {highest:.3f}, because the deposition walk forgets its direction "
-            "over about a quarter of its persistence length; kappa set to its maximum"
-        ), calls[0]
-    root = optimize.brentq(lambda u: counted(math.exp(u)) - order,
-                           math.log(max(kappa, 1e-3)), math.log(KAPPA_MAX), xtol=0.01)
+        return (
+            KAPPA_MAX,
+            (
+                f"the visible orientation order {order:.3f} is out of reach: even kappa = {KAPPA_MAX:g} "
+                f"at deposition gives {highest:.3f}, because the deposition walk forgets its direction "
+                "over about a quarter of its persistence length; kappa set to its maximum"
+            ),
+            calls[0],
+        )
+    root = optimize.brentq(
+        lambda u: counted(math.exp(u)) - order, math.log(max(kappa, 1e-3)), math.log(KAPPA_MAX), xtol=0.01
+    )
     return float(f"{math.exp(root):.4g}"), None, calls[0]
 
 
-def _fit_walk(objective: _Objective, fit: str, segment_ratio: float, max_deviation_deg: float,
-              largest_segment: float, segment_ratios: tuple[float, ...]
-              ) -> tuple[float, float, list[ValleyPoint], str | None]:
+def _fit_walk(
+    objective: _Objective,
+    fit: str,
+    segment_ratio: float,
+    max_deviation_deg: float,
+    largest_segment: float,
+    segment_ratios: tuple[float, ...],
+) -> tuple[float, float, list[ValleyPoint], str | None]:
     """Search the walk parameter(s) named by ``fit``; the other keeps its given value.
 
     Returns the segment ratio, the deviation [deg], the valley (``fit="both"``) and a warning
@@ -235,16 +262,29 @@ def _fit_walk(objective: _Objective, fit: str, segment_ratio: float, max_deviati
     if fit == "deviation":
         dev, _ = _search_deviation(objective, sr)
         if _at_bound(dev, *DEVIATION_RANGE_DEG, 0.5):
-            return sr, dev, [], (f"max_deviation_deg = {dev:g} is at the end of its search range "
-                                 f"{DEVIATION_RANGE_DEG}: try fit = segment or both")
+            return (
+                sr,
+                dev,
+                [],
+                (
+                    f"max_deviation_deg = {dev:g} is at the end of its search range "
+                    f"{DEVIATION_RANGE_DEG}: try fit = segment or both"
+                ),
+            )
         return sr, dev, [], None
     if fit == "segment":
         sr, _ = _search_segment(objective, dev, largest_segment)
         if _at_bound(sr, SEGMENT_RATIO_MIN, largest_segment, 0.05 * sr):
-            return sr, dev, [], (
-                f"segment_ratio = {sr:g} is at the end of its search range [{SEGMENT_RATIO_MIN:g}, "
-                f"{largest_segment:.3g}]: the target is out of reach at max_deviation_deg = "
-                f"{dev:g}; try fit = deviation or both")
+            return (
+                sr,
+                dev,
+                [],
+                (
+                    f"segment_ratio = {sr:g} is at the end of its search range [{SEGMENT_RATIO_MIN:g}, "
+                    f"{largest_segment:.3g}]: the target is out of reach at max_deviation_deg = "
+                    f"{dev:g}; try fit = deviation or both"
+                ),
+            )
         return sr, dev, [], None
     usable = [r for r in segment_ratios if SEGMENT_RATIO_MIN <= r <= largest_segment]
     if not usable:
@@ -260,13 +300,11 @@ def _fit_walk(objective: _Objective, fit: str, segment_ratio: float, max_deviati
     # Points within the sampling spread of the best KS are equally good: keep the one whose
     # segment length is closest to the given (base) one.
     tie = min(v.ks for v in valley) + objective.target.ks_noise(objective.n_virtual)
-    best = min((v for v in valley if v.ks <= tie),
-               key=lambda v: abs(math.log(v.segment_ratio / segment_ratio)))
+    best = min((v for v in valley if v.ks <= tie), key=lambda v: abs(math.log(v.segment_ratio / segment_ratio)))
     return best.segment_ratio, best.max_deviation_deg, valley, None
 
 
-def _search_smooth(objective: _Objective, window_ratio: float,
-                   length_ratio: float | None) -> tuple[float, float]:
+def _search_smooth(objective: _Objective, window_ratio: float, length_ratio: float | None) -> tuple[float, float]:
     """Waviness [deg] and correlation length [D] of the smooth walk of least score: a grid,
     then bounded refinements of each at the best grid point. With ``length_ratio`` given
     (no long-range target: only one combination is identifiable) only the waviness is
@@ -283,10 +321,12 @@ def _search_smooth(objective: _Objective, window_ratio: float,
     scores = np.array([[objective.smooth(w, r) for r in lengths] for w in sigmas])
     i, j = np.unravel_index(np.argmin(scores), scores.shape)
     grid = np.log(lengths)
-    sigma, _ = _grid_then_refine(lambda w: objective.smooth(w, lengths[j]),
-                                 sigmas[max(i - 1, 0):i + 2], xatol=0.05)
-    u, _ = _grid_then_refine(lambda v: objective.smooth(round(sigma, 1), float(f"{math.exp(v):.3g}")),
-                             grid[max(j - 1, 0):j + 2], xatol=0.02)
+    sigma, _ = _grid_then_refine(lambda w: objective.smooth(w, lengths[j]), sigmas[max(i - 1, 0) : i + 2], xatol=0.05)
+    u, _ = _grid_then_refine(
+        lambda v: objective.smooth(round(sigma, 1), float(f"{math.exp(v):.3g}")),
+        grid[max(j - 1, 0) : j + 2],
+        xatol=0.02,
+    )
     return round(sigma, 1), float(f"{math.exp(u):.3g}")
 
 
@@ -315,9 +355,17 @@ class WalkFit:
     evaluations: int
 
 
-def _fit_walks(objective: _Objective, walk: str, fit: str, segment_ratio: float,
-               max_deviation_deg: float, length_ratio: float, largest_segment: float,
-               segment_ratios: tuple[float, ...], window_ratio: float) -> WalkFit:
+def _fit_walks(
+    objective: _Objective,
+    walk: str,
+    fit: str,
+    segment_ratio: float,
+    max_deviation_deg: float,
+    length_ratio: float,
+    largest_segment: float,
+    segment_ratios: tuple[float, ...],
+    window_ratio: float,
+) -> WalkFit:
     """Fit the walks ``walk`` names (``auto``: both when the objective has the long-range
     shape, else the paper walk) and keep the one of smallest score.
 
@@ -325,14 +373,20 @@ def _fit_walks(objective: _Objective, walk: str, fit: str, segment_ratio: float,
     ``max_deviation_deg``); the smooth walk its waviness and correlation length, or only the
     waviness at ``length_ratio`` when the objective has no long-range shape.
     """
-    models = ("paper", "smooth") if walk == "auto" and objective.crossing is not None else \
-        ("paper",) if walk == "auto" else (walk,)
+    models = (
+        ("paper", "smooth")
+        if walk == "auto" and objective.crossing is not None
+        else ("paper",)
+        if walk == "auto"
+        else (walk,)
+    )
     scores: dict[str, WalkScore] = {}
     problems: dict[str, str | None] = {}
     valley: list[ValleyPoint] = []
     if "paper" in models:
-        sr, dev, valley, problems["paper"] = _fit_walk(objective, fit, segment_ratio, max_deviation_deg,
-                                                       largest_segment, segment_ratios)
+        sr, dev, valley, problems["paper"] = _fit_walk(
+            objective, fit, segment_ratio, max_deviation_deg, largest_segment, segment_ratios
+        )
         scores["paper"] = objective.evaluate({"walk": "paper", "segment_ratio": sr, "max_deviation_deg": dev})
     if "smooth" in models:
         fixed = None if objective.crossing is not None else length_ratio
@@ -343,8 +397,10 @@ def _fit_walks(objective: _Objective, walk: str, fit: str, segment_ratio: float,
         if sigma >= WAVINESS_RANGE_DEG[1] - 0.5:
             problems["smooth"] = f"waviness_deg = {sigma:g} is at the end of its search range {WAVINESS_RANGE_DEG}"
         elif fixed is None and lengths and (length <= lengths[0] or length >= lengths[-1]):
-            problems["smooth"] = (f"waviness_length_ratio = {length:g} is at the end of its search range "
-                                  f"[{lengths[0]:g}, {lengths[-1]:g}]")
+            problems["smooth"] = (
+                f"waviness_length_ratio = {length:g} is at the end of its search range "
+                f"[{lengths[0]:g}, {lengths[-1]:g}]"
+            )
     chosen = min(scores, key=lambda name: scores[name].score)
     return WalkFit(scores, chosen, tuple(valley), problems[chosen], len(objective.cache))
 

@@ -78,11 +78,14 @@ class TracedRenderings:
             mine = getattr(self, key)
             ok = target is not None and len(target) and len(mine)
             out[f"ks_{key}"] = float(stats.ks_2samp(mine, target).statistic) if ok else None
-        out |= {"n_crossing": self.n_crossing, "u_turn_fraction": _json(self.u_turn_fraction),
-                "straightness": _json(self.straightness),
-                "target_n_crossing": targets.n_crossing,
-                "target_u_turn_fraction": targets.u_turn_fraction,
-                "target_straightness": targets.straightness}
+        out |= {
+            "n_crossing": self.n_crossing,
+            "u_turn_fraction": _json(self.u_turn_fraction),
+            "straightness": _json(self.straightness),
+            "target_n_crossing": targets.n_crossing,
+            "target_u_turn_fraction": targets.u_turn_fraction,
+            "target_straightness": targets.straightness,
+        }
         return out
 
 
@@ -106,13 +109,20 @@ def measure_renderings(config: Config, image: MeasuredImage, renderings: int = R
             u_sum += seen.u_turn_fraction * seen.n_crossing
             s_sum += seen.straightness * seen.n_crossing
     pooled = {key: np.concatenate(v) for key, v in parts.items()}
-    return TracedRenderings(renderings, pooled["diameter_um"], pooled["orientation_deg"], pooled["tortuosity"], n_cross,
-                            u_sum / n_cross if n_cross else math.nan,
-                            s_sum / n_cross if n_cross else math.nan)
+    return TracedRenderings(
+        renderings,
+        pooled["diameter_um"],
+        pooled["orientation_deg"],
+        pooled["tortuosity"],
+        n_cross,
+        u_sum / n_cross if n_cross else math.nan,
+        s_sum / n_cross if n_cross else math.nan,
+    )
 
 
-def tracer_corrected(targets: GeometryTargets, traced: TracedRenderings,
-                     geometric_tortuosity: np.ndarray) -> tuple[GeometryTargets, float]:
+def tracer_corrected(
+    targets: GeometryTargets, traced: TracedRenderings, geometric_tortuosity: np.ndarray
+) -> tuple[GeometryTargets, float]:
     """The targets with the tracer's effect on tortuosity at one walk taken out, by quantile
     mapping: each measured value t becomes the geometric tortuosity of the same quantile,
     Q_geometric(F_traced(t)), both from the same mats (renderings traced like the image, and

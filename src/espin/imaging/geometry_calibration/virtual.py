@@ -71,8 +71,7 @@ class VirtualMeasurement:
 
     def with_layers(self, layers: int) -> VirtualMeasurement:
         """The same measurement with ``layers`` per mat."""
-        return VirtualMeasurement(self.window_um, self.min_chord_um, self.seeds, layers,
-                                  self.piece_lengths_um)
+        return VirtualMeasurement(self.window_um, self.min_chord_um, self.seeds, layers, self.piece_lengths_um)
 
     def measure(self, rve: dict[str, Any], side_um: float) -> dict[str, np.ndarray]:
         """Visible fiber portions (or pieces) of mats with deposition ``rve`` in layers of ``side_um``.
@@ -98,13 +97,11 @@ class VirtualMeasurement:
             runs = window_runs(mat.vertices, mat.fiber_offsets, origin, side)
             crossings.append(window_crossings(runs, origin, side, self.min_chord_um))
             if self.piece_lengths_um is None:
-                visible = window_tortuosity(mat.vertices, mat.fiber_offsets, origin, side,
-                                            self.min_chord_um)
+                visible = window_tortuosity(mat.vertices, mat.fiber_offsets, origin, side, self.min_chord_um)
                 tortuosity, orientation, fiber = visible.tortuosity, visible.orientation, visible.fiber
             else:
                 rng = np.random.default_rng([SAMPLING_SEED, seed])
-                tortuosity, orientation, fiber = sample_pieces(
-                    runs, self.piece_lengths_um, self.min_chord_um, rng)
+                tortuosity, orientation, fiber = sample_pieces(runs, self.piece_lengths_um, self.min_chord_um, rng)
             parts["tortuosity"].append(tortuosity)
             parts["orientation_deg"].append(np.degrees(orientation))
             parts["diameter_um"].append(mat.fiber_diameter[fiber])
@@ -113,8 +110,10 @@ class VirtualMeasurement:
         if n.sum() == 0:
             seen["crossing"] = np.array([0.0, np.nan, np.nan])
         else:
-            pooled = [np.nansum(n * [getattr(c, key) for c in crossings]) / n.sum()
-                      for key in ("u_turn_fraction", "straightness")]
+            pooled = [
+                np.nansum(n * [getattr(c, key) for c in crossings]) / n.sum()
+                for key in ("u_turn_fraction", "straightness")
+            ]
             seen["crossing"] = np.array([n.sum(), *pooled])
         return seen
 
@@ -122,17 +121,19 @@ class VirtualMeasurement:
 def _validated_rve(data: dict[str, Any]) -> RVEConfig:
     """An RVEConfig from plain data, with the sizes given one way only."""
     data = dict(data)
-    for chosen, other in (("size_um", "size_ratio"), ("size_ratio", "size_um"),
-                          ("segment_ratio", "segment_um"), ("segment_um", "segment_ratio")):
+    for chosen, other in (
+        ("size_um", "size_ratio"),
+        ("size_ratio", "size_um"),
+        ("segment_ratio", "segment_um"),
+        ("segment_um", "segment_ratio"),
+    ):
         if chosen in data and other in data:
             data.pop(other)
     return config_from_dict({"rve": data}, "(geometry calibration)").rve
 
 
-def _layers_per_seed(measurement: VirtualMeasurement, rve: dict[str, Any], side_um: float,
-                     min_portions: int) -> int:
+def _layers_per_seed(measurement: VirtualMeasurement, rve: dict[str, Any], side_um: float, min_portions: int) -> int:
     """Layers per mat so that all seeds together show at least ``min_portions`` whole portions."""
-    probe = VirtualMeasurement(measurement.window_um, measurement.min_chord_um,
-                               measurement.seeds[:1], 2)
+    probe = VirtualMeasurement(measurement.window_um, measurement.min_chord_um, measurement.seeds[:1], 2)
     per_layer = max(len(probe.measure(rve, side_um)["tortuosity"]) / 2.0, 1.0)
     return int(np.clip(math.ceil(min_portions / (len(measurement.seeds) * per_layer)), 1, 500))
