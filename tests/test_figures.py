@@ -280,6 +280,7 @@ def test_every_figure_types_units_and_symbols(pulled, caught, tmp_path):
             assert "mean ± sd" in joined and re.search(r"\bn = \d", joined), joined
 
 
+@pytest.mark.slow
 def test_no_figure_cuts_off_a_label(pulled, caught, tmp_path):
     # Every title, axis label and legend text lies inside its figure once drawn (comparison.png's
     # x label did not).

@@ -430,6 +430,7 @@ def run_record(folder: Path) -> dict:
     return json.loads((folder / "run.json").read_text(encoding="utf-8"))
 
 
+@pytest.mark.slow
 def test_readme_runs_in_order(tmp_path):
     """Every README command and Python block, in README order, in one folder: exit 0, the
     promised files, and no folder overwritten by a later command."""

@@ -32,6 +32,7 @@ def test_a_study_with_failed_tasks_says_so_under_quiet(tmp_path, extra, status):
     assert read_manifest(tmp_path / "s").status == status
 
 
+@pytest.mark.slow
 def test_a_batch_whose_images_failed_is_failed_or_partial_and_pools_no_nan(tmp_path):
     images = tmp_path / "images"
     images.mkdir()

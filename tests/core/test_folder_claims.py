@@ -72,6 +72,7 @@ def test_a_refused_claim_of_a_new_folder_leaves_it_to_its_owner(tmp_path):
         holder.wait()
 
 
+@pytest.mark.slow
 def test_a_study_that_drops_tasks_of_the_folder_is_refused(tmp_path):
     sweep("plla", grid={"fiber.slack_modulus_MPa": [3.0]}, folder=tmp_path / "s", **TINY)
     sweep("plla", grid={"fiber.slack_modulus_MPa": [3.0, 4.0]}, folder=tmp_path / "s", **TINY)  # grown

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow  # builds the whole site: a minute or more
+
 ROOT = Path(__file__).resolve().parents[2]
 DEAD_PROXY = "http://127.0.0.1:9"
 """A port nothing listens on: every HTTP(S) request through it fails."""
@@ -56,7 +58,6 @@ def _page(site: Path, name: str) -> str:
     return (site / name / "index.html").read_text(encoding="utf-8")
 
 
-@pytest.mark.slow
 def test_every_page_of_the_nav_is_built(site):
     nav = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
     pages = (re.findall(r":\s+(\S+\.(?:md|py))\s*$", nav, flags=re.M)

@@ -52,6 +52,7 @@ def test_invert_on_bright_fibers_is_refused_and_no_invert_skips_the_check(grey, 
     assert unchecked.fits.diameter.mean_um == normal.fits.diameter.mean_um
 
 
+@pytest.mark.slow
 def test_the_command_line_refuses_an_inverted_image_and_records_the_polarity(grey, tmp_path):
     import tifffile
 
