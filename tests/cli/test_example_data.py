@@ -37,6 +37,7 @@ def test_example_data_is_ready_to_use_and_not_overwritten(tmp_path):
     assert CliRunner().invoke(app, ["example-data", "-o", str(tmp_path), "--overwrite"]).exit_code == 0
 
 
+@pytest.mark.slow
 def test_example_data_follows_the_output_folder_policy(tmp_path):
     """A run.json; another run's folder refused (exit 2, nothing changed); a file where the folder
     should be refused without a traceback; --overwrite replaces only its own files."""

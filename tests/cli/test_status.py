@@ -23,6 +23,7 @@ def _run(*args):
     return CliRunner().invoke(app, [str(a) for a in args])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("extra, status", [([], "failed"), (["--grid", "solver.max_iterations=1,50"], "partial")])
 def test_a_study_with_failed_tasks_says_so_under_quiet(tmp_path, extra, status):
     options = [*TINY, "--set", "solver.max_cuts=0"] + (["--set", "solver.max_iterations=1"] if not extra else [])

@@ -36,6 +36,7 @@ def test_an_inverted_image_is_refused_with_advice(grey):
         measure(grey.max() - grey, um_per_px=SEM_UM_PER_PX)
 
 
+@pytest.mark.slow
 def test_invert_measures_the_inverted_image_as_the_original(grey, normal):
     inverted = measure(grey.max() + grey.min() - grey, um_per_px=SEM_UM_PER_PX, invert=True)
     assert len(inverted.fibers) == len(normal.fibers)
@@ -44,6 +45,7 @@ def test_invert_measures_the_inverted_image_as_the_original(grey, normal):
     assert "checked" in normal.summary()["image"]["polarity"]
 
 
+@pytest.mark.slow
 def test_invert_on_bright_fibers_is_refused_and_no_invert_skips_the_check(grey, normal):
     with pytest.raises(SEMError, match="bright on a dark background already.*leave out --invert"):
         measure(grey, um_per_px=SEM_UM_PER_PX, invert=True)
