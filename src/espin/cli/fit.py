@@ -461,22 +461,10 @@ def register(app: typer.Typer) -> None:
 
                 result = fit(
                     curve,
-                    base=config,
-                    parameters=[p for p in params.split(",") if p.strip()],
-                    bounds=_parse_bounds(bounds),
-                    fixed=_parse_fixed(fix),
-                    realizations=realizations,
-                    seeds=seed_list,
-                    strain_rate_per_s=strain_rate,
-                    step_strain=step_strain,
-                    average_grid=grid,
-                    large_strain=large_strain,
-                    eta_points=eta_points,
-                    eta_tolerance=eta_tolerance,
+                    **plan_inputs,
                     workers=workers,
                     scheduler=scheduler,
                     security=security,
-                    read_options=csv_options,
                     on_evaluation=on_evaluation,
                 )
                 written = result.write_files(out)
