@@ -271,7 +271,8 @@ def specimen(
         from espin.specimen.surrogate import read_surrogate
 
         samples = read_surrogate(surrogate_from, config, max_strain, allow_mismatch=allow_surrogate_mismatch)
-    if out is None:
+
+    def run(folder: Path | None) -> SpecimenResult:
         return _run(
             geometry,
             program,
@@ -280,12 +281,15 @@ def specimen(
             settings,
             place,
             samples,
-            None,
+            folder,
             figures,
             on_step,
             source=surrogate_from,
             report=report,
         )
+
+    if out is None:
+        return run(None)
     digest = inputs_digest(
         [surrogate_from] if surrogate_from is not None else [],
         config_digest(config) if config is not None else "",
@@ -298,20 +302,7 @@ def specimen(
     with OutputFolder.claim(
         out, "specimen", digest, SPECIMEN_OUTPUTS, overwrite=overwrite, resume="same-inputs" if resumable else None
     ):
-        return _run(
-            geometry,
-            program,
-            config,
-            rve,
-            settings,
-            place,
-            samples,
-            Path(out),
-            figures,
-            on_step,
-            source=surrogate_from,
-            report=report,
-        )
+        return run(Path(out))
 
 
 def _check_memory(geometry: Specimen, model: str, config, rve) -> None:
