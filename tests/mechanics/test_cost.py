@@ -144,3 +144,34 @@ def test_fit_prints_its_plan_with_the_unknown_number_of_evaluations(tmp_path, mo
     none = CliRunner().invoke(app, ["fit", str(curve), "--params", "eta,c_p", "--no-plan", "-o",
                                     str(tmp_path / "fit2")])
     assert "plan:" not in none.output
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["study", "sweep", "plla", "--grid", "rve.layers=2,3", "--realizations", "2", "--workers", "2", *TINY],
+        ["study", "rve-size", "plla", "--size-ratios", "30,40", "--layer-counts", "2", "--layers-for-sizes", "2",
+         "--size-for-layers", "40", "--realizations", "3", "--workers", "2"],
+        ["design", "--target", "E=150", "--var", "eta=0.1:0.3", "--budget", "6", "--workers", "2", *TINY],
+        ["fit", "CURVE", "--params", "eta,c_p", "--seeds", "1,2", "--workers", "2", "--set", "rve.size_ratio=40",
+         "--set", "rve.layers=2"],
+    ],
+    ids=["sweep", "rve-size", "design", "fit"],
+)
+def test_plan_only_prints_the_plan_and_runs_and_writes_nothing(tmp_path, command):
+    curve = tmp_path / "curve.csv"
+    curve.write_text("strain,stress_MPa\n" + "".join(f"{e:.3f},{min(300 * e, 3 + 20 * e):.4f}\n"
+                                                     for e in (0.005, 0.01, 0.02, 0.04, 0.06, 0.08)))
+    out = tmp_path / "out"
+    args = [str(curve) if a == "CURVE" else a for a in command]
+    result = CliRunner().invoke(app, [*args, "-o", str(out), "--plan-only", "--quiet"])
+    assert result.exit_code == 0, result.output
+    assert result.output.startswith("plan: ") and " on 2 workers" in result.output, result.output
+    assert not out.exists()  # nothing was run, no folder claimed
+
+
+def test_plan_only_reports_bad_input_as_an_error(tmp_path):
+    result = CliRunner().invoke(app, ["study", "sweep", "plla", "--grid", "rve.layers=0", "--plan-only",
+                                      "-o", str(tmp_path / "s")])
+    assert result.exit_code != 0
+    assert "rve.layers" in result.output and "plan:" not in result.output

@@ -18,6 +18,7 @@ __all__ = [
     "OverwriteOpt",
     "AllowLargeOpt",
     "PlanOpt",
+    "PlanOnlyOpt",
     "parse_set",
     "fail",
     "StrainColumnOpt",
@@ -76,13 +77,25 @@ PlanOpt = Annotated[
         "ESPIN_PLAN=1 / 0.",
     ),
 ]
+PlanOnlyOpt = Annotated[
+    bool,
+    typer.Option(
+        "--plan-only",
+        help="Print the plan (tensile tests x DOF -> estimated time on this machine) on stdout "
+        "and stop: nothing is run and no folder is written.",
+    ),
+]
 LONG_WORK_S = 60.0
 """Work expected to take at least this long at the reference speed [s] gets its plan printed by
 default (the speed calibration then costs at most 2 s more)."""
 
 
 def print_plan(
-    make_text: Callable[[Any], str], console: Any, plan: bool | None, reference_seconds: Callable[[], float]
+    make_text: Callable[[Any], str],
+    console: Any,
+    plan: bool | None,
+    reference_seconds: Callable[[], float],
+    only: bool = False,
 ) -> None:
     """Print a long command's plan (one plain line on ``console``) before its work starts.
 
@@ -98,19 +111,25 @@ def print_plan(
         at least :data:`LONG_WORK_S`.
     reference_seconds
         The work's expected time at the reference speed [s] (no calibration needed).
+    only
+        ``--plan-only``: print the plan on stdout whatever ``plan`` and quiet say, then end the
+        command (exit status 0); a plan that cannot be made is then an error.
 
     A plan that cannot be made (a config error the command itself will report, a calibration
     that failed) is left out: the command goes on.
     """
     import logging
 
+    from espin.mechanics.cost import calibrate
+
+    if only:
+        typer.echo(make_text(calibrate()))
+        raise typer.Exit(0)
     if plan is False or getattr(console, "quiet", False):
         return
     try:
         if plan is None and reference_seconds() < LONG_WORK_S:
             return
-        from espin.mechanics.cost import calibrate
-
         text = make_text(calibrate())
     except Exception as exc:  # noqa: BLE001 - the plan is an extra: the command itself goes on
         logging.getLogger("espin.cli").debug("no plan: %s", exc)

@@ -7,7 +7,7 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from espin.cli.common import OverwriteOpt, PlanOpt, SetOpt, fail, off_terminal_lines, parse_set, print_plan
+from espin.cli.common import OverwriteOpt, PlanOnlyOpt, PlanOpt, SetOpt, fail, off_terminal_lines, parse_set, print_plan
 
 __all__ = ["register"]
 
@@ -113,6 +113,7 @@ def design_command(
     overwrite: OverwriteOpt = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or report.")] = False,
     plan: PlanOpt = None,
+    plan_only: PlanOnlyOpt = False,
 ) -> None:
     """Find the microstructure whose tensile properties meet target values (paper 4.3).
 
@@ -150,6 +151,7 @@ def design_command(
             console,
             plan,
             lambda: _plan_seconds(space, targets, replicated, verify, REFERENCE_CALIBRATION),
+            only=plan_only,
         )
 
         with off_terminal_lines(console, "designing: the first batch of tensile tests") as say:

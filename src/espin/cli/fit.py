@@ -19,6 +19,7 @@ from espin.cli.common import (
     DelimiterOpt,
     OverwriteOpt,
     PercentStrainOpt,
+    PlanOnlyOpt,
     PlanOpt,
     SkipRowsOpt,
     StrainColumnOpt,
@@ -257,7 +258,13 @@ def _fit_plan(problem: Any, workers: int | None, calibration: Any) -> tuple[str,
 
 
 def _print_fit_plan(
-    curve: Any, inputs: dict[str, Any], workers: int | None, scheduler: str | None, console: Any, plan: bool | None
+    curve: Any,
+    inputs: dict[str, Any],
+    workers: int | None,
+    scheduler: str | None,
+    console: Any,
+    plan: bool | None,
+    only: bool,
 ) -> None:
     """Print the fit's plan (:func:`_fit_plan`) before it starts; its inputs are checked here as
     the fit checks them (an error is left for the fit to report)."""
@@ -282,6 +289,7 @@ def _print_fit_plan(
         console,
         plan,
         lambda: _fit_plan(checked(), n_workers, REFERENCE_CALIBRATION)[1],
+        only=only,
     )
 
 
@@ -388,6 +396,7 @@ def register(app: typer.Typer) -> None:
         skip_rows: SkipRowsOpt = 0,
         quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress or table.")] = False,
         plan: PlanOpt = None,
+        plan_only: PlanOnlyOpt = False,
     ) -> None:
         """Calibrate eta and fiber-law parameters to a measured stress-strain curve (paper 4.2).
 
@@ -446,7 +455,7 @@ def register(app: typer.Typer) -> None:
                 eta_tolerance=eta_tolerance,
                 read_options=csv_options,
             )
-            _print_fit_plan(curve, plan_inputs, workers, scheduler, console, plan)
+            _print_fit_plan(curve, plan_inputs, workers, scheduler, console, plan, plan_only)
             with (
                 OutputFolder.claim(out, "fit", digest, FIT_OUTPUTS, overwrite=overwrite, resume="same-inputs"),
                 curve_warnings(),

@@ -7,7 +7,16 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-from espin.cli.common import AllowLargeOpt, OverwriteOpt, PlanOpt, fail, off_terminal_lines, parse_set, print_plan
+from espin.cli.common import (
+    AllowLargeOpt,
+    OverwriteOpt,
+    PlanOnlyOpt,
+    PlanOpt,
+    fail,
+    off_terminal_lines,
+    parse_set,
+    print_plan,
+)
 from espin.core.errors import EXIT_SOLVER
 
 __all__ = ["register", "parse_grid"]
@@ -96,6 +105,7 @@ def _print_study_plan(
     scheduler: str | None,
     plan: bool | None,
     quiet: bool,
+    plan_only: bool,
 ) -> None:
     """Print the plan of a study's tensile tests (``points`` x ``realizations``, less those
     already finished in ``out``) before it runs."""
@@ -138,6 +148,7 @@ def _print_study_plan(
         Console(stderr=True, quiet=quiet),
         plan,
         lambda: make_plan(tests(), n_workers, REFERENCE_CALIBRATION).seconds,
+        only=plan_only,
     )
 
 
@@ -269,6 +280,7 @@ def rve_size(
     allow_large: AllowLargeOpt = False,
     quiet: QuietOpt = False,
     plan: PlanOpt = None,
+    plan_only: PlanOnlyOpt = False,
 ) -> None:
     """Mean, sd and RSD of modulus, yield stress, post-yield modulus versus L/D and N_l (Appendix A).
 
@@ -295,6 +307,7 @@ def rve_size(
             scheduler,
             plan,
             quiet,
+            plan_only,
         )
         return (
             lambda on_outcome: rve_size_study(
@@ -347,6 +360,7 @@ def sweep(
     allow_large: AllowLargeOpt = False,
     quiet: QuietOpt = False,
     plan: PlanOpt = None,
+    plan_only: PlanOnlyOpt = False,
 ) -> None:
     """Properties (modulus, yield stress, post-yield modulus) over any parameter grid, in parallel.
 
@@ -364,7 +378,7 @@ def sweep(
         parsed = parse_grid(grid)
         n_points = math.prod(len(values) for values in parsed.values())
         points = [dict(zip(parsed, combo)) for combo in itertools.product(*parsed.values())]
-        _print_study_plan(base, set_, points, realizations, seed_start, out, workers, scheduler, plan, quiet)
+        _print_study_plan(base, set_, points, realizations, seed_start, out, workers, scheduler, plan, quiet, plan_only)
         return (
             lambda on_outcome: run_sweep(
                 base,
