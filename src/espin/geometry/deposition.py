@@ -22,7 +22,8 @@ Two seedings choose the start point and the first axis:
 Two samplings draw them (``rve.sampling``): ``random`` (the paper), each fiber independently,
 layer after layer, each layer from its own child stream of the seed, so a layer does not change
 when others are added; and ``balanced`` (:mod:`espin.geometry.balanced`), the same law for each
-fiber but the RVE's fibers drawn together from a low-discrepancy sequence, the layers filled
+fiber but the RVE's fibers drawn together from a low-discrepancy sequence (with ``border``
+seeding: the axis and the quantile of the fiber's chord given its axis), the layers filled
 together, and each walk laid in the variant that balances the orientation content.
 
 The walk is vectorized over a batch of fibers and over chunks of steps.
@@ -621,9 +622,10 @@ def _random_fibers(
 def _balanced_fibers(
     rve: RVEConfig, rng: np.random.Generator, n: int, dist: OrientationDistribution, sampler: BalancedSampler
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``n`` candidate fibers of balanced sampling (geometry/balanced.py): axis, start and
-    diameter at the sampler's next points, each walk's variant (turns negated in part or in
-    whole, ``model.variants``) chosen by herding."""
+    """``n`` candidate fibers of balanced sampling (geometry/balanced.py): axis, start (the
+    chord's quantile given the axis, :func:`_chord_starts`, or the line's offset) and diameter
+    at the sampler's next points, each walk's variant (its mirror image, ``model.variants``)
+    chosen by herding."""
     side = rve.side_um
     u = sampler.points(n)
     if rve.seeding == "border":
