@@ -22,7 +22,8 @@ Two seedings choose the start point and the first axis:
 Two samplings draw them (``rve.sampling``): ``random`` (the paper), each fiber independently,
 layer after layer, each layer from its own child stream of the seed, so a layer does not change
 when others are added; and ``balanced`` (:mod:`espin.geometry.balanced`), the same law for each
-fiber but the RVE's fibers drawn together from a low-discrepancy sequence, the layers filled
+fiber but the RVE's fibers drawn together from a low-discrepancy sequence (with ``border``
+seeding: the axis and the quantile of the fiber's chord given its axis), the layers filled
 together, and each walk laid in the variant that balances the orientation content.
 
 The walk is vectorized over a batch of fibers and over chunks of steps.
@@ -80,6 +81,78 @@ def _border_points(s: np.ndarray, side: float) -> tuple[np.ndarray, np.ndarray]:
     start[edge == 2] = np.c_[side - along[edge == 2], np.full((edge == 2).sum(), side)]
     start[edge == 3] = np.c_[np.zeros((edge == 3).sum()), side - along[edge == 3]]
     return start, edge
+
+
+def _chord_starts(
+    rng: np.random.Generator, theta: np.ndarray, u: np.ndarray, side: float, dist: OrientationDistribution
+) -> tuple[np.ndarray, np.ndarray]:
+    """Border starts and inward directions [rad] of fibers of axes ``theta`` [rad] whose
+    straight chord through the square is at cumulative probability ``u`` of its law given
+    the axis (``border`` seeding under balanced sampling).
+
+    Given the axis, a start uniform on the border gives a chord of length l uniform on
+    (0, l_max) (the fiber cuts a corner; l_max = L / max(|cos|, |sin|)) with probability
+    (1 + r) / 2 and l_max otherwise (it crosses to the opposite edge), r = min(|cos|, |sin|)
+    / max(|cos|, |sin|). The chord is taken at its quantile ``u``, and the start among the
+    border points of that chord by a uniform draw of ``rng``: one of the four corner-cutting
+    starts (bottom and top weighted |cos|, left and right |sin|, the border length per unit
+    of chord) or a point uniform on the two opposite-edge intervals. So the start is uniform
+    on the border and independent of the axis, as under ``border`` seeding; axes parallel to
+    their start edge are drawn again from ``dist``.
+    """
+    theta = theta.copy()
+    start = np.empty((len(theta), 2))
+    direction = np.empty(len(theta))
+    todo = np.arange(len(theta))
+    while todo.size:
+        start[todo], direction[todo] = _chord_starts_once(theta[todo], u[todo], rng.uniform(0.0, 1.0, todo.size), side)
+        edge_normal = np.where(
+            (start[todo, 1] == 0.0) | (start[todo, 1] == side), np.sin(direction[todo]), np.cos(direction[todo])
+        )
+        parallel = np.abs(edge_normal) < 1e-12
+        todo = todo[parallel]
+        theta[todo] = dist.sample(rng, todo.size)
+    return start, direction
+
+
+def _chord_starts_once(theta: np.ndarray, u: np.ndarray, v: np.ndarray, side: float) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_chord_starts` for axes in [0, pi), chord quantiles ``u`` and the uniform draws
+    ``v`` in [0, 1) that choose the start among the chord's border points."""
+    a, b = np.abs(np.cos(theta)), np.abs(np.sin(theta))
+    hi, lo = np.maximum(a, b), np.minimum(a, b)
+    crossing_mass = 0.5 * (1.0 - lo / hi)  # the chords l_max from edge to opposite edge
+    x, y = np.empty(len(theta)), np.empty(len(theta))
+    sense = np.empty(len(theta))  # +1: along (a, b); -1: against
+    # Axis in [0, pi / 2] (mirrored in x below otherwise): chords of length l cut the
+    # bottom-right corner from (L - l a, 0) or (L, l b), or the top-left one from
+    # (0, L - l b) or (l a, L).
+    cut = u < 1.0 - crossing_mass
+    length = side / hi * u / (1.0 - crossing_mass)  # 1 - crossing_mass >= 1 / 2
+    pick = v * 2.0 * (a + b)
+    corner = [
+        (pick < a, side - length * a, np.zeros_like(length), 1.0),
+        ((pick >= a) & (pick < 2.0 * a), length * a, np.full_like(length, side), -1.0),
+        ((pick >= 2.0 * a) & (pick < 2.0 * a + b), np.zeros_like(length), side - length * b, 1.0),
+        (pick >= 2.0 * a + b, np.full_like(length, side), length * b, -1.0),
+    ]
+    for chosen, cx, cy, cs in corner:
+        m = cut & chosen
+        x[m], y[m], sense[m] = cx[m], cy[m], cs
+    # Edge to opposite edge: steep axes from the bottom (x in [0, L (1 - r)]) or the top
+    # (x in [L r, L]), flat ones from the left or the right edge (y likewise).
+    across = ~cut
+    forward = v < 0.5
+    offset = side * (1.0 - lo / hi) * np.where(forward, 2.0 * v, 2.0 * v - 1.0)
+    along = np.where(forward, offset, side - offset)
+    rim = np.where(forward, 0.0, side)
+    steep = b > a
+    x[across] = np.where(steep, along, rim)[across]
+    y[across] = np.where(steep, rim, along)[across]
+    sense[across] = np.where(forward, 1.0, -1.0)[across]
+    mirror = np.cos(theta) < 0.0
+    x[mirror] = side - x[mirror]
+    direction = np.arctan2(sense * b, sense * np.where(mirror, -a, a))
+    return np.c_[x, y], direction
 
 
 def _inward(rng: np.random.Generator, theta: np.ndarray, edge: np.ndarray, dist: OrientationDistribution) -> np.ndarray:
@@ -549,14 +622,14 @@ def _random_fibers(
 def _balanced_fibers(
     rve: RVEConfig, rng: np.random.Generator, n: int, dist: OrientationDistribution, sampler: BalancedSampler
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``n`` candidate fibers of balanced sampling (geometry/balanced.py): axis, start and
-    diameter at the sampler's next points, each walk's variant (turns negated in part or in
-    whole, ``model.variants``) chosen by herding."""
+    """``n`` candidate fibers of balanced sampling (geometry/balanced.py): axis, start (the
+    chord's quantile given the axis, :func:`_chord_starts`, or the line's offset) and diameter
+    at the sampler's next points, each walk's variant (its mirror image, ``model.variants``)
+    chosen by herding."""
     side = rve.side_um
     u = sampler.points(n)
     if rve.seeding == "border":
-        start, edge = _border_points(4.0 * side * u[:, 1], side)
-        theta = _inward(rng, axis_quantiles(dist, u[:, 0], width_weighted=False), edge, dist)
+        start, theta = _chord_starts(rng, axis_quantiles(dist, u[:, 0], width_weighted=False), u[:, 1], side, dist)
     else:
         theta = axis_quantiles(dist, u[:, 0], width_weighted=True) + np.pi * rng.integers(0, 2, n)
         start, theta = _line_entries(theta, u[:, 1], side)
