@@ -22,6 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from espin.geometry.network import Network
+from espin.mechanics import kernels
 from espin.mechanics.bending import FiberJoints
 
 __all__ = ["Kinematics", "SparsePattern", "NetworkAssembler"]
@@ -64,11 +65,13 @@ class SparsePattern:
     slot: np.ndarray
     entry: np.ndarray
 
-    def fill(self, values: np.ndarray) -> sp.csr_matrix:
-        """Sum flattened element (and joint) matrices into a copy of the pattern."""
-        data = np.bincount(self.slot, values[self.entry], minlength=self.matrix.nnz)
+    def fill(
+        self, axial: np.ndarray, transverse: np.ndarray, unit: np.ndarray, joint_values: np.ndarray
+    ) -> sp.csr_matrix:
+        """A copy of the pattern holding the element (and joint) matrices' sum
+        (:func:`espin.mechanics.kernels.fill_tangent`; ``joint_values`` flattened, or empty)."""
         out = self.matrix.copy()
-        out.data = data
+        out.data = kernels.fill_tangent(self.slot, self.entry, axial, transverse, unit, joint_values, self.matrix.nnz)
         return out
 
 
@@ -136,23 +139,9 @@ class NetworkAssembler:
         surroundings exert on the border nodes. Without the joints' part
         (:meth:`espin.mechanics.bending.FiberJoints.gradient`).
         """
-        ta = force[:, None] * kin.unit
-        values = np.concatenate([-ta, ta], axis=1).ravel()
-        return np.bincount(self._dof.ravel(), values, minlength=self.n_dof)
+        return kernels.gradient(self._dof, force, kin.unit, self.n_dof)
 
     # -- tangents ---------------------------------------------------------------------------
-    def _element_blocks(self, axial: np.ndarray, transverse: np.ndarray, kin: Kinematics) -> np.ndarray:
-        """Flattened 4 x 4 element matrices for k = axial a(x)a + transverse (I - a(x)a)."""
-        a = kin.unit
-        aa = a[:, :, None] * a[:, None, :]
-        k = axial[:, None, None] * aa + transverse[:, None, None] * (np.eye(2) - aa)
-        block = np.empty((len(a), 4, 4))
-        block[:, :2, :2] = k
-        block[:, 2:, 2:] = k
-        block[:, :2, 2:] = -k
-        block[:, 2:, :2] = -k
-        return block.ravel()
-
     def pattern(self, part: str) -> SparsePattern:
         """Pattern of the block ``"II"`` (inner-inner), ``"IB"`` or ``"BB"``, built once."""
         if part not in self._patterns:
@@ -169,15 +158,11 @@ class NetworkAssembler:
             self._patterns[part] = _pattern(r - shift[0], c - shift[1], keep, shape)
         return self._patterns[part]
 
-    def _values(
-        self, axial: np.ndarray, transverse: np.ndarray, kin: Kinematics, joint_blocks: np.ndarray | None
-    ) -> np.ndarray:
-        """Element matrices, then the joints' (zero where none are given)."""
-        values = self._element_blocks(axial, transverse, kin)
+    def _joint_values(self, joint_blocks: np.ndarray | None) -> np.ndarray:
+        """The joints' matrices flattened (zeros where none are given; empty without joints)."""
         if self.joints is None:
-            return values
-        joint = np.zeros(36 * len(self.joints.stiffness)) if joint_blocks is None else joint_blocks.ravel()
-        return np.concatenate([values, joint])
+            return np.empty(0)
+        return np.zeros(36 * len(self.joints.stiffness)) if joint_blocks is None else joint_blocks.ravel()
 
     def tangent(
         self,
@@ -203,7 +188,7 @@ class NetworkAssembler:
             The joints' matrices (:meth:`espin.mechanics.bending.FiberJoints.blocks`), with
             bending on.
         """
-        return self.pattern(part).fill(self._values(axial, transverse, kin, joint_blocks))
+        return self.pattern(part).fill(axial, transverse, kin.unit, self._joint_values(joint_blocks))
 
     def tangents(
         self,
@@ -214,5 +199,5 @@ class NetworkAssembler:
         joint_blocks: np.ndarray | None = None,
     ) -> list[sp.csr_matrix]:
         """Several blocks of the stiffness matrix from one evaluation of the element matrices."""
-        values = self._values(axial, transverse, kin, joint_blocks)
-        return [self.pattern(part).fill(values) for part in parts]
+        joint_values = self._joint_values(joint_blocks)
+        return [self.pattern(part).fill(axial, transverse, kin.unit, joint_values) for part in parts]
