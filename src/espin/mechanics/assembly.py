@@ -55,15 +55,13 @@ class SparsePattern:
     ----------
     matrix : scipy.sparse.csr_matrix
         Pattern with zero data; copied with new data by :meth:`fill`.
-    slot : (n_entries,) int64
-        Position in ``matrix.data`` of each kept element-matrix entry.
-    entry : (n_entries,) int64
-        Which of the element-matrix entries (n_elements * 16, then n_joints * 36) are kept.
+    slot : (n_elements * 16 + n_joints * 36,) int32
+        Position in ``matrix.data`` of each element-matrix entry (row-major 4 x 4 blocks,
+        then the joints' 6 x 6 blocks), -1 for entries outside this block of the tangent.
     """
 
     matrix: sp.csr_matrix
     slot: np.ndarray
-    entry: np.ndarray
 
     def fill(
         self, axial: np.ndarray, transverse: np.ndarray, unit: np.ndarray, joint_values: np.ndarray
@@ -71,7 +69,7 @@ class SparsePattern:
         """A copy of the pattern holding the element (and joint) matrices' sum
         (:func:`espin.mechanics.kernels.fill_tangent`; ``joint_values`` flattened, or empty)."""
         out = self.matrix.copy()
-        out.data = kernels.fill_tangent(self.slot, self.entry, axial, transverse, unit, joint_values, self.matrix.nnz)
+        out.data = kernels.fill_tangent(self.slot, axial, transverse, unit, joint_values, self.matrix.nnz)
         return out
 
 
@@ -83,7 +81,11 @@ def _pattern(rows: np.ndarray, cols: np.ndarray, keep: np.ndarray, shape: tuple[
     ur, uc = np.divmod(unique, shape[1])
     indptr = np.concatenate([[0], np.cumsum(np.bincount(ur, minlength=shape[0]))])
     matrix = sp.csr_matrix((np.zeros(len(unique)), uc, indptr), shape=shape)
-    return SparsePattern(matrix=matrix, slot=slot, entry=entry)
+    if len(unique) > np.iinfo(np.int32).max:
+        raise ValueError(f"a tangent block with {len(unique)} nonzeros is beyond the 32-bit slot map")
+    slot_of_entry = np.full(len(rows), -1, dtype=np.int32)
+    slot_of_entry[entry] = slot
+    return SparsePattern(matrix=matrix, slot=slot_of_entry)
 
 
 class NetworkAssembler:

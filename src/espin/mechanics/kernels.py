@@ -343,29 +343,37 @@ def gradient(dof: np.ndarray, force: np.ndarray, unit: np.ndarray, n_dof: int) -
 @_jit
 def fill_tangent(
     slot: np.ndarray,
-    entry: np.ndarray,
     axial: np.ndarray,
     transverse: np.ndarray,
     unit: np.ndarray,
     joint_values: np.ndarray,
     nnz: int,
 ) -> np.ndarray:
-    """Values of a sparse pattern: each kept element-matrix entry summed into its slot.
+    """Values of a sparse pattern: each element-matrix entry summed into its slot.
 
-    Entry ``16 e + 4 r + c`` is row r, column c of element e's 4 x 4 matrix
-    [[k, -k], [-k, k]] with k = axial a (x) a + transverse (I - a (x) a) [uN/um]; entries
-    from ``16 n_elements`` on are ``joint_values`` (flattened joint matrices), if any.
+    Entry ``16 e + 4 r + c`` of ``slot`` (-1: not in this pattern) is row r, column c of
+    element e's 4 x 4 matrix [[k, -k], [-k, k]] with k = axial a (x) a + transverse
+    (I - a (x) a) [uN/um]; the entries from ``16 n_elements`` on are ``joint_values``
+    (flattened joint matrices), if any. Entries are summed in ascending order.
     """
     data = np.zeros(nnz)
-    n_element_entries = 16 * axial.size
-    for j in range(entry.size):
-        k = entry[j]
-        if k < n_element_entries:
-            e, local = divmod(k, 16)
-            r, c = divmod(local, 4)
-            aa = unit[e, r % 2] * unit[e, c % 2]
-            value = axial[e] * aa + transverse[e] * ((1.0 if r % 2 == c % 2 else 0.0) - aa)
-            data[slot[j]] += value if (r < 2) == (c < 2) else -value
-        else:
-            data[slot[j]] += joint_values[k - n_element_entries]
+    k = np.empty((2, 2))
+    n_elements = axial.size
+    for e in range(n_elements):
+        for i in range(2):
+            for j in range(2):
+                aa = unit[e, i] * unit[e, j]
+                k[i, j] = axial[e] * aa + transverse[e] * ((1.0 if i == j else 0.0) - aa)
+        base = 16 * e
+        for r in range(4):
+            for c in range(4):
+                s = slot[base + 4 * r + c]
+                if s >= 0:
+                    value = k[r % 2, c % 2]
+                    data[s] += value if (r < 2) == (c < 2) else -value
+    base = 16 * n_elements
+    for j in range(joint_values.size):
+        s = slot[base + j]
+        if s >= 0:
+            data[s] += joint_values[j]
     return data
