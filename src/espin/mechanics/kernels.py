@@ -128,7 +128,8 @@ def _newton(
     / b_p). Safeguarded Newton from ``w`` (R(lo) <= 0 <= R(hi)): the step is taken in w while
     the slope of the first term dominates and in lambda_p when the second's does; a step that
     leaves the bracket or fails to halve the step of two iterations ago is replaced by
-    bisection in w. Converged when lambda_p moves by less than 4 machine epsilons or the
+    bisection in w, as in Numerical Recipes' rtsafe (Newton may cycle where R(w) is sigmoidal:
+    a steep stress term near the root). Converged when lambda_p moves by less than 4 machine epsilons or the
     bracket closes. One expm1, asinh, square root and power per iteration.
     """
     step = hi - lo
@@ -158,7 +159,7 @@ def _newton(
             return flow, True
         if r < 0.0:
             lo = w
-        else:
+        elif r > 0.0:
             hi = w
         delta = r / (slope_flow + slope_stress)
         w_new = w + math.log1p(-delta) if slope_stress > slope_flow else w - delta
