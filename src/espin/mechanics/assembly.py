@@ -126,11 +126,9 @@ class NetworkAssembler:
 
     def kinematics(self, x: np.ndarray) -> Kinematics:
         """Element vectors, lengths and unit vectors at node positions ``x`` (n_nodes, 2)."""
-        nodes = self.network.element_nodes
-        vector = x[nodes[:, 1]] - x[nodes[:, 0]]
-        length = np.hypot(vector[:, 0], vector[:, 1])
-        safe = length > 0.0
-        unit = np.where(safe[:, None], vector / np.where(safe, length, 1.0)[:, None], self._reference_unit)
+        vector, length, unit = kernels.kinematics(
+            np.ascontiguousarray(x, dtype=float), self.network.element_nodes, self._reference_unit
+        )
         return Kinematics(vector=vector, length=length, unit=unit)
 
     # -- forces -----------------------------------------------------------------------------

@@ -30,6 +30,7 @@ __all__ = [
     "law_update",
     "return_map",
     "recruitment_flow",
+    "kinematics",
     "gradient",
     "fill_tangent",
 ]
@@ -322,6 +323,31 @@ def recruitment_flow(
         flow[i], ok = _newton(_RECRUITMENT, hi, 0.0, hi, adt[i], plastic_old[i], 1.0, 0.0, 1.0, g_r, 0.0, Eb, bp, cp)
         failed += not ok
     return failed
+
+
+@_jit
+def kinematics(
+    x: np.ndarray, nodes: np.ndarray, reference_unit: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vector x_e2 - x_e1 [um], length and unit vector of every element.
+
+    ``x``: (n_nodes, 2) positions; ``nodes``: (n_elements, 2) end nodes; ``reference_unit``:
+    (n_elements, 2) the direction taken where an element has zero length.
+    """
+    n = nodes.shape[0]
+    vector = np.empty((n, 2))
+    length = np.empty(n)
+    unit = np.empty((n, 2))
+    for e in range(n):
+        vx = x[nodes[e, 1], 0] - x[nodes[e, 0], 0]
+        vy = x[nodes[e, 1], 1] - x[nodes[e, 0], 1]
+        size = math.hypot(vx, vy)
+        vector[e, 0], vector[e, 1], length[e] = vx, vy, size
+        if size > 0.0:
+            unit[e, 0], unit[e, 1] = vx / size, vy / size
+        else:
+            unit[e, 0], unit[e, 1] = reference_unit[e, 0], reference_unit[e, 1]
+    return vector, length, unit
 
 
 @_jit
