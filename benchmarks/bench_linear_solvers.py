@@ -15,11 +15,15 @@ matrix. The "indefinite" matrix has the same pattern with T = -1e-3 E_t A on 10 
 elements (compressed elements give a negative geometric stiffness).
 
 For every size and backend, in its own Python process (so that the peak resident memory is
-its own): factorize spd (first: ordering / symbolic analysis included), factorize indefinite
-and spd again (pattern work reused), solve one right-hand side, and count the negative
-eigenvalues. Printed per row: DOF, nnz(K), nnz of the factors, seconds for each step, the
-relative residual ||K x - b|| / ||b||, the number of negative eigenvalues of the indefinite
-matrix, and the peak RSS of the process and its growth during the solver steps.
+its own): factorize spd (first: ordering / symbolic analysis included), solve one
+right-hand side, factorize spd again (pattern work reused; PARDISO: Cholesky), indefinite
+(PARDISO: Cholesky fails, LDL^T analysed and factorized), indefinite again and spd once more
+(PARDISO: both LDL^T, as the matrix before was indefinite), solve after that, and count the
+negative eigenvalues. Printed per row: DOF, nnz(K), nnz of the factors, seconds for each step
+(rep spd, 1st ind, rep ind, spd/ind: spd after indefinite; solve s: the Cholesky solve for
+PARDISO, solv/ind: the LDL^T one), the relative residual ||K x - b|| / ||b||, the number of
+negative eigenvalues of the indefinite matrix, and the peak RSS of the process and its
+growth during the solver steps.
 """
 
 from __future__ import annotations
@@ -136,18 +140,26 @@ def run_case(size_um: float, backend: str, threads: int | None) -> dict:
         t2 = time.perf_counter()
         spd_negative = factorization.n_negative
         t3 = time.perf_counter()
-        factorization = solver.factorize(indefinite)
+        factorization = solver.factorize(spd)  # PARDISO: Cholesky
         t4 = time.perf_counter()
+        solver.factorize(indefinite)  # PARDISO: Cholesky fails, LDL^T analysed and factorized
+        t5 = time.perf_counter()
+        factorization = solver.factorize(indefinite)  # PARDISO: LDL^T (the last was indefinite)
+        t6 = time.perf_counter()
         n_negative = factorization.n_negative
         x_indefinite = factorization.solve(b)
-        t5 = time.perf_counter()
-        factorization = solver.factorize(spd)
-        t6 = time.perf_counter()
+        t7 = time.perf_counter()
+        factorization = solver.factorize(spd)  # PARDISO: LDL^T (the last was indefinite)
+        t8 = time.perf_counter()
+        factorization.solve(b)
+        t9 = time.perf_counter()
         residual = max(np.linalg.norm(spd @ x - b), np.linalg.norm(indefinite @ x_indefinite - b))
         return {
             "size_um": size_um, "backend": solver.name, "dof": spd.shape[0], "nnz": spd.nnz,
             "nnz_factor": factorization.nnz_factor, "first_s": t1 - t0, "solve_s": t2 - t1,
-            "inertia_s": t3 - t2, "repeat_indefinite_s": t4 - t3, "repeat_spd_s": t6 - t5,
+            "inertia_s": t3 - t2, "repeat_spd_s": t4 - t3, "first_indefinite_s": t5 - t4,
+            "repeat_indefinite_s": t6 - t5, "spd_after_indefinite_s": t8 - t7,
+            "solve_after_indefinite_s": t9 - t8,
             "residual": residual / np.linalg.norm(b), "spd_negative": spd_negative,
             "n_negative": n_negative, "n_perturbed": factorization.n_perturbed,
             "rss_MB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
@@ -176,15 +188,17 @@ def main() -> None:
         return
     sizes = [35.5, 90.0] + ([] if args.quick else [177.0])  # about 1e4, 6.5e4, 2.5e5 DOF
     print(f"{'backend':>8} {'DOF':>7} {'nnz(K)':>8} {'nnz(F)':>9} {'first s':>8} "
-          f"{'rep spd':>8} {'rep ind':>8} {'solve s':>8} {'inert s':>8} {'resid':>8} "
-          f"{'neg s/i':>9} {'pert':>4} {'RSS MB':>7} {'+MB':>6}")
+          f"{'rep spd':>8} {'1st ind':>8} {'rep ind':>8} {'spd/ind':>8} {'solve s':>8} "
+          f"{'solv/ind':>8} {'inert s':>8} {'resid':>8} {'neg s/i':>9} {'pert':>4} {'RSS MB':>7} "
+          f"{'+MB':>6}")
     for size_um in sizes:
         for backend in args.backends.split(","):
             r = in_subprocess(size_um, backend, args.threads)
             negatives = f"{r['spd_negative']}/{r['n_negative']}"
             print(f"{r['backend']:>8} {r['dof']:>7d} {r['nnz']:>8d} {r['nnz_factor']:>9d} "
-                  f"{r['first_s']:>8.3f} {r['repeat_spd_s']:>8.3f} "
-                  f"{r['repeat_indefinite_s']:>8.3f} {r['solve_s']:>8.4f} "
+                  f"{r['first_s']:>8.3f} {r['repeat_spd_s']:>8.3f} {r['first_indefinite_s']:>8.3f} "
+                  f"{r['repeat_indefinite_s']:>8.3f} {r['spd_after_indefinite_s']:>8.3f} "
+                  f"{r['solve_s']:>8.4f} {r['solve_after_indefinite_s']:>8.4f} "
                   f"{r['inertia_s']:>8.3f} {r['residual']:>8.1e} "
                   f"{negatives:>9} "
                   f"{r['n_perturbed']:>4d} {r['rss_MB']:>7.0f} {r['rss_growth_MB']:>6.0f}",

@@ -326,6 +326,26 @@ def test_mkl_thread_count_change_between_factorizations() -> None:
             assert relative_residual(K, factorization.solve(b), b) < 1e-12
 
 
+def test_pardiso_factorizes_by_cholesky_while_positive_definite() -> None:
+    """Cholesky for SPD matrices; an indefinite one falls back to LDL^T with exact inertia,
+    and so does the next matrix, until one is positive definite again."""
+    if "pardiso" not in BACKENDS:
+        pytest.skip("PARDISO unusable")
+    spd = laplacian_2dof(10)
+    indefinite = random_symmetric_values(spd, seed=3)
+    shifted = (spd - 0.5 * sp.eye(spd.shape[0])).tocsr()  # indefinite, positive diagonal
+    b = np.random.default_rng(4).standard_normal(spd.shape[0])
+    sequence = [(spd, "cholesky"), (indefinite, "ldlt"), (shifted, "ldlt"), (spd, "ldlt"), (spd, "cholesky")]
+    with make_linear_solver("pardiso") as solver:
+        assert isinstance(solver, ls.PardisoSolver)
+        for K, kind in sequence:
+            factorization = solver.factorize(K)
+            assert factorization._handle is getattr(solver, f"_{kind}")
+            assert factorization.n_negative == n_negative_eigenvalues(K)
+            assert factorization.n_perturbed == 0
+            assert relative_residual(K, factorization.solve(b), b) < 1e-10
+
+
 def test_make_linear_solver_names(monkeypatch: pytest.MonkeyPatch) -> None:
     assert set(LINEAR_SOLVER_NAMES) == {"auto", "superlu", "pardiso"}
     assert isinstance(make_linear_solver("superlu"), ls.SuperLUSolver)

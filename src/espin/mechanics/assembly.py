@@ -22,6 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from espin.geometry.network import Network
+from espin.mechanics import kernels
 from espin.mechanics.bending import FiberJoints
 
 __all__ = ["Kinematics", "SparsePattern", "NetworkAssembler"]
@@ -54,21 +55,21 @@ class SparsePattern:
     ----------
     matrix : scipy.sparse.csr_matrix
         Pattern with zero data; copied with new data by :meth:`fill`.
-    slot : (n_entries,) int64
-        Position in ``matrix.data`` of each kept element-matrix entry.
-    entry : (n_entries,) int64
-        Which of the element-matrix entries (n_elements * 16, then n_joints * 36) are kept.
+    slot : (n_elements * 16 + n_joints * 36,) int32
+        Position in ``matrix.data`` of each element-matrix entry (row-major 4 x 4 blocks,
+        then the joints' 6 x 6 blocks), -1 for entries outside this block of the tangent.
     """
 
     matrix: sp.csr_matrix
     slot: np.ndarray
-    entry: np.ndarray
 
-    def fill(self, values: np.ndarray) -> sp.csr_matrix:
-        """Sum flattened element (and joint) matrices into a copy of the pattern."""
-        data = np.bincount(self.slot, values[self.entry], minlength=self.matrix.nnz)
+    def fill(
+        self, axial: np.ndarray, transverse: np.ndarray, unit: np.ndarray, joint_values: np.ndarray
+    ) -> sp.csr_matrix:
+        """A copy of the pattern holding the element (and joint) matrices' sum
+        (:func:`espin.mechanics.kernels.fill_tangent`; ``joint_values`` flattened, or empty)."""
         out = self.matrix.copy()
-        out.data = data
+        out.data = kernels.fill_tangent(self.slot, axial, transverse, unit, joint_values, self.matrix.nnz)
         return out
 
 
@@ -80,7 +81,11 @@ def _pattern(rows: np.ndarray, cols: np.ndarray, keep: np.ndarray, shape: tuple[
     ur, uc = np.divmod(unique, shape[1])
     indptr = np.concatenate([[0], np.cumsum(np.bincount(ur, minlength=shape[0]))])
     matrix = sp.csr_matrix((np.zeros(len(unique)), uc, indptr), shape=shape)
-    return SparsePattern(matrix=matrix, slot=slot, entry=entry)
+    if len(unique) > np.iinfo(np.int32).max:
+        raise ValueError(f"a tangent block with {len(unique)} nonzeros is beyond the 32-bit slot map")
+    slot_of_entry = np.full(len(rows), -1, dtype=np.int32)
+    slot_of_entry[entry] = slot
+    return SparsePattern(matrix=matrix, slot=slot_of_entry)
 
 
 class NetworkAssembler:
@@ -121,11 +126,9 @@ class NetworkAssembler:
 
     def kinematics(self, x: np.ndarray) -> Kinematics:
         """Element vectors, lengths and unit vectors at node positions ``x`` (n_nodes, 2)."""
-        nodes = self.network.element_nodes
-        vector = x[nodes[:, 1]] - x[nodes[:, 0]]
-        length = np.hypot(vector[:, 0], vector[:, 1])
-        safe = length > 0.0
-        unit = np.where(safe[:, None], vector / np.where(safe, length, 1.0)[:, None], self._reference_unit)
+        vector, length, unit = kernels.kinematics(
+            np.ascontiguousarray(x, dtype=float), self.network.element_nodes, self._reference_unit
+        )
         return Kinematics(vector=vector, length=length, unit=unit)
 
     # -- forces -----------------------------------------------------------------------------
@@ -136,23 +139,9 @@ class NetworkAssembler:
         surroundings exert on the border nodes. Without the joints' part
         (:meth:`espin.mechanics.bending.FiberJoints.gradient`).
         """
-        ta = force[:, None] * kin.unit
-        values = np.concatenate([-ta, ta], axis=1).ravel()
-        return np.bincount(self._dof.ravel(), values, minlength=self.n_dof)
+        return kernels.gradient(self._dof, force, kin.unit, self.n_dof)
 
     # -- tangents ---------------------------------------------------------------------------
-    def _element_blocks(self, axial: np.ndarray, transverse: np.ndarray, kin: Kinematics) -> np.ndarray:
-        """Flattened 4 x 4 element matrices for k = axial a(x)a + transverse (I - a(x)a)."""
-        a = kin.unit
-        aa = a[:, :, None] * a[:, None, :]
-        k = axial[:, None, None] * aa + transverse[:, None, None] * (np.eye(2) - aa)
-        block = np.empty((len(a), 4, 4))
-        block[:, :2, :2] = k
-        block[:, 2:, 2:] = k
-        block[:, :2, 2:] = -k
-        block[:, 2:, :2] = -k
-        return block.ravel()
-
     def pattern(self, part: str) -> SparsePattern:
         """Pattern of the block ``"II"`` (inner-inner), ``"IB"`` or ``"BB"``, built once."""
         if part not in self._patterns:
@@ -169,15 +158,11 @@ class NetworkAssembler:
             self._patterns[part] = _pattern(r - shift[0], c - shift[1], keep, shape)
         return self._patterns[part]
 
-    def _values(
-        self, axial: np.ndarray, transverse: np.ndarray, kin: Kinematics, joint_blocks: np.ndarray | None
-    ) -> np.ndarray:
-        """Element matrices, then the joints' (zero where none are given)."""
-        values = self._element_blocks(axial, transverse, kin)
+    def _joint_values(self, joint_blocks: np.ndarray | None) -> np.ndarray:
+        """The joints' matrices flattened (zeros where none are given; empty without joints)."""
         if self.joints is None:
-            return values
-        joint = np.zeros(36 * len(self.joints.stiffness)) if joint_blocks is None else joint_blocks.ravel()
-        return np.concatenate([values, joint])
+            return np.empty(0)
+        return np.zeros(36 * len(self.joints.stiffness)) if joint_blocks is None else joint_blocks.ravel()
 
     def tangent(
         self,
@@ -203,7 +188,7 @@ class NetworkAssembler:
             The joints' matrices (:meth:`espin.mechanics.bending.FiberJoints.blocks`), with
             bending on.
         """
-        return self.pattern(part).fill(self._values(axial, transverse, kin, joint_blocks))
+        return self.pattern(part).fill(axial, transverse, kin.unit, self._joint_values(joint_blocks))
 
     def tangents(
         self,
@@ -214,5 +199,5 @@ class NetworkAssembler:
         joint_blocks: np.ndarray | None = None,
     ) -> list[sp.csr_matrix]:
         """Several blocks of the stiffness matrix from one evaluation of the element matrices."""
-        values = self._values(axial, transverse, kin, joint_blocks)
-        return [self.pattern(part).fill(values) for part in parts]
+        joint_values = self._joint_values(joint_blocks)
+        return [self.pattern(part).fill(axial, transverse, kin.unit, joint_values) for part in parts]

@@ -1,4 +1,4 @@
-"""The fiber constitutive law (paper Eq. 1, 4, 5; docs/model.md section 3), vectorized over elements.
+"""The fiber constitutive law (paper Eq. 1, 4, 5; docs/model.md section 3) for arrays of elements.
 
 An element of end-to-end stretch ``lambda = l / l0``, plastic stretch ``lambda_p`` (1 at
 deposition) and tortuosity ``lambda_r = L0 / l0 >= 1`` has the elastic stretch
@@ -22,10 +22,11 @@ taken.) Each element is solved by a safeguarded Newton iteration on
 ``[0, log1p(|lambda - lambda_p_n| / (a_p dt))]`` and makes the left side ``asinh(expm1(w))``
 nearly linear (slope between 1 and sqrt(2)) from barely flowing elements (``w ~ 1e-10``) to
 elements on the flow plateau (``w ~ 14``); on the plateau the step is taken in ``lambda_p``,
-and poor steps are replaced by bisection in ``w`` (:func:`_newton`). The iteration starts at
+and poor steps are replaced by bisection in ``w``. The iteration starts at
 recruitment when that splits the bracket, so it never crosses the kink of the law, and stops
 when ``lambda_p`` moves by less than 4 machine epsilons (the result is good to a few
-epsilons). ``sinh`` is never evaluated on a stress, and no finite input overflows.
+epsilons). ``sinh`` is never evaluated on a stress, and no finite input overflows. The
+iteration runs element by element in compiled code (:mod:`espin.mechanics.kernels`).
 
 Units: stress and moduli MPa, time s, stretches dimensionless; forces uN = MPa um^2.
 The axial force of an element of reference area ``A`` and length ``l0`` is ``T = A t`` and its
@@ -34,15 +35,14 @@ algorithmic stiffness ``dT/dl = (A / l0) dt/dlambda`` (:func:`axial_force_and_st
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
-from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from espin.core.errors import ConfigError, InadmissibleState, StepNotConverged
+from espin.mechanics import kernels
 
 if TYPE_CHECKING:
     from espin.core.config import FiberConfig
@@ -63,7 +63,7 @@ __all__ = [
     "yielded",
 ]
 
-STRETCH_FLOOR = 1e-6
+STRETCH_FLOOR = kernels.STRETCH_FLOOR
 """Length floor: stretches below it are evaluated at it (the stress is constant there and
 the tangent zero), so a collapsed element never divides by zero nor flows to lambda_p = 0."""
 
@@ -80,10 +80,6 @@ MAX_PANELS = 64
 YIELD_THRESHOLD = 1e-3
 """An element counts as yielded when lambda_p - 1 exceeds this (docs/model.md section 3)."""
 
-_MAX_ITERATIONS = 200
-_RTOL = 4.0 * np.finfo(float).eps
-_KINK_SHIFT = 1e-12  # relative offset of the start from recruitment, to its taut side
-_LARGE_W = 700.0  # expm1(w) and exp(w) are finite below this
 # a_p dt is capped here: beyond it the element relaxes to t = 0 to within 1e-90 MPa anyway,
 # and derivatives times a_p dt stay finite.
 _MAX_FLOW_SCALE = 1e100
@@ -188,200 +184,40 @@ def elastic_modulus(law: FiberLaw, elastic_stretch: ArrayLike, tortuosity: Array
     return np.where(np.asarray(elastic_stretch) >= lr, law.taut_modulus / lr, law.slack_modulus)
 
 
-def _flow_terms(law: FiberLaw, stretch: np.ndarray, plastic: np.ndarray, lr: np.ndarray) -> tuple[np.ndarray, ...]:
-    """g = t / (b_p lambda_p^c_p) and its partial derivatives by lambda and lambda_p."""
-    e = stretch / plastic
-    t = elastic_stress(law, e, lr)
-    m = elastic_modulus(law, e, lr)
-    scale = 1.0 / (law.flow_resistance * plastic**law.hardening_exponent)
-    g = t * scale
-    dg_dstretch = m / plastic * scale
-    dg_dplastic = -(m * e + law.hardening_exponent * t) / plastic * scale
-    return t, g, dg_dstretch, dg_dplastic
-
-
-def _log1p_ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
-    """log(1 + num / den) for num >= 0, den > 0, without overflow of the ratio."""
-    with np.errstate(divide="ignore"):
-        return np.logaddexp(0.0, np.log(num) - np.log(den))
-
-
-def _log1p_sinh(g: np.ndarray) -> np.ndarray:
-    """log(1 + sinh(g)) for g >= 0, without overflow."""
-    small = np.minimum(g, 1.0)
-    large = g - np.log(2.0) + np.log1p(2.0 * np.exp(-g) - np.exp(-2.0 * g))
-    return np.where(g < 1.0, np.log1p(np.sinh(small)), large)
-
-
-def _flow_magnitude(w: np.ndarray, adt: np.ndarray) -> np.ndarray:
-    """|lambda_p - lambda_p_n| = a_p dt expm1(w), without overflow for large w."""
-    flow = adt * np.expm1(np.minimum(w, _LARGE_W))
-    large = w >= _LARGE_W
-    if large.any():
-        flow[large] = np.exp(np.log(adt[large]) + w[large])
-    return flow
-
-
-def _asinh_expm1(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """asinh(expm1(w)) and its derivative (in [1, sqrt(2)]) for w >= 0, without overflow."""
-    value = np.arcsinh(np.expm1(np.minimum(w, _LARGE_W)))
-    value = np.where(w < _LARGE_W, value, w + np.log(2.0))
-    return value, 1.0 / np.sqrt(np.exp(-2.0 * w) + np.expm1(-w) ** 2)
-
-
-_Residual = Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
-
-
-def _newton(
-    residual: _Residual,
-    w: np.ndarray,
-    lo: np.ndarray,
-    hi: np.ndarray,
-    adt: np.ndarray,
-    plastic_old: np.ndarray,
-    *args: np.ndarray,
-) -> np.ndarray:
-    """Solve residual(w, adt, plastic_old, *args) = 0 per element; return |lambda_p - lambda_p_n|.
-
-    Safeguarded Newton from ``w`` inside the bracket [lo, hi] (R(lo) <= 0 <= R(hi)); all
-    arrays are 1-D, and elements leave the iteration as they converge. ``residual`` returns
-    R(w) = asinh(expm1(w)) - (normalized stress term), the slope of the first term, the
-    slope of the second and the flow |lambda_p - lambda_p_n|. The step is taken in w while
-    the first slope dominates (weak flow, where R is nearly linear in w) and in lambda_p
-    when the second does (on the plateau, where R is nearly linear in lambda_p); a step that
-    leaves the bracket or fails to halve the step of two iterations ago is replaced by
-    bisection in w (as in Numerical Recipes' rtsafe). Converged when lambda_p moves by less
-    than 4 machine epsilons or the bracket closes.
-    """
-    out = np.empty_like(w)
-    index = np.arange(w.size)
-    step = step_before = hi - lo
-    for _ in range(_MAX_ITERATIONS):
-        r, slope_flow, slope_stress, flow = residual(w, adt, plastic_old, *args)
-        lo = np.where(r < 0, w, lo)
-        hi = np.where(r > 0, w, hi)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            delta = r / (slope_flow + slope_stress)
-            w_new = np.where(slope_stress > slope_flow, w + np.log1p(-delta), w - delta)
-        # Bisect when Newton leaves the bracket or does not halve the step of two iterations
-        # ago (it may cycle where R(w) is sigmoidal: a steep stress term near the root).
-        newton = (w_new >= lo) & (w_new <= hi) & (np.abs(w_new - w) <= 0.5 * step_before)
-        w_new = np.where(newton, w_new, 0.5 * (lo + hi))
-        step_before, step = step, np.abs(w_new - w)
-        flow_new = _flow_magnitude(w_new, adt)
-        done = (r == 0) | (np.abs(flow_new - flow) <= _RTOL * (plastic_old + flow)) | (hi - lo <= _RTOL * hi)
-        out[index[done]] = np.where(r == 0, flow, flow_new)[done]
-        more = ~done
-        if not more.any():
-            return out
-        index, w, lo, hi, step, step_before, adt, plastic_old = (
-            v[more] for v in (index, w_new, lo, hi, step, step_before, adt, plastic_old)
-        )
-        args = tuple(v[more] for v in args)
-    raise StepNotConverged(
-        f"the fiber law's return mapping did not converge in {_MAX_ITERATIONS} iterations for {index.size} elements"
+def _not_converged(failed: int) -> StepNotConverged:
+    return StepNotConverged(
+        f"the fiber law's return mapping did not converge in {kernels.MAX_ITERATIONS} iterations for {failed} elements"
     )
-
-
-def _flow_residual(
-    law: FiberLaw,
-    w: np.ndarray,
-    adt: np.ndarray,
-    plastic_old: np.ndarray,
-    sign: np.ndarray,
-    stretch: np.ndarray,
-    lr: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Return-mapping residual asinh(expm1(w)) - sign g(lambda, lambda_p) for :func:`_newton`."""
-    flow = _flow_magnitude(w, adt)
-    _, g, _, dg_dplastic = _flow_terms(law, stretch, plastic_old + sign * flow, lr)
-    lhs, slope = _asinh_expm1(w)
-    return lhs - sign * g, slope, -dg_dplastic * (adt + flow), flow
-
-
-def _solve_flow(
-    law: FiberLaw,
-    stretch: np.ndarray,
-    plastic_old: np.ndarray,
-    lr: np.ndarray,
-    adt: np.ndarray,
-    trial: np.ndarray,
-    guess: np.ndarray | None = None,
-) -> np.ndarray:
-    """Signed plastic increment lambda_p - lambda_p_n of flowing elements (1-D, trial != 0).
-
-    ``guess`` (signed increments, e.g. of a nearby stretch) replaces the start wherever it
-    flows the same way and lies strictly inside the bracket.
-    """
-    sign = np.sign(trial)
-    c = law.hardening_exponent
-    g_trial = np.abs(trial) / (law.flow_resistance * plastic_old**c)
-    # Upper bound of |g| at the root: |t| <= |trial| and lambda_p >= min(lambda, lambda_p_n).
-    g_bound = g_trial * (plastic_old / np.minimum(stretch, plastic_old)) ** c
-    lo = np.zeros_like(stretch)
-    hi = np.minimum(_log1p_ratio(np.abs(stretch - plastic_old), adt), _log1p_sinh(g_bound))
-    # Start where asinh(...) = |g_trial|. That is an upper bound of the root where |g| falls
-    # as the element flows (tension, mild compression) and a lower bound where it grows
-    # (deep compression with c_p > 0, where R(w) can have three roots): Newton then
-    # approaches the first root, the one continuous with dt -> 0, from below. In tension,
-    # start at recruitment instead when it lies inside the bracket, just on its taut side:
-    # that splits the bracket at the kink of R, so the iteration stays on one smooth branch.
-    kink_gap = stretch / lr * (1.0 - _KINK_SHIFT) - plastic_old
-    w_kink = _log1p_ratio(np.maximum(kink_gap, 0.0), adt)
-    w = np.minimum(hi, _log1p_sinh(g_trial))
-    w = np.where((sign > 0) & (kink_gap > 0) & (w_kink < w), w_kink, w)
-    if guess is not None:
-        w_guess = _log1p_ratio(np.abs(guess), adt)
-        w = np.where((np.sign(guess) == sign) & (w_guess > lo) & (w_guess < hi), w_guess, w)
-    residual = partial(_flow_residual, law)
-    return sign * _newton(residual, w, lo, hi, adt, plastic_old, sign, stretch, lr)
-
-
-def _recruitment_residual(
-    law: FiberLaw, w: np.ndarray, adt: np.ndarray, plastic_old: np.ndarray, g_r: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Residual asinh(expm1(w)) - g_r / lambda_p^c_p of :func:`_recruitment_flow`."""
-    flow = _flow_magnitude(w, adt)
-    plastic = plastic_old + flow
-    g = g_r / plastic**law.hardening_exponent
-    lhs, slope = _asinh_expm1(w)
-    return lhs - g, slope, law.hardening_exponent * g / plastic * (adt + flow), flow
 
 
 def _recruitment_flow(
     law: FiberLaw, plastic_old: np.ndarray, lr: np.ndarray, adt: np.ndarray, limit: np.ndarray
 ) -> np.ndarray:
-    """lambda_p - lambda_p_n, at most ``limit``, of an element recruited at the step's end.
-
-    Root of asinh(expm1(w)) = t_r / (b_p lambda_p^c_p), t_r = E_b (lambda_r - 1) >= 0, whose
-    left side increases and right side decreases with w; the start
-    w = log1p(sinh(t_r / (b_p lambda_p_n^c_p))) is an upper bound. A root beyond ``limit``
-    returns ``limit``.
-    """
-    g_r = law.slack_modulus * (lr - 1.0) / law.flow_resistance
-    hi = np.minimum(_log1p_sinh(g_r / plastic_old**law.hardening_exponent), _log1p_ratio(limit, adt))
-    residual = partial(_recruitment_residual, law)
-    return _newton(residual, hi, np.zeros_like(hi), hi, adt, plastic_old, g_r)
+    """lambda_p - lambda_p_n, at most ``limit``, of elements recruited at the step's end
+    (1-D arrays, adt > 0, lr >= 1; :func:`espin.mechanics.kernels.recruitment_flow`)."""
+    flow = np.empty_like(plastic_old)
+    failed = kernels.recruitment_flow(
+        plastic_old, lr, adt, limit, law.slack_modulus, law.flow_resistance, law.hardening_exponent, flow
+    )
+    if failed:
+        raise _not_converged(failed)
+    return flow
 
 
 def _return_map(
-    law: FiberLaw,
-    stretch: np.ndarray,
-    plastic_old: np.ndarray,
-    lr: np.ndarray,
-    adt: np.ndarray,
-    guess: np.ndarray | None = None,
+    law: FiberLaw, stretch: np.ndarray, plastic_old: np.ndarray, lr: np.ndarray, adt: np.ndarray
 ) -> np.ndarray:
-    """Signed plastic increment of every element (1-D arrays; stretch already floored);
-    ``guess``: a guess of it, or None."""
-    trial = elastic_stress(law, stretch / plastic_old, lr)
-    flow = np.zeros_like(stretch)
-    i = np.flatnonzero((adt > 0) & (trial != 0))
-    if i.size:
-        flow[i] = _solve_flow(
-            law, stretch[i], plastic_old[i], lr[i], adt[i], trial[i], None if guess is None else guess[i]
-        )
+    """Signed plastic increment of every element (1-D arrays; stretch already floored, lr >= 1)."""
+    flow = np.empty_like(stretch)
+    failed = kernels.return_map(stretch, plastic_old, lr, adt, *_parameters(law), flow)
+    if failed:
+        raise _not_converged(failed)
     return flow
+
+
+def _parameters(law: FiberLaw) -> tuple[float, float, float, float]:
+    """E_t, E_b, b_p, c_p as the kernels take them."""
+    return law.taut_modulus, law.slack_modulus, law.flow_resistance, law.hardening_exponent
 
 
 def _prepare(law: FiberLaw, dt: ArrayLike, *arrays: ArrayLike) -> tuple[np.ndarray, ...]:
@@ -453,24 +289,17 @@ def update(
     global solver must expect in compressed elements.
     """
     lam, plastic_old, lr, adt = _prepare(law, dt, stretch, plastic_stretch_old, tortuosity)
-    floored = lam < STRETCH_FLOOR
-    lam, lr = np.maximum(lam, STRETCH_FLOOR), np.maximum(lr, 1.0)
-    guess = None
+    guess = np.empty(0)
     if plastic_stretch_guess is not None:
-        guess = np.broadcast_to(np.asarray(plastic_stretch_guess, dtype=float), lam.shape) - plastic_old
-    flow = _return_map(law, lam, plastic_old, lr, adt, guess)
-    plastic = plastic_old + flow
-    t, _, dg_dstretch, dg_dplastic = _flow_terms(law, lam, plastic, lr)
-    e = lam / plastic
-    h = np.hypot(adt, flow)  # 1 / (dR/d lambda_p of the asinh term); 0 when elastic
-    dplastic = dg_dstretch * h / (1.0 - dg_dplastic * h)
-    tangent = elastic_modulus(law, e, lr) / plastic * (1.0 - e * dplastic)
-    return LawState(
-        stress=t,
-        plastic_stretch=plastic,
-        tangent=np.where(floored, 0.0, tangent),
-        recruited=e >= lr,
+        guess = np.ascontiguousarray(np.broadcast_to(np.asarray(plastic_stretch_guess, dtype=float), lam.shape))
+    stress, plastic, tangent = np.empty_like(lam), np.empty_like(lam), np.empty_like(lam)
+    recruited = np.empty(lam.shape, dtype=bool)
+    failed = kernels.law_update(
+        lam, plastic_old, lr, adt, guess, *_parameters(law), stress, plastic, tangent, recruited
     )
+    if failed:
+        raise _not_converged(failed)
+    return LawState(stress=stress, plastic_stretch=plastic, tangent=tangent, recruited=recruited)
 
 
 def _elastic_work(law: FiberLaw, lam0: np.ndarray, lam1: np.ndarray, plastic: np.ndarray, lr: np.ndarray) -> np.ndarray:

@@ -20,9 +20,11 @@ Backends
     the first factorization when pymetis is not installed; the other factorizations permute
     K symmetrically and use the natural order.
 ``pardiso``
-    Intel MKL PARDISO (MKL found by the optional package ``pypardiso``): LDL^T of a real
-    symmetric indefinite matrix (``mtype=-2``) with Bunch-Kaufman pivoting, METIS ordering,
-    symbolic analysis once per pattern. 2.5-5 times faster than SuperLU on plla tangents.
+    Intel MKL PARDISO (MKL found by the optional package ``pypardiso``): Cholesky
+    (``mtype=2``) while the matrices are positive definite, else LDL^T of a real symmetric
+    indefinite matrix (``mtype=-2``) with Bunch-Kaufman pivoting and inertia; METIS
+    ordering, symbolic analysis once per pattern. 2.5-5 times faster than SuperLU on plla
+    tangents.
 
 ``make_linear_solver("auto")`` takes PARDISO when it works on this machine, else SuperLU.
 MKL runs with the thread count set by the caller (``threadpoolctl.threadpool_limits``).
@@ -521,22 +523,35 @@ _SINGULAR_ERRORS = (-4, -7)  # a property of the tangent: the step is cut; the o
 
 
 class PardisoSolver(LinearSolver):
-    """Intel MKL PARDISO LDL^T (real symmetric indefinite, ``mtype=-2``).
+    """Intel MKL PARDISO: Cholesky first, LDL^T with inertia when K is not positive definite.
 
     MKL is found and loaded by the optional package ``pypardiso``; this class calls PARDISO
     itself so that it can keep the analysis of a pattern. PARDISO reads the upper triangle of
-    K. The first factorization of a pattern runs the analysis (METIS ordering, symbolic
-    factorization: phase 11); later ones run only the numerical factorization (phase 22).
-    Bunch-Kaufman pivoting within supernodes keeps the LDL^T stable on most indefinite K, and
-    PARDISO reports the inertia (``iparm[21]``, ``iparm[22]``). Pivots it cannot stabilize are
-    perturbed to +-1e-8 ||K|| (``n_perturbed``); PARDISO then refines every solution twice.
-    Pivoting is restricted to supernodes, so small pivots can still cost accuracy; the
-    backward error check of every solve (see :class:`Factorization`) refines it then.
+    K. It holds two PARDISO states: Cholesky (real symmetric positive definite, ``mtype=2``)
+    and LDL^T (real symmetric indefinite, ``mtype=-2``). The first factorization of a pattern
+    by either runs its analysis (METIS ordering, symbolic factorization: phase 11); later ones
+    run only the numerical factorization (phase 22).
+
+    A matrix is factorized by Cholesky while the previous one was positive definite (the
+    Newton tangents of a tensile test nearly always are), as it takes less time than the
+    LDL^T, and so do its solves (docs/performance.md). Cholesky stops at
+    the first pivot that is not positive (PARDISO error -4); K is then factorized by LDL^T,
+    and so is the next matrix unless this one turned out positive definite after all. A
+    successful Cholesky factorization proves K positive definite (``n_negative = 0``, no
+    perturbed pivot), so the inertia reported is always exact.
+
+    The LDL^T uses Bunch-Kaufman pivoting within supernodes, which keeps it stable on most
+    indefinite K, and PARDISO reports the inertia (``iparm[21]``, ``iparm[22]``). Pivots it
+    cannot stabilize are perturbed to +-1e-8 ||K|| (``n_perturbed``); PARDISO then refines
+    every solution twice. Pivoting is restricted to supernodes, so small pivots can still
+    cost accuracy; the backward error check of every solve (see :class:`Factorization`)
+    refines it then.
 
     MKL uses the thread count in force (set it with ``threadpoolctl.threadpool_limits``).
     MKL PARDISO can crash when the thread count drops between the analysis and a later
-    factorization, so every call on a solver runs with the thread count of its analysis,
-    and a factorization made under a different thread count redoes the analysis first.
+    factorization, so every call on a PARDISO state runs with the thread count of its
+    analysis, and a factorization made under a different thread count redoes the analysis
+    first.
 
     Raises
     ------
@@ -549,44 +564,57 @@ class PardisoSolver(LinearSolver):
 
     def __init__(self) -> None:
         super().__init__()
-        self._handle = _PardisoHandle()
+        self._cholesky = _PardisoHandle(_POSITIVE_DEFINITE)
+        self._ldlt = _PardisoHandle(_INDEFINITE)
         self._upper: _UpperTriangle | None = None
-        finalizer = weakref.finalize(self, self._handle.free)
-        finalizer.atexit = False  # the process frees everything at exit anyway
+        self._definite = True  # the last matrix was positive definite: try Cholesky first
+        for handle in (self._cholesky, self._ldlt):
+            finalizer = weakref.finalize(self, handle.free)
+            finalizer.atexit = False  # the process frees everything at exit anyway
 
     def _factorize(self, K: sp.csr_matrix, new_pattern: bool) -> Factorization:
         if new_pattern:
             self._upper = None
-            self._handle.free()
+            self._cholesky.free()
+            self._ldlt.free()
             self._upper = _UpperTriangle.of(K)
         upper = self._upper
         assert upper is not None, "made with the pattern"
         values = upper.values(K)
-        threads = self._handle.max_threads()
-        if self._handle.threads != threads:
-            if self._handle.threads:
-                logger.debug(
-                    "MKL threads changed from %d to %d: PARDISO analysis redone", self._handle.threads, threads
-                )
-            self._handle.free()
-            self._handle.threads = threads
-            self._handle.iparm[17] = -1  # ask phase 11 for this pattern's factor size
-            self._handle.call(11, upper, values)
-        self._handle.call(22, upper, values)
-        iparm = self._handle.iparm
+        if self._definite:
+            try:
+                self._cholesky.factorize(upper, values)
+            except StepNotConverged:  # error -4: a pivot <= 0, K is not positive definite
+                logger.debug("Cholesky met a pivot <= 0: LDL^T instead")
+            else:
+                nnz_factor = int(self._cholesky.iparm[17])
+                return _PardisoFactorization(self, self._cholesky, K, values, 0, 0, nnz_factor)
+        self._ldlt.factorize(upper, values)
+        iparm = self._ldlt.iparm
         if iparm[13]:
             logger.debug("PARDISO perturbed %d pivots (K nearly singular)", iparm[13])
-        return _PardisoFactorization(
-            self, K, values, n_negative=int(iparm[22]), n_perturbed=int(iparm[13]), nnz_factor=int(iparm[17])
-        )
+        self._definite = not (iparm[22] or iparm[13])
+        return _PardisoFactorization(self, self._ldlt, K, values, int(iparm[22]), int(iparm[13]), int(iparm[17]))
 
     def _release_pattern_data(self) -> None:
         self._upper = None
-        self._handle.free()
+        self._cholesky.free()
+        self._ldlt.free()
+        self._definite = True
+
+
+_POSITIVE_DEFINITE, _INDEFINITE = 2, -2
+"""PARDISO matrix types (``mtype``): real symmetric positive definite, real symmetric indefinite."""
 
 
 class _PardisoHandle:
-    """One PARDISO solver state (``pt``) for a real symmetric indefinite matrix.
+    """One PARDISO solver state (``pt``) for one matrix type.
+
+    Parameters
+    ----------
+    mtype : int
+        :data:`_POSITIVE_DEFINITE` (Cholesky) or :data:`_INDEFINITE` (LDL^T with
+        Bunch-Kaufman pivoting and inertia).
 
     Attributes
     ----------
@@ -596,19 +624,21 @@ class _PardisoHandle:
         PARDISO's parameters (0-based), with the outputs of the last call.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, mtype: int) -> None:
         self._mkl = load_mkl()
+        self.mtype = mtype
         self._pt = np.zeros(64, dtype=np.int64)  # PARDISO's internal pointers
         self.iparm = np.zeros(64, dtype=np.int32)  # 0 selects MKL's default unless set below
         self.iparm[0] = 1  # use these iparm values
         self.iparm[1] = 2  # METIS nested dissection ordering
         self.iparm[7] = 0  # two steps of iterative refinement after perturbed pivots only
-        self.iparm[9] = 8  # perturb pivots smaller than 1e-8 ||K||
+        self.iparm[9] = 8  # LDL^T: perturb pivots smaller than 1e-8 ||K||
         self.iparm[17] = -1  # report nonzeros of the factor in iparm[17]
-        self.iparm[20] = 1  # Bunch-Kaufman 1x1 and 2x2 pivoting
-        # Two-level factorization: about 10 % faster than the classic one on a plla tangent
-        # (65,066 unknowns, 2 threads). The improved variant (10) is faster still but does not
-        # report the inertia.
+        self.iparm[20] = 1  # LDL^T: Bunch-Kaufman 1x1 and 2x2 pivoting
+        # Two-level factorization: LDL^T about 10 % faster than the classic one on a plla
+        # tangent (65,066 unknowns, 2 threads), Cholesky too. The improved variant (10) is
+        # faster still but neither reports the inertia nor stops Cholesky at a pivot <= 0
+        # (it returns NaN): not used.
         self.iparm[23] = 1
         self.iparm[34] = 1  # zero-based ia, ja
         self.threads = 0
@@ -616,6 +646,19 @@ class _PardisoHandle:
     def max_threads(self) -> int:
         """Threads MKL would use now in this thread (e.g. after threadpool_limits)."""
         return int(self._mkl.get_max_threads())
+
+    def factorize(self, upper: _UpperTriangle, values: np.ndarray) -> None:
+        """Numerical factorization (phase 22), after the analysis (phase 11) if this state has
+        none for the MKL thread count in force."""
+        threads = self.max_threads()
+        if self.threads != threads:
+            if self.threads:
+                logger.debug("MKL threads changed from %d to %d: PARDISO analysis redone", self.threads, threads)
+            self.free()
+            self.threads = threads
+            self.iparm[17] = -1  # ask phase 11 for this pattern's factor size
+            self.call(11, upper, values)
+        self.call(22, upper, values)
 
     def call(
         self, phase: int, upper: _UpperTriangle | None, values: np.ndarray | None, b: np.ndarray | None = None
@@ -633,7 +676,7 @@ class _PardisoHandle:
                 self._pt.ctypes.data,
                 ctypes.byref(c_int(1)),  # maxfct
                 ctypes.byref(c_int(1)),  # mnum
-                ctypes.byref(c_int(-2)),  # mtype: real symmetric indefinite
+                ctypes.byref(c_int(self.mtype)),
                 ctypes.byref(c_int(phase)),
                 ctypes.byref(c_int(n)),
                 values.ctypes.data,
@@ -670,6 +713,7 @@ class _PardisoFactorization(Factorization):
     def __init__(
         self,
         solver: PardisoSolver,
+        handle: _PardisoHandle,
         K: sp.csr_matrix,
         values: np.ndarray,
         n_negative: int,
@@ -678,6 +722,7 @@ class _PardisoFactorization(Factorization):
     ) -> None:
         super().__init__(K, n_perturbed, nnz_factor)
         self._solver = solver
+        self._handle = handle  # the PARDISO state (Cholesky or LDL^T) that holds the factors
         self._values: np.ndarray | None = values  # refinement needs the factorized values
         self._n_negative = n_negative
 
@@ -687,13 +732,13 @@ class _PardisoFactorization(Factorization):
         return self._n_negative
 
     def _solve(self, b: np.ndarray) -> np.ndarray:
-        x = self._solver._handle.call(33, self._solver._upper, self._values, np.asfortranarray(b))
+        x = self._handle.call(33, self._solver._upper, self._values, np.asfortranarray(b))
         assert x is not None, "phase 33 returns the solution"
         return x
 
     def _free(self) -> None:
         if self._solver._current is self:  # phase 0: free the numerical factors only
-            self._solver._handle.call(0, self._solver._upper, self._values)
+            self._handle.call(0, self._solver._upper, self._values)
         self._values = None
 
 
