@@ -230,7 +230,7 @@ def test_balanced_starts_come_as_close_as_independent_ones():
 
 
 def test_chord_starts_are_uniform_on_the_border_and_point_inwards():
-    """Balanced border seeding places a fiber by its chord's quantile given the axis: the
+    """Balanced border seeding places a fiber by its chord given the axis (its third from the sequence): the
     start is still uniform on the border and independent of the axis (the joint histogram of
     border arc and direction matches independent draws: chi-square over 32 cells), every start
     lies on the border and points into the square along its axis."""
