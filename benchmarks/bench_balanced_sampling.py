@@ -1,7 +1,7 @@
 """Benchmark: how representative one RVE's orientations are, random against balanced sampling.
 
 Run:  python benchmarks/bench_balanced_sampling.py [--seeds 200] [--size-ratio 200] [--layers 15]
-      python benchmarks/bench_balanced_sampling.py --fidelity [--seeds 1000] [--size-ratio 60] [--layers 5]
+      python benchmarks/bench_balanced_sampling.py --fidelity [--seeds 1000] [--size-ratio 60] [--layers 5] [--chord-strata 3 ...]
       python benchmarks/bench_balanced_sampling.py --count-model [--seeds 6000] [--layers 5]
 
 Deposits `--seeds` mats of the plla geometry (seeds 0 ..) for each variant and prints the
@@ -15,14 +15,17 @@ Variants (the ablation of balanced sampling, espin.geometry.balanced):
   sobol, straight         the same on straight fibers (max_deviation_deg = 0): the draws' floor
   balanced, 4 variants    turns of 2 blocks (biased: issue 35)
   balanced, 16 variants   turns of 4 blocks (espin's before issue 35: biased)
-  balanced                espin's: herding between the walk and its mirror image
+  balanced, chord ...     border seeding's chord quantile taken exactly ("quantile"), to its
+                          quarter or third (random within), or at random (deposition._CHORD_STRATA)
+  balanced                espin's: herding between the walk and its mirror image, chord to its third
 and random / balanced with `lines` seeding.
 
 `--fidelity`: whether balanced sampling keeps what random sampling gives (issue 35): for the
 paper walk at 5 and 15 deg, the smooth walk and straight fibers, `--seeds` mats per arm, the
 mean over seeds of the mat's mean fiber tortuosity - 1 (contour over chord of whole fibers),
 its fiber count and its merged node candidates (network.n_merged), with standard errors and
-the difference in standard errors (z).
+the difference in standard errors (z); `--chord-strata K ...` runs a balanced arm for each
+number K of strata of the chord quantile (default espin's).
 
 `--count-model`: why balanced mats hold a third of a fiber fewer (docs/geometry.md). Fiber
 volumes 0.1 + 1.8 u^2 (mean 0.7) with u independent or from a scrambled one-dimensional Sobol'
@@ -53,11 +56,13 @@ def moments(mat) -> tuple[float, float]:
 
 
 @contextlib.contextmanager
-def ablation(blocks: int | None = None, herding: bool = True):
-    """Patch the number of turn blocks, or switch herding off (variant 0 always)."""
-    saved_blocks, saved_herd = deposition._TURN_BLOCKS, balanced.BalancedSampler.herd
+def ablation(blocks: int | None = None, herding: bool = True, strata: int | None = None):
+    """Patch the number of turn blocks or of chord strata, or switch herding off (variant 0 always)."""
+    saved_blocks, saved_herd, saved_strata = deposition._TURN_BLOCKS, balanced.BalancedSampler.herd, deposition._CHORD_STRATA
     if blocks is not None:
         deposition._TURN_BLOCKS = blocks
+    if strata is not None:
+        deposition._CHORD_STRATA = strata
     if not herding:
         def first_variant(self, contents):
             self._offered = None
@@ -66,7 +71,7 @@ def ablation(blocks: int | None = None, herding: bool = True):
     try:
         yield
     finally:
-        deposition._TURN_BLOCKS, balanced.BalancedSampler.herd = saved_blocks, saved_herd
+        deposition._TURN_BLOCKS, balanced.BalancedSampler.herd, deposition._CHORD_STRATA = saved_blocks, saved_herd, saved_strata
 
 
 def run(name: str, seeds: int, overrides: dict, **patch) -> None:
@@ -96,20 +101,24 @@ def fidelity_row(overrides: dict) -> list[float]:
     return [float(np.mean(mat.contour_length / chord)) - 1.0, mat.n_fibers, network.n_merged]
 
 
-def fidelity(seeds: int, base: dict) -> None:
+def fidelity(seeds: int, base: dict, strata: list[int]) -> None:
     cases = {"paper walk, 5 deg": {"rve.max_deviation_deg": 5.0}, "paper walk, 15 deg": {"rve.max_deviation_deg": 15.0},
              "smooth walk": {"rve.walk": "smooth"}, "straight": {"rve.max_deviation_deg": 0.0}}
-    print(f"{'case':<20} {'quantity':<16} {'random':>22} {'balanced':>22} {'z':>6}")
+    print(f"{'case':<20} {'strata':>7} {'quantity':<16} {'random':>22} {'balanced':>22} {'z':>6}")
     for name, case in cases.items():
         arms = {}
-        for sampling in ("random", "balanced"):
-            rows = [fidelity_row(base | case | {"rve.sampling": sampling, "rve.seed": seed}) for seed in range(seeds)]
+        for arm in ["random", *strata]:
+            sampling = "random" if arm == "random" else "balanced"
+            with ablation(strata=None if arm == "random" else arm):
+                rows = [fidelity_row(base | case | {"rve.sampling": sampling, "rve.seed": seed}) for seed in range(seeds)]
             r = np.array(rows)
-            arms[sampling] = (r.mean(axis=0), r.std(axis=0, ddof=1) / np.sqrt(seeds))
-        for k, quantity in enumerate(("tortuosity - 1", "fibers", "merged")):
-            (mr, sr), (mb, sb) = (arms["random"][0][k], arms["random"][1][k]), (arms["balanced"][0][k], arms["balanced"][1][k])
-            z = (mb - mr) / np.hypot(sr, sb) if np.hypot(sr, sb) > 0 else 0.0
-            print(f"{name:<20} {quantity:<16} {mr:12.6g} +- {sr:7.2g} {mb:12.6g} +- {sb:7.2g} {z:6.1f}", flush=True)
+            arms[arm] = (r.mean(axis=0), r.std(axis=0, ddof=1) / np.sqrt(seeds))
+        for arm in strata:
+            for k, quantity in enumerate(("tortuosity - 1", "fibers", "merged")):
+                (mr, sr), (mb, sb) = (arms["random"][0][k], arms["random"][1][k]), (arms[arm][0][k], arms[arm][1][k])
+                z = (mb - mr) / np.hypot(sr, sb) if np.hypot(sr, sb) > 0 else 0.0
+                print(f"{name:<20} {arm:>7} {quantity:<16} {mr:12.6g} +- {sr:7.2g} {mb:12.6g} +- {sb:7.2g} {z:6.1f}",
+                      flush=True)
 
 
 def count_model(reps: int, layers: int) -> None:
@@ -145,6 +154,8 @@ def main() -> None:
     parser.add_argument("--layers", type=int, help="layers (default 15; --fidelity 5)")
     parser.add_argument("--fidelity", action="store_true", help="balanced against random: shapes, counts, merges")
     parser.add_argument("--count-model", action="store_true", help="the fiber count's model (docs/geometry.md)")
+    parser.add_argument("--chord-strata", type=int, nargs="+", default=[deposition._CHORD_STRATA],
+                        help="--fidelity: balanced arms with these chord strata (default espin's)")
     args = parser.parse_args()
     if args.count_model:
         count_model(args.seeds or 6000, args.layers or 5)
@@ -156,7 +167,7 @@ def main() -> None:
     base = {"rve.size_ratio": args.size_ratio, "rve.layers": args.layers}
     if args.fidelity:
         print(f"plla geometry, L/D {args.size_ratio:g}, {args.layers} layers, {args.seeds} mats per arm")
-        fidelity(args.seeds, base)
+        fidelity(args.seeds, base, args.chord_strata)
         return
     bal = base | {"rve.sampling": "balanced"}
     print(f"plla geometry, L/D {args.size_ratio:g}, {args.layers} layers, {args.seeds} seeds")
@@ -166,6 +177,10 @@ def main() -> None:
     run("sobol, straight", args.seeds, bal | {"rve.max_deviation_deg": 0.0}, herding=False)
     run("balanced, 4 variants", args.seeds, bal, blocks=2)
     run("balanced, 16 variants", args.seeds, bal, blocks=4)
+    run("balanced, chord quantile", args.seeds, bal, strata=2**20)
+    run("balanced, chord to 1/4", args.seeds, bal, strata=4)
+    run("balanced, chord to 1/3", args.seeds, bal, strata=3)
+    run("balanced, chord random", args.seeds, bal, strata=1)
     run("balanced", args.seeds, bal)
     run("random, lines", args.seeds, base | {"rve.seeding": "lines"})
     run("balanced, lines", args.seeds, bal | {"rve.seeding": "lines"})

@@ -14,12 +14,14 @@ removes most of that noise
    fills the cube evenly, so whatever the fiber count the sample's axes, starts and diameters
    follow their distributions far more closely than independent draws do. The layers are
    filled together (each fiber to a random open layer), so that fibers of one layer are not
-   neighbours in the sequence. With ``border`` seeding the start quantile is that of the
-   fiber's straight chord given its axis, and the start is drawn among the border points of
-   that chord (:func:`espin.geometry.deposition.deposit`): the chord lengths, which weight
-   the orientation content, are balanced, while the start points are not spread evenly along
-   the border (an even spread made near-coincident starts 12 times rarer than independent
-   draws do, and merged cross-links 9-10 % fewer; issue 35).
+   neighbours in the sequence. With ``border`` seeding the start coordinate chooses the third
+   of the fiber's straight chord's law given its axis (the chord drawn at random within it),
+   and the start is drawn among the border points of that chord
+   (:func:`espin.geometry.deposition.deposit`): the chord lengths, which weight the
+   orientation content, are balanced to their thirds, while the start points are not spread
+   evenly along the border (an even spread made near-coincident starts 12 times rarer than
+   independent draws do and merged cross-links 9-10 % fewer; the chord's exact quantile still
+   2-5 % fewer; issue 35).
 2. **Walk or mirror image, chosen by herding.** The directions of a fiber's walk are drawn
    once and the fiber is laid twice: as drawn, and as its mirror image about its first axis
    (the paper walk's turns all negated, the smooth walk's deviation negated), which has the

@@ -23,7 +23,7 @@ Two samplings draw them (``rve.sampling``): ``random`` (the paper), each fiber i
 layer after layer, each layer from its own child stream of the seed, so a layer does not change
 when others are added; and ``balanced`` (:mod:`espin.geometry.balanced`), the same law for each
 fiber but the RVE's fibers drawn together from a low-discrepancy sequence (with ``border``
-seeding: the axis and the quantile of the fiber's chord given its axis), the layers filled
+seeding: the axis and the third in which the fiber's chord lies given its axis), the layers filled
 together, and each walk laid in the variant that balances the orientation content.
 
 The walk is vectorized over a batch of fibers and over chunks of steps.
@@ -58,6 +58,13 @@ _BALANCED_BATCH = 1024
 # exactly (geometry/balanced.py); 4 blocks (16 variants) made the tortuosity - 1 of 5 deg
 # walks 20 % lower (issue 35). benchmarks/bench_balanced_sampling.py patches it to compare.
 _TURN_BLOCKS = 1
+# Strata of the chord quantile that balanced ``border`` seeding takes from the sequence (the
+# quantile is drawn at random within its third): finer strata balance the orientation content
+# better but make fibers close in axis and chord, hence merged cross-links, rarer. The exact
+# quantile left 2-5 % fewer merges than random sampling (z -3.0 to -6.4 over 1,000 L/D 60 mats
+# per arm), thirds leave none beyond 1.6 standard errors (issue 35; docs/geometry.md).
+# benchmarks/bench_balanced_sampling.py patches it to compare.
+_CHORD_STRATA = 3
 _BALANCED_LAYERS_KEY = 1_000_002
 
 
@@ -87,13 +94,15 @@ def _chord_starts(
     rng: np.random.Generator, theta: np.ndarray, u: np.ndarray, side: float, dist: OrientationDistribution
 ) -> tuple[np.ndarray, np.ndarray]:
     """Border starts and inward directions [rad] of fibers of axes ``theta`` [rad] whose
-    straight chord through the square is at cumulative probability ``u`` of its law given
-    the axis (``border`` seeding under balanced sampling).
+    straight chord through the square lies, by its law given the axis, in the same stratum
+    (third, ``_CHORD_STRATA``) of cumulative probability as ``u`` (``border`` seeding under
+    balanced sampling).
 
     Given the axis, a start uniform on the border gives a chord of length l uniform on
     (0, l_max) (the fiber cuts a corner; l_max = L / max(|cos|, |sin|)) with probability
     (1 + r) / 2 and l_max otherwise (it crosses to the opposite edge), r = min(|cos|, |sin|)
-    / max(|cos|, |sin|). The chord is taken at its quantile ``u``, and the start among the
+    / max(|cos|, |sin|). The chord is taken at a quantile drawn by ``rng`` uniformly within
+    the stratum of ``u`` (its third), and the start among the
     border points of that chord by a uniform draw of ``rng``: one of the four corner-cutting
     starts (bottom and top weighted |cos|, left and right |sin|, the border length per unit
     of chord) or a point uniform on the two opposite-edge intervals. So the start is uniform
@@ -101,6 +110,7 @@ def _chord_starts(
     their start edge are drawn again from ``dist``.
     """
     theta = theta.copy()
+    u = (np.floor(_CHORD_STRATA * u) + rng.uniform(0.0, 1.0, len(u))) / _CHORD_STRATA
     start = np.empty((len(theta), 2))
     direction = np.empty(len(theta))
     todo = np.arange(len(theta))
@@ -623,7 +633,7 @@ def _balanced_fibers(
     rve: RVEConfig, rng: np.random.Generator, n: int, dist: OrientationDistribution, sampler: BalancedSampler
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``n`` candidate fibers of balanced sampling (geometry/balanced.py): axis, start (the
-    chord's quantile given the axis, :func:`_chord_starts`, or the line's offset) and diameter
+    chord's third given the axis, :func:`_chord_starts`, or the line's offset) and diameter
     at the sampler's next points, each walk's variant (its mirror image, ``model.variants``)
     chosen by herding."""
     side = rve.side_um
