@@ -156,6 +156,7 @@ def test_specimen_folder_and_reopened_point(rve, tmp_path):
     (dict(thickness_mm=-1.0), "thickness_mm"), (dict(shape="hexagon"), "shape"),
     (dict(model="neo_hookean"), "modulus_MPa"), (dict(shape_options={"radius_mm": 1.0}), "radius_mm"),
     (dict(max_strain=2.0), "max_strain"), (dict(rve_seeds="some"), "rve_seeds"),
+    ({"solver.kinematics": "affine"}, "solver.kinematics"),
 ])
 def test_bad_options_are_refused_before_any_work(options, match, tmp_path):
     out = tmp_path / "never"

@@ -324,6 +324,11 @@ def _resolve_rve(source: Any, overrides: dict[str, Any]):
 
     flat = dotted_overrides(overrides)
     config, rve = resolve_source(source, flat)
+    if config.solver.kinematics == "affine":
+        raise ConfigError(
+            'solver.kinematics = "affine" applies to espin simulate: the specimen solves each RVE '
+            'point\'s equilibrium; give solver.kinematics = "equilibrium" (the default)'
+        )
     if rve is None:
         small = {k: v for k, v in _SMALL_RVE.items() if k not in flat}
         if small:
