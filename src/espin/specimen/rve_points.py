@@ -34,6 +34,7 @@ from espin.geometry.network import Network
 from espin.mechanics.driver import StepRecord, step_record
 from espin.mechanics.equilibrium import EquilibriumSolver, StepState
 from espin.mechanics.linear_solvers import make_linear_solver
+from espin.specimen.batched_points import BatchedRVE, batchable
 
 __all__ = ["RVEPoints", "rve_tolerance", "PointStates"]
 
@@ -111,8 +112,45 @@ def _solver(key: str, index: int, network: Network, config: Config) -> Equilibri
     return cached
 
 
+_BATCHES: dict[str, BatchedRVE] = {}  # per worker process: the shared network's batched solver
+
+
+def _solve_batch(chunk: _Chunk) -> _Solved:
+    """The RVE solves of one chunk of points that share a network, together
+    (:mod:`espin.specimen.batched_points`)."""
+    batch = _BATCHES.get(chunk.key)
+    if batch is None:
+        batch = _BATCHES[chunk.key] = BatchedRVE(chunk.networks[0], chunk.config)
+    start = chunk.start
+    solved = batch.solve(
+        start.time,
+        start.F,
+        np.array(start.inner),
+        np.array(start.plastic_stretch),
+        np.array(start.stress),
+        chunk.time,
+        chunk.F,
+        np.array(chunk.guess),
+        chunk.points,
+    )
+    return _Solved(
+        P=solved.P,
+        A=solved.A,
+        inner=list(solved.inner),
+        plastic_stretch=list(solved.plastic_stretch),
+        stress=list(solved.stress),
+        local_error=solved.local_error,
+        recruited_fraction=solved.recruited_fraction,
+        yielded_fraction=solved.yielded_fraction,
+        iterations=solved.iterations,
+    )
+
+
 def _solve_chunk(chunk: _Chunk) -> _Solved:
-    """The RVE solves of one chunk (runs in a worker)."""
+    """The RVE solves of one chunk (runs in a worker): together when the points share a network
+    without bending, else one by one."""
+    if chunk.shared and batchable(chunk.config):
+        return _solve_batch(chunk)
     records, results, errors = [], [], []
     threshold = chunk.config.output.yield_threshold
     for i in range(len(chunk.F)):
