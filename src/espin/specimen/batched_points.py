@@ -91,11 +91,26 @@ class _Iterates:
     unit: np.ndarray  # (k, e, 2)
     stress: np.ndarray  # (k, e)
     plastic: np.ndarray  # (k, e)
-    tangent: np.ndarray  # (k, e)
     recruited: np.ndarray  # (k, e) bool
     force: np.ndarray  # (k, e)
     stiffness: np.ndarray  # (k, e)
     residual: np.ndarray  # (k, n)
+
+    @classmethod
+    def empty(cls, k: int, e: int, n: int) -> _Iterates:
+        """k points of e elements and n DOF, not evaluated (NaN)."""
+        nan = np.nan
+        return cls(
+            z=np.full((k, n), nan),
+            length=np.full((k, e), nan),
+            unit=np.full((k, e, 2), nan),
+            stress=np.full((k, e), nan),
+            plastic=np.full((k, e), nan),
+            recruited=np.zeros((k, e), dtype=bool),
+            force=np.full((k, e), nan),
+            stiffness=np.full((k, e), nan),
+            residual=np.full((k, n), nan),
+        )
 
     def take(self, rows: np.ndarray) -> _Iterates:
         return _Iterates(**{name: getattr(self, name)[rows] for name in self.__dataclass_fields__})
@@ -103,6 +118,13 @@ class _Iterates:
     def put(self, rows: np.ndarray, other: _Iterates) -> None:
         for name in self.__dataclass_fields__:
             getattr(self, name)[rows] = getattr(other, name)
+
+
+def _sorted(matrix: sp.spmatrix) -> sp.csr_matrix:
+    """``matrix`` as CSR with sorted column indices (its products sum in column order)."""
+    out = sp.csr_matrix(matrix)
+    out.sort_indices()
+    return out
 
 
 class BatchedRVE:
@@ -135,19 +157,45 @@ class BatchedRVE:
         self.reference_unit = network.element_vector / network.element_length[:, None]
         nodes = network.element_nodes
         self.dof = np.stack([2 * nodes[:, 0], 2 * nodes[:, 0] + 1, 2 * nodes[:, 1], 2 * nodes[:, 1] + 1], 1).ravel()
-        # The tangent blocks as sums of element-matrix entries: data = values @ S (one sparse product).
+        # The tangent blocks as sums of the elements' 2 x 2 stiffness k (components k11, k12, k22
+        # of each element, in element order): data = S @ components, one sparse product. S is
+        # the pattern's sum of the 4 x 4 element matrices [[k, -k], [-k, k]] (entry r, c holds
+        # +-k[r % 2, c % 2]); a slot sums one entry per element, in element order, as the pattern does.
         self.patterns = {part: asm.pattern(part) for part in ("II", "IB", "BB")}
-        n_entries = 16 * network.n_elements
+        r, c = np.divmod(np.arange(16), 4)
+        component = np.array([[0, 1], [1, 2]])[r % 2, c % 2]
+        sign = np.where(r // 2 == c // 2, 1.0, -1.0)
+        n_el = network.n_elements
+        expand = sp.csr_matrix(
+            (np.tile(sign, n_el), (np.arange(16 * n_el), (3 * np.arange(n_el)[:, None] + component).ravel())),
+            shape=(16 * n_el, 3 * n_el),
+        )
         self.sum_into = {
-            part: sp.csr_matrix((np.ones(len(p.entry)), (p.slot, p.entry)), shape=(p.matrix.nnz, n_entries))
+            part: _sorted(
+                sp.csr_matrix((np.ones(len(p.entry)), (p.slot, p.entry)), shape=(p.matrix.nnz, 16 * n_el)) @ expand
+            )
             for part, p in self.patterns.items()
         }
-        # Border motion of a unit F_kL (row 2k + L), flattened like the border DOF.
+        # Border motion of a unit F_kL (row 2k + L), flattened like the border DOF; the
+        # macroscopic tangent's K_IB modes^T (n x 4) and modes K_BB modes^T (4 x 4) as sums of
+        # the element components too.
         modes = np.zeros((4, 2 * len(self.X_border)))
         for k in range(2):
             for L in range(2):
                 modes[2 * k + L, k::2] = self.X_border[:, L]
-        self.modes = modes
+        IB, BB = self.patterns["IB"].matrix, self.patterns["BB"].matrix
+        ib_row = np.repeat(np.arange(IB.shape[0]), np.diff(IB.indptr))
+        to_coupling = sp.csr_matrix(
+            (
+                modes[:, IB.indices].T.ravel(),
+                ((4 * ib_row[:, None] + np.arange(4)).ravel(), np.repeat(np.arange(IB.nnz), 4)),
+            ),
+            shape=(4 * IB.shape[0], IB.nnz),
+        )
+        bb_row = np.repeat(np.arange(BB.shape[0]), np.diff(BB.indptr))
+        to_corner = (modes[:, bb_row][:, None, :] * modes[:, BB.indices][None, :, :]).reshape(16, BB.nnz)
+        self.sum_into["coupling"] = _sorted(to_coupling @ self.sum_into["IB"])
+        self.sum_into["corner"] = _sorted(sp.csr_matrix(to_corner) @ self.sum_into["BB"])
         self.volume = network.element_area * network.element_contour_length
         self._linear: list[LinearSolver] = []
 
@@ -160,54 +208,48 @@ class BatchedRVE:
         points are admissible (the others' rows are not evaluated: NaN)."""
         k = len(z)
         ok = np.all(np.isfinite(z), axis=1)
-        e = len(self.l0)
-        out = _Iterates(
-            z,
-            np.full((k, e), np.nan),
-            np.full((k, e, 2), np.nan),
-            np.full((k, e), np.nan),
-            np.full((k, e), np.nan),
-            np.full((k, e), np.nan),
-            np.zeros((k, e), dtype=bool),
-            np.full((k, e), np.nan),
-            np.full((k, e), np.nan),
-            np.full((k, self.n), np.nan),
-        )
         rows = np.flatnonzero(ok)
-        if not len(rows):
-            return out, ok
-        m = len(rows)
+        m, e = len(rows), len(self.l0)
         inner = z[rows].reshape(m, self.n_inner, 2)
-        border = np.einsum("bJ,kiJ->kbi", self.X_border, F[rows])
+        border = self.X_border @ F[rows].transpose(0, 2, 1)
         x = np.concatenate([inner, border], axis=1)
         vector = x[:, self.nodes[:, 1]] - x[:, self.nodes[:, 0]]
         length = np.hypot(vector[..., 0], vector[..., 1])
         safe = length > 0.0
         unit = np.where(safe[..., None], vector / np.where(safe, length, 1.0)[..., None], self.reference_unit)
-        stretch = length / self.l0
         tile = (m, 1)
         law = update(
             self.law,
-            stretch.ravel(),
+            (length / self.l0).ravel(),
             plastic_start[rows].ravel(),
             np.tile(self.tortuosity, tile).ravel(),
             dt,
             None if near is None else near[rows].ravel(),
         )
-        shape = (m, e)
         force, stiffness = axial_force_and_stiffness(
             law, np.tile(self.area, tile).ravel(), np.tile(self.l0, tile).ravel()
         )
-        force, stiffness = force.reshape(shape), stiffness.reshape(shape)
+        force = force.reshape(m, e)
         ta = force[..., None] * unit
         values = np.concatenate([-ta, ta], axis=2).reshape(m, -1)
         offsets = (self.n_dof * np.arange(m))[:, None]
         gradient = np.bincount((self.dof + offsets).ravel(), values.ravel(), minlength=m * self.n_dof)
-        out.length[rows], out.unit[rows] = length, unit
-        out.stress[rows], out.plastic[rows] = law.stress.reshape(shape), law.plastic_stretch.reshape(shape)
-        out.tangent[rows], out.recruited[rows] = law.tangent.reshape(shape), law.recruited.reshape(shape)
-        out.force[rows], out.stiffness[rows] = force, stiffness
-        out.residual[rows] = gradient.reshape(m, self.n_dof)[:, : self.n]
+        evaluated = _Iterates(
+            z[rows],
+            length,
+            unit,
+            law.stress.reshape(m, e),
+            law.plastic_stretch.reshape(m, e),
+            law.recruited.reshape(m, e),
+            force,
+            stiffness.reshape(m, e),
+            gradient.reshape(m, self.n_dof)[:, : self.n],
+        )
+        if m == k:
+            return evaluated, ok
+        out = _Iterates.empty(k, e, self.n)
+        out.z[:] = z
+        out.put(rows, evaluated)
         return out, ok
 
     def _converged(self, p: _Iterates) -> tuple[np.ndarray, np.ndarray]:
@@ -218,21 +260,24 @@ class BatchedRVE:
 
     # -- tangents ---------------------------------------------------------------------------
     def _element_values(self, p: _Iterates, clipped: bool) -> np.ndarray:
-        """(k, 16 e) element matrices (the per-point solver's stiffness and its clipping)."""
+        """(k, 3 e) components k11, k12, k22 of each element's stiffness
+        k = dT/dl a (x) a + T / l (I - a (x) a) (the per-point solver's, and its clipping)."""
         floor = STRETCH_FLOOR * self.l0
         transverse = np.where(p.length > floor, p.force / np.maximum(p.length, floor), 0.0)
         axial = p.stiffness
         if clipped:
             axial, transverse = np.maximum(axial, 0.0), np.maximum(transverse, 0.0)
-        a = p.unit
-        aa = a[..., :, None] * a[..., None, :]
-        block = axial[..., None, None] * aa + transverse[..., None, None] * (np.eye(2) - aa)
-        values = np.empty(block.shape[:2] + (4, 4))
-        values[..., :2, :2] = block
-        values[..., 2:, 2:] = block
-        values[..., :2, 2:] = -block
-        values[..., 2:, :2] = -block
-        return values.reshape(len(a), -1)
+        a0, a1 = p.unit[..., 0], p.unit[..., 1]
+        aa00, aa01, aa11 = a0 * a0, a0 * a1, a1 * a1
+        components = np.stack(
+            [
+                axial * aa00 + transverse * (1.0 - aa00),
+                axial * aa01 + transverse * (0.0 - aa01),
+                axial * aa11 + transverse * (1.0 - aa11),
+            ],
+            axis=-1,
+        )
+        return components.reshape(len(a0), -1)
 
     def _block(self, part: str, values: np.ndarray) -> np.ndarray:
         """(k, nnz) data of the tangent block ``part`` for each point."""
@@ -484,30 +529,26 @@ class BatchedRVE:
             law = result.law
             p.z[i] = result.state.inner.ravel()
             p.length[i], p.unit[i] = result.kinematics.length, result.kinematics.unit
-            p.stress[i], p.plastic[i], p.tangent[i], p.recruited[i] = (
-                law.stress,
-                law.plastic_stretch,
-                law.tangent,
-                law.recruited,
-            )
+            p.stress[i], p.plastic[i], p.recruited[i] = law.stress, law.plastic_stretch, law.recruited
             p.force[i], p.stiffness[i] = axial_force_and_stiffness(law, self.area, self.l0)
             iterations[i], factorizations[i] = result.iterations, result.factorizations
         values = self._element_values(p, clipped=False)
-        K_II, K_IB, K_BB = (self._block(part, values) for part in ("II", "IB", "BB"))
-        IB, BB = self.patterns["IB"].matrix, self.patterns["BB"].matrix
+        K_II = self._block("II", values)
+        # A = (modes K_BB modes^T - coupling^T K_II^-1 coupling) / V0, coupling = K_IB modes^T.
+        coupling = (self.sum_into["coupling"] @ values.T).T.reshape(k, self.n, 4)
+        corner = (self.sum_into["corner"] @ values.T).T.reshape(k, 4, 4)
         A = np.empty((k, 2, 2, 2, 2))
         P = np.empty((k, 2, 2))
         errors = np.empty(k)
         linear = self._linear_solvers(k)
         stretch = p.length / self.l0
+        tangent = p.stiffness * self.l0 / self.area
         for i in range(k):
-            coupling = sp.csr_matrix((K_IB[i], IB.indices, IB.indptr), shape=IB.shape) @ self.modes.T
-            corner = self.modes @ (sp.csr_matrix((K_BB[i], BB.indices, BB.indptr), shape=BB.shape) @ self.modes.T)
-            fluctuation = linear[i].factorize(self._matrix(K_II[i])).solve(coupling) if self.n else coupling[:0]
-            A[i] = (corner - coupling.T @ fluctuation).reshape(2, 2, 2, 2) / self.network.reference_volume
+            fluctuation = linear[i].factorize(self._matrix(K_II[i])).solve(coupling[i]) if self.n else coupling[i]
+            A[i] = (corner[i] - coupling[i].T @ fluctuation).reshape(2, 2, 2, 2) / self.network.reference_volume
             kinematics = Kinematics(p.unit[i] * p.length[i][:, None], p.length[i], p.unit[i])
             P[i] = nominal_stress(self.network, p.force[i], kinematics)
-            law = LawState(p.stress[i], p.plastic[i], p.tangent[i], p.recruited[i])
+            law = LawState(p.stress[i], p.plastic[i], tangent[i], p.recruited[i])
             start = starts[i]
             errors[i] = local_error(
                 self.law, start.stress, start.plastic_stretch, law, stretch[i], self.tortuosity, dt, self.area * self.l0
