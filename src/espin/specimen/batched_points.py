@@ -252,10 +252,11 @@ class BatchedRVE:
         out.put(rows, evaluated)
         return out, ok
 
-    def _converged(self, p: _Iterates) -> tuple[np.ndarray, np.ndarray]:
-        """Per point: converged (the per-point solver's test) and max |g_I|."""
-        norm = np.max(np.abs(p.residual), axis=1) if self.n else np.zeros(len(p.z))
-        tolerance = self.config.solver.rtol * np.max(np.abs(p.force), axis=1) + self.solver.force_tolerance_abs
+    def _converged(self, residual: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per point: converged (the per-point solver's test on the residual g_I and the element
+        forces) and max |g_I|."""
+        norm = np.max(np.abs(residual), axis=1) if self.n else np.zeros(len(residual))
+        tolerance = self.config.solver.rtol * np.max(np.abs(force), axis=1) + self.solver.force_tolerance_abs
         return norm <= tolerance, norm
 
     # -- tangents ---------------------------------------------------------------------------
@@ -334,7 +335,7 @@ class BatchedRVE:
             active = np.flatnonzero(~done & ~failed)
             if not len(active):
                 break
-            converged, norm = self._converged(p.take(active))
+            converged, norm = self._converged(p.residual[active], p.force[active])
             done[active[converged]] = True
             iterations[active[converged]] = iteration
             going = active[~converged]

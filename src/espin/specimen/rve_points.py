@@ -13,7 +13,9 @@ become the state only on :meth:`RVEPoints.commit` (the macro step converged) and
 The RVEs' Newton tolerance is ``solver.rtol`` of their config, at most 1e-3 of the macro
 tolerance (:func:`rve_tolerance`). The solves of a trial run in parallel through the task pool
 (:class:`espin.core.parallel.TaskPool`: local processes or Dask), in chunks; each worker keeps
-its solvers between calls.
+its solvers between calls. Points that share one network (without fiber bending) are solved
+together, a chunk at a time (:mod:`espin.specimen.batched_points`); per-point realizations
+one by one.
 
 Stresses: the RVE's P [MPa] is the mat's homogenized nominal stress over the reference volume
 L^2 N_l D, the specimen's P (the macro thickness is the mat's).
@@ -270,7 +272,9 @@ class RVEPoints:
     pool
         Where the solves run (default: in this process).
     chunks_per_worker
-        Tasks per worker and trial (more balance the load, fewer cost less pickling).
+        Tasks per worker and trial (more balance the load, fewer cost less pickling and make
+        larger batches); None: 1 when the points share a network (they are solved in batches:
+        :mod:`espin.specimen.batched_points`), else 2.
     """
 
     def __init__(
@@ -280,7 +284,7 @@ class RVEPoints:
         n_points: int,
         *,
         pool: TaskPool | None = None,
-        chunks_per_worker: int = 2,
+        chunks_per_worker: int | None = None,
     ) -> None:
         self.networks = [networks] * n_points if isinstance(networks, Network) else list(networks)
         if len(self.networks) != n_points:
@@ -289,9 +293,11 @@ class RVEPoints:
         self.n_points = n_points
         self.symmetric_tangent = True  # condensed from the Hessian of each RVE's incremental potential
         self.pool = pool or TaskPool(workers=1)
+        self.shared = len({id(net) for net in self.networks}) == 1
+        if chunks_per_worker is None:
+            chunks_per_worker = 1 if self.shared and batchable(config) else 2
         self.chunks = max(1, min(n_points, chunks_per_worker * (1 if self.pool.serial else self.pool.workers)))
         self.key = f"{id(self)}-{np.random.default_rng().integers(1 << 62)}"
-        self.shared = len({id(net) for net in self.networks}) == 1
         inner = [net.node_position[: net.n_inner] - net.centre for net in self.networks]
         self._reference = inner  # [um]
         self.state = PointStates(
