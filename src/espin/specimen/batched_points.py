@@ -198,6 +198,7 @@ class BatchedRVE:
         self.sum_into["corner"] = _sorted(sp.csr_matrix(to_corner) @ self.sum_into["BB"])
         self.volume = network.element_area * network.element_contour_length
         self._linear: list[LinearSolver] = []
+        self._K = _sorted(self.patterns["II"].matrix)
 
     # -- evaluation -------------------------------------------------------------------------
     def _evaluate(
@@ -285,8 +286,10 @@ class BatchedRVE:
         return np.asarray(self.sum_into[part] @ values.T).T
 
     def _matrix(self, data: np.ndarray) -> sp.csr_matrix:
-        pattern = self.patterns["II"].matrix
-        return sp.csr_matrix((data, pattern.indices, pattern.indptr), shape=pattern.shape)
+        """K_II with the values ``data``: one matrix object whose values are replaced (the
+        linear solver copies them)."""
+        self._K.data = data
+        return self._K
 
     def _linear_solvers(self, k: int) -> list[LinearSolver]:
         """One linear solver per point of the batch (each keeps its point's factorization)."""
