@@ -454,9 +454,16 @@ class BatchedRVE:
             decreases = np.zeros(len(rows), dtype=bool)
             if candidate.any():
                 c = np.flatnonzero(candidate)
-                decreases[c] = self._decreases(
+                decreases[c], broken = self._decreases(
                     point, rows[c], trial.take(c), direction, a[c], s0, s[c], F, plastic_start, dt, base_norm
                 )
+                # An inadmissible midpoint ends the point's search: it fails here (as it does
+                # in the per-point line search, which raises) and is solved again one by one.
+                stop = rows[c[broken]]
+                searching[stop], has_best[stop] = False, False
+                keep = np.flatnonzero(~np.isin(rows, stop))
+                rows, trial, a, s = rows[keep], trial.take(keep), a[keep], s[keep]
+                candidate, decreases = candidate[keep], decreases[keep]
             win = rows[decreases]
             result.put(win, trial.take(np.flatnonzero(decreases)))
             accepted[win] = True
@@ -483,7 +490,7 @@ class BatchedRVE:
             searching[move[narrow]] = False
         rest = np.flatnonzero(~accepted & has_best)
         if len(rest):
-            fallback = self._decreases(
+            fallback, _ = self._decreases(
                 point, rest, best.take(rest), direction, lo[rest], s0, s_lo[rest], F, plastic_start, dt, base_norm
             )
             result.put(rest[fallback], best.take(rest[fallback]))
@@ -503,9 +510,11 @@ class BatchedRVE:
         plastic_start: np.ndarray,
         dt: float,
         base_norm: np.ndarray,
-    ) -> np.ndarray:
-        """Per trial: the potential fell from ``point`` (the line search's ``_decreases``)."""
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per trial: the potential fell from ``point`` (the line search's ``_decreases``), and
+        whether the midpoint it needed was inadmissible (then it did not fall)."""
         out = np.linalg.norm(trial.residual, axis=1) <= base_norm[rows]
+        broken = np.zeros(len(rows), dtype=bool)
         check = np.flatnonzero(~out)
         if len(check):
             r = rows[check]
@@ -514,7 +523,8 @@ class BatchedRVE:
             )
             s_middle = np.einsum("kn,kn->k", np.where(ok[:, None], middle.residual, 0.0), direction[r])
             out[check] = ok & (alpha[check] / 6.0 * (s0[r] + 4.0 * s_middle + s_trial[check]) < 0.0)
-        return out
+            broken[check] = ~ok
+        return out, broken
 
     # -- results ----------------------------------------------------------------------------
     def _results(
