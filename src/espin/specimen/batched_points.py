@@ -291,6 +291,12 @@ class BatchedRVE:
         self._K.data = data
         return self._K
 
+    def release(self) -> None:
+        """Free the linear solvers' factorizations and analyses."""
+        for linear in self._linear:
+            linear.release()
+        self._linear.clear()
+
     def _linear_solvers(self, k: int) -> list[LinearSolver]:
         """One linear solver per point of the batch (each keeps its point's factorization)."""
         while len(self._linear) < k:

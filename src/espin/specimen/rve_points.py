@@ -115,6 +115,7 @@ def _solver(key: str, index: int, network: Network, config: Config) -> Equilibri
 
 
 _BATCHES: dict[str, BatchedRVE] = {}  # per worker process: the shared network's batched solver
+_CACHED_BATCHES = 4  # runs whose batched solvers a worker keeps (each holds a linear solver per point)
 
 
 def _solve_batch(chunk: _Chunk) -> _Solved:
@@ -122,6 +123,8 @@ def _solve_batch(chunk: _Chunk) -> _Solved:
     (:mod:`espin.specimen.batched_points`)."""
     batch = _BATCHES.get(chunk.key)
     if batch is None:
+        if len(_BATCHES) >= _CACHED_BATCHES:
+            _BATCHES.pop(next(iter(_BATCHES))).release()  # the oldest run's
         batch = _BATCHES[chunk.key] = BatchedRVE(chunk.networks[0], chunk.config)
     start = chunk.start
     solved = batch.solve(
