@@ -3,7 +3,12 @@
 ``python benchmarks/bench_specimen.py PART [--across N] [--workers W]`` with PART one of
 
 * ``fe2``: FE^2 of the holed strip (lateral fixed, clamped grips) to 20 % grip strain in 20
-  steps, ``--across`` elements across the net section, ``--workers`` processes;
+  steps, ``--across`` elements across the net section, ``--workers`` processes; ``--size-ratio``
+  and ``--layers`` choose the RVE (default L/D 60 x 3; the balanced RVE is 100 x 5), ``--steps``
+  and ``--strain`` shorten the program for a quick check; ``--tag`` names the archive (e.g.
+  ``old`` for the same run on an older checkout);
+* ``compare NAME OTHER``: the forces of two archived runs, step by step (relative difference),
+  and their counts and rates;
 * ``surrogate``: the surrogate route (built once and archived as ``surrogate_samples.csv``, then
   the holed strip at 2, 4, 6 and 8 across, and the dogbone (2 across) with fixed and free sides);
 * ``dogbone``: the ISO 527-2 5A dogbone (2 across) by FE^2 with lateral fixed, and the single RVE
@@ -55,15 +60,39 @@ def _archive(name: str, result, extra: dict) -> None:
     rate = f", {solves / counts['seconds']:.0f} RVE solves/s" if solves else ""
     print(f"{name}: {counts['elements']} elements, {counts['points']} points, {counts['dofs']} DOF, "
           f"{counts['seconds']:.1f} s, {counts['macro_iterations']} macro iterations, {counts['time_steps']} time "
-          f"steps, {solves} RVE solves{rate}, peak {counts['peak_memory_mb']:.0f} MB; force at 20 %: "
+          f"steps, {solves} RVE solves{rate}, {counts.get('rve_iterations', 0)} RVE iterations, "
+          f"peak {counts['peak_memory_mb']:.0f} MB; force at the end: "
           f"{result.force_N[-1]:.5g} N", flush=True)
 
 
-def fe2(across: int, workers: int) -> None:
+def fe2(across: int, workers: int, size_ratio: int, layers: int, strain: float, steps: int, tag: str) -> None:
     start = time.perf_counter()
-    result = espin.specimen("plla", holed_strip(elements_across=across), max_strain=STRAIN, steps=STEPS,
+    rve = espin.generate("plla", rve__size_ratio=size_ratio, rve__layers=layers)
+    result = espin.specimen(rve, holed_strip(elements_across=across), max_strain=strain, steps=steps,
                             workers=workers)
-    _archive(f"fe2_holed_{across}_w{workers}", result, {"wall_s": time.perf_counter() - start})
+    name = f"fe2_holed_{across}_w{workers}"
+    if (size_ratio, layers) != (60, 3):
+        name += f"_rve{size_ratio}x{layers}"
+    if (strain, steps) != (STRAIN, STEPS):
+        name += f"_{steps}steps"
+    _archive(name + (f"_{tag}" if tag else ""), result,
+             {"wall_s": time.perf_counter() - start, "rve_dofs": 2 * rve.network.n_inner})
+
+
+def compare(name: str, other: str) -> None:
+    """Forces of two archived runs step by step, and their counts."""
+    a, b = _table(name), _table(other)
+    if a is None or b is None:
+        raise SystemExit(f"no archived run {name if a is None else other} in {DATA}")
+    steps = min(len(a), len(b))
+    fa, fb = a["force_N"][1:steps].to_numpy(), b["force_N"][1:steps].to_numpy()
+    print(f"{name} vs {other}: {steps - 1} steps, largest relative force difference "
+          f"{np.max(np.abs(fa - fb) / np.abs(fb)):.2e}")
+    for label in (name, other):
+        info = json.loads((DATA / f"{label}.json").read_text())
+        print(f"  {label}: {info['seconds']:.1f} s, {info['macro_iterations']} macro iterations, {info['time_steps']} "
+              f"time steps, {info['rve_solves']} RVE solves, {info.get('rve_iterations')} RVE iterations, "
+              f"{info['rve_solves'] / info['seconds']:.0f} RVE solves/s")
 
 
 def surrogate(workers: int, reuse: bool) -> None:
@@ -207,14 +236,22 @@ def report() -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("part", choices=("fe2", "surrogate", "dogbone", "dask", "free", "report"))
+    parser.add_argument("part", choices=("fe2", "surrogate", "dogbone", "dask", "free", "report", "compare"))
+    parser.add_argument("names", nargs="*", help="compare: two archived runs")
     parser.add_argument("--across", type=int, default=2)
+    parser.add_argument("--size-ratio", type=int, default=60)
+    parser.add_argument("--layers", type=int, default=3)
+    parser.add_argument("--strain", type=float, default=STRAIN)
+    parser.add_argument("--steps", type=int, default=STEPS)
+    parser.add_argument("--tag", default="")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--reuse", action="store_true", help="surrogate: the archived samples, not built again")
     args = parser.parse_args()
     logging.disable(logging.WARNING)
     if args.part == "fe2":
-        fe2(args.across, args.workers)
+        fe2(args.across, args.workers, args.size_ratio, args.layers, args.strain, args.steps, args.tag)
+    elif args.part == "compare":
+        compare(*args.names)
     elif args.part == "surrogate":
         surrogate(args.workers, args.reuse)
     elif args.part == "dogbone":

@@ -13,7 +13,9 @@ become the state only on :meth:`RVEPoints.commit` (the macro step converged) and
 The RVEs' Newton tolerance is ``solver.rtol`` of their config, at most 1e-3 of the macro
 tolerance (:func:`rve_tolerance`). The solves of a trial run in parallel through the task pool
 (:class:`espin.core.parallel.TaskPool`: local processes or Dask), in chunks; each worker keeps
-its solvers between calls.
+its solvers between calls. Points that share one network (without fiber bending) are solved
+together, a chunk at a time (:mod:`espin.specimen.batched_points`); per-point realizations
+one by one.
 
 Stresses: the RVE's P [MPa] is the mat's homogenized nominal stress over the reference volume
 L^2 N_l D, the specimen's P (the macro thickness is the mat's).
@@ -34,6 +36,7 @@ from espin.geometry.network import Network
 from espin.mechanics.driver import StepRecord, step_record
 from espin.mechanics.equilibrium import EquilibriumSolver, StepState
 from espin.mechanics.linear_solvers import make_linear_solver
+from espin.specimen.batched_points import BatchedRVE, batchable
 
 __all__ = ["RVEPoints", "rve_tolerance", "PointStates"]
 
@@ -111,8 +114,48 @@ def _solver(key: str, index: int, network: Network, config: Config) -> Equilibri
     return cached
 
 
+_BATCHES: dict[str, BatchedRVE] = {}  # per worker process: the shared network's batched solver
+_CACHED_BATCHES = 4  # runs whose batched solvers a worker keeps (each holds a linear solver per point)
+
+
+def _solve_batch(chunk: _Chunk) -> _Solved:
+    """The RVE solves of one chunk of points that share a network, together
+    (:mod:`espin.specimen.batched_points`)."""
+    batch = _BATCHES.get(chunk.key)
+    if batch is None:
+        if len(_BATCHES) >= _CACHED_BATCHES:
+            _BATCHES.pop(next(iter(_BATCHES))).release()  # the oldest run's
+        batch = _BATCHES[chunk.key] = BatchedRVE(chunk.networks[0], chunk.config)
+    start = chunk.start
+    solved = batch.solve(
+        start.time,
+        start.F,
+        np.array(start.inner),
+        np.array(start.plastic_stretch),
+        np.array(start.stress),
+        chunk.time,
+        chunk.F,
+        np.array(chunk.guess),
+        chunk.points,
+    )
+    return _Solved(
+        P=solved.P,
+        A=solved.A,
+        inner=list(solved.inner),
+        plastic_stretch=list(solved.plastic_stretch),
+        stress=list(solved.stress),
+        local_error=solved.local_error,
+        recruited_fraction=solved.recruited_fraction,
+        yielded_fraction=solved.yielded_fraction,
+        iterations=solved.iterations,
+    )
+
+
 def _solve_chunk(chunk: _Chunk) -> _Solved:
-    """The RVE solves of one chunk (runs in a worker)."""
+    """The RVE solves of one chunk (runs in a worker): together when the points share a network
+    without bending, else one by one."""
+    if chunk.shared and batchable(chunk.config):
+        return _solve_batch(chunk)
     records, results, errors = [], [], []
     threshold = chunk.config.output.yield_threshold
     for i in range(len(chunk.F)):
@@ -232,7 +275,9 @@ class RVEPoints:
     pool
         Where the solves run (default: in this process).
     chunks_per_worker
-        Tasks per worker and trial (more balance the load, fewer cost less pickling).
+        Tasks per worker and trial (more balance the load, fewer cost less pickling and make
+        larger batches); None: 1 when the points share a network (they are solved in batches:
+        :mod:`espin.specimen.batched_points`), else 2.
     """
 
     def __init__(
@@ -242,7 +287,7 @@ class RVEPoints:
         n_points: int,
         *,
         pool: TaskPool | None = None,
-        chunks_per_worker: int = 2,
+        chunks_per_worker: int | None = None,
     ) -> None:
         self.networks = [networks] * n_points if isinstance(networks, Network) else list(networks)
         if len(self.networks) != n_points:
@@ -251,9 +296,11 @@ class RVEPoints:
         self.n_points = n_points
         self.symmetric_tangent = True  # condensed from the Hessian of each RVE's incremental potential
         self.pool = pool or TaskPool(workers=1)
+        self.shared = len({id(net) for net in self.networks}) == 1
+        if chunks_per_worker is None:
+            chunks_per_worker = 1 if self.shared and batchable(config) else 2
         self.chunks = max(1, min(n_points, chunks_per_worker * (1 if self.pool.serial else self.pool.workers)))
         self.key = f"{id(self)}-{np.random.default_rng().integers(1 << 62)}"
-        self.shared = len({id(net) for net in self.networks}) == 1
         inner = [net.node_position[: net.n_inner] - net.centre for net in self.networks]
         self._reference = inner  # [um]
         self.state = PointStates(

@@ -1,0 +1,589 @@
+"""The RVE solves of many FE^2 points that share one network, together (issue [speed], part C).
+
+:class:`BatchedRVE` runs the Newton method of :class:`espin.mechanics.equilibrium.EquilibriumSolver`
+(whole F prescribed, no bending) on all points at once: the points are the leading axis of every
+array, so one evaluation of the network (kinematics, the fiber law's return mapping, nodal forces)
+is a handful of numpy calls over (points x elements) arrays, and so is one assembly of the tangents
+(one sparsity pattern, values summed by one sparse product). Each point keeps its own Newton state:
+
+* the exact tangent when its factorization shows it positive definite, else the clipped one for
+  the next few iterations; a chord step after an iteration that cut the residual 10-fold;
+* the line search of :mod:`espin.mechanics.line_search`, run for all points in lockstep (each point
+  its own bracket; one evaluation of all the points that need a trial per round);
+* convergence by the same test per point; converged points drop out of the batch.
+
+The factorizations are per point (the matrices share one pattern; the linear solver analyses it
+once per solver and keeps one factorization per point for the chord steps), called in one loop
+per iteration. A point whose Newton fails here is solved again by the per-point solver (which
+adds the continuation in the slack modulus) and raises as today when that fails too.
+
+The results are today's per-point solve (:meth:`EquilibriumSolver.solve`) within the RVE
+tolerance: the same iterates up to the rounding of the sums over a point's DOF.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from espin.core.config import Config
+from espin.core.errors import StepFailureKind, StepNotConverged
+from espin.geometry.network import Network
+from espin.mechanics.assembly import Kinematics
+from espin.mechanics.equilibrium import EquilibriumSolver, StepState
+from espin.mechanics.fiber_law import STRETCH_FLOOR, LawState, axial_force_and_stiffness, update, yielded
+from espin.mechanics.homogenization import nominal_stress
+from espin.mechanics.line_search import MAX_TRIALS, SHORTEST, SLOPE_RATIO
+from espin.mechanics.linear_solvers import Factorization, LinearSolver, make_linear_solver
+from espin.mechanics.time_steps import local_error
+
+__all__ = ["BatchedRVE", "BatchSolved", "batchable"]
+
+_NO_FREE = np.zeros((0, 2, 2))
+_CLIPPED_AFTER_INDEFINITE = 3  # as the per-point solver
+_CHORD_RATIO = 0.1
+_MAX_ITERATIONS = 200
+
+
+def batchable(config: Config) -> bool:
+    """Whether the RVEs of ``config`` can be solved in a batch: no fiber bending (its joints'
+    springs are not batched; those points take the per-point solver)."""
+    return config.fiber.bending_modulus_MPa == 0.0
+
+
+@dataclass(frozen=True, eq=False)
+class BatchSolved:
+    """The converged RVE solves of a batch (arrays over points first).
+
+    Attributes
+    ----------
+    P : (n, 2, 2) float64 [MPa]
+        Nominal stress.
+    A : (n, 2, 2, 2, 2) float64 [MPa]
+        Algorithmic macroscopic tangent dP/dF.
+    inner : (n, n_inner, 2) float64 [um]
+    plastic_stretch, stress : (n, n_elements) float64 [-, MPa]
+    local_error, recruited_fraction, yielded_fraction : (n,) float64
+    iterations, factorizations : (n,) int64
+        Newton iterations and factorizations of each point's solve.
+    """
+
+    P: np.ndarray
+    A: np.ndarray
+    inner: np.ndarray
+    plastic_stretch: np.ndarray
+    stress: np.ndarray
+    local_error: np.ndarray
+    recruited_fraction: np.ndarray
+    yielded_fraction: np.ndarray
+    iterations: np.ndarray
+    factorizations: np.ndarray
+
+
+@dataclass(eq=False)
+class _Iterates:
+    """Everything evaluated at the iterates of some points (points first)."""
+
+    z: np.ndarray  # (k, n) inner DOF
+    length: np.ndarray  # (k, e)
+    unit: np.ndarray  # (k, e, 2)
+    stress: np.ndarray  # (k, e)
+    plastic: np.ndarray  # (k, e)
+    recruited: np.ndarray  # (k, e) bool
+    force: np.ndarray  # (k, e)
+    stiffness: np.ndarray  # (k, e)
+    residual: np.ndarray  # (k, n)
+
+    @classmethod
+    def empty(cls, k: int, e: int, n: int) -> _Iterates:
+        """k points of e elements and n DOF, not evaluated (NaN)."""
+        nan = np.nan
+        return cls(
+            z=np.full((k, n), nan),
+            length=np.full((k, e), nan),
+            unit=np.full((k, e, 2), nan),
+            stress=np.full((k, e), nan),
+            plastic=np.full((k, e), nan),
+            recruited=np.zeros((k, e), dtype=bool),
+            force=np.full((k, e), nan),
+            stiffness=np.full((k, e), nan),
+            residual=np.full((k, n), nan),
+        )
+
+    def take(self, rows: np.ndarray) -> _Iterates:
+        return _Iterates(**{name: getattr(self, name)[rows] for name in self.__dataclass_fields__})
+
+    def put(self, rows: np.ndarray, other: _Iterates) -> None:
+        for name in self.__dataclass_fields__:
+            getattr(self, name)[rows] = getattr(other, name)
+
+
+def _sorted(matrix: sp.spmatrix) -> sp.csr_matrix:
+    """``matrix`` as CSR with sorted column indices (its products sum in column order)."""
+    out = sp.csr_matrix(matrix)
+    out.sort_indices()
+    return out
+
+
+class BatchedRVE:
+    """Load steps of one network at many points at once (module docstring).
+
+    Parameters
+    ----------
+    network
+        The RVE shared by the points.
+    config
+        Its fiber law (without bending: :func:`batchable`) and solver settings.
+    """
+
+    def __init__(self, network: Network, config: Config) -> None:
+        if not batchable(config):
+            raise ValueError("fiber.bending_modulus_MPa > 0: the batched RVE solves have no bending")
+        self.config = config
+        self.solver = EquilibriumSolver.from_config(network, config, make_linear_solver(config.solver.linear))
+        solver = self.solver
+        asm = solver.asm
+        self.network = network
+        self.law = solver.law
+        self.n_inner = network.n_inner
+        self.n = 2 * network.n_inner
+        self.n_dof = asm.n_dof
+        self.nodes = network.element_nodes
+        self.l0, self.area, self.tortuosity = solver.l0, solver.area, solver.tortuosity
+        self.X_border = solver.border_reference
+        self.X_inner = asm.reference[: network.n_inner]
+        self.reference_unit = network.element_vector / network.element_length[:, None]
+        nodes = network.element_nodes
+        self.dof = np.stack([2 * nodes[:, 0], 2 * nodes[:, 0] + 1, 2 * nodes[:, 1], 2 * nodes[:, 1] + 1], 1).ravel()
+        # The tangent blocks as sums of the elements' 2 x 2 stiffness k (components k11, k12, k22
+        # of each element, in element order): data = S @ components, one sparse product. S is
+        # the pattern's sum of the 4 x 4 element matrices [[k, -k], [-k, k]] (entry r, c holds
+        # +-k[r % 2, c % 2]); a slot sums one entry per element, in element order, as the pattern does.
+        self.patterns = {part: asm.pattern(part) for part in ("II", "IB", "BB")}
+        r, c = np.divmod(np.arange(16), 4)
+        component = np.array([[0, 1], [1, 2]])[r % 2, c % 2]
+        sign = np.where(r // 2 == c // 2, 1.0, -1.0)
+        n_el = network.n_elements
+        expand = sp.csr_matrix(
+            (np.tile(sign, n_el), (np.arange(16 * n_el), (3 * np.arange(n_el)[:, None] + component).ravel())),
+            shape=(16 * n_el, 3 * n_el),
+        )
+        self.sum_into = {
+            part: _sorted(
+                sp.csr_matrix((np.ones(len(p.entry)), (p.slot, p.entry)), shape=(p.matrix.nnz, 16 * n_el)) @ expand
+            )
+            for part, p in self.patterns.items()
+        }
+        # Border motion of a unit F_kL (row 2k + L), flattened like the border DOF; the
+        # macroscopic tangent's K_IB modes^T (n x 4) and modes K_BB modes^T (4 x 4) as sums of
+        # the element components too.
+        modes = np.zeros((4, 2 * len(self.X_border)))
+        for k in range(2):
+            for L in range(2):
+                modes[2 * k + L, k::2] = self.X_border[:, L]
+        IB, BB = self.patterns["IB"].matrix, self.patterns["BB"].matrix
+        ib_row = np.repeat(np.arange(IB.shape[0]), np.diff(IB.indptr))
+        to_coupling = sp.csr_matrix(
+            (
+                modes[:, IB.indices].T.ravel(),
+                ((4 * ib_row[:, None] + np.arange(4)).ravel(), np.repeat(np.arange(IB.nnz), 4)),
+            ),
+            shape=(4 * IB.shape[0], IB.nnz),
+        )
+        bb_row = np.repeat(np.arange(BB.shape[0]), np.diff(BB.indptr))
+        to_corner = (modes[:, bb_row][:, None, :] * modes[:, BB.indices][None, :, :]).reshape(16, BB.nnz)
+        self.sum_into["coupling"] = _sorted(to_coupling @ self.sum_into["IB"])
+        self.sum_into["corner"] = _sorted(sp.csr_matrix(to_corner) @ self.sum_into["BB"])
+        self.volume = network.element_area * network.element_contour_length
+        self._linear: list[LinearSolver] = []
+        self._K = _sorted(self.patterns["II"].matrix)
+
+    # -- evaluation -------------------------------------------------------------------------
+    def _evaluate(
+        self, z: np.ndarray, F: np.ndarray, plastic_start: np.ndarray, dt: float, near: np.ndarray | None
+    ) -> tuple[_Iterates, np.ndarray]:
+        """The iterates ``z`` (k, n) at ``F`` (k, 2, 2) from the plastic stretches at the step's
+        start; ``near``: plastic stretches that start the return mapping. Returns them and which
+        points are admissible (the others' rows are not evaluated: NaN)."""
+        k = len(z)
+        ok = np.all(np.isfinite(z), axis=1)
+        rows = np.flatnonzero(ok)
+        m, e = len(rows), len(self.l0)
+        inner = z[rows].reshape(m, self.n_inner, 2)
+        border = self.X_border @ F[rows].transpose(0, 2, 1)
+        x = np.concatenate([inner, border], axis=1)
+        vector = x[:, self.nodes[:, 1]] - x[:, self.nodes[:, 0]]
+        length = np.hypot(vector[..., 0], vector[..., 1])
+        safe = length > 0.0
+        unit = np.where(safe[..., None], vector / np.where(safe, length, 1.0)[..., None], self.reference_unit)
+        tile = (m, 1)
+        law = update(
+            self.law,
+            (length / self.l0).ravel(),
+            plastic_start[rows].ravel(),
+            np.tile(self.tortuosity, tile).ravel(),
+            dt,
+            None if near is None else near[rows].ravel(),
+        )
+        force, stiffness = axial_force_and_stiffness(
+            law, np.tile(self.area, tile).ravel(), np.tile(self.l0, tile).ravel()
+        )
+        force = force.reshape(m, e)
+        ta = force[..., None] * unit
+        values = np.concatenate([-ta, ta], axis=2).reshape(m, -1)
+        offsets = (self.n_dof * np.arange(m))[:, None]
+        gradient = np.bincount((self.dof + offsets).ravel(), values.ravel(), minlength=m * self.n_dof)
+        evaluated = _Iterates(
+            z[rows],
+            length,
+            unit,
+            law.stress.reshape(m, e),
+            law.plastic_stretch.reshape(m, e),
+            law.recruited.reshape(m, e),
+            force,
+            stiffness.reshape(m, e),
+            gradient.reshape(m, self.n_dof)[:, : self.n],
+        )
+        if m == k:
+            return evaluated, ok
+        out = _Iterates.empty(k, e, self.n)
+        out.z[:] = z
+        out.put(rows, evaluated)
+        return out, ok
+
+    def _converged(self, residual: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per point: converged (the per-point solver's test on the residual g_I and the element
+        forces) and max |g_I|."""
+        norm = np.max(np.abs(residual), axis=1) if self.n else np.zeros(len(residual))
+        tolerance = self.config.solver.rtol * np.max(np.abs(force), axis=1) + self.solver.force_tolerance_abs
+        return norm <= tolerance, norm
+
+    # -- tangents ---------------------------------------------------------------------------
+    def _element_values(self, p: _Iterates, clipped: bool) -> np.ndarray:
+        """(k, 3 e) components k11, k12, k22 of each element's stiffness
+        k = dT/dl a (x) a + T / l (I - a (x) a) (the per-point solver's, and its clipping)."""
+        floor = STRETCH_FLOOR * self.l0
+        transverse = np.where(p.length > floor, p.force / np.maximum(p.length, floor), 0.0)
+        axial = p.stiffness
+        if clipped:
+            axial, transverse = np.maximum(axial, 0.0), np.maximum(transverse, 0.0)
+        a0, a1 = p.unit[..., 0], p.unit[..., 1]
+        aa00, aa01, aa11 = a0 * a0, a0 * a1, a1 * a1
+        components = np.stack(
+            [
+                axial * aa00 + transverse * (1.0 - aa00),
+                axial * aa01 + transverse * (0.0 - aa01),
+                axial * aa11 + transverse * (1.0 - aa11),
+            ],
+            axis=-1,
+        )
+        return components.reshape(len(a0), -1)
+
+    def _block(self, part: str, values: np.ndarray) -> np.ndarray:
+        """(k, nnz) data of the tangent block ``part`` for each point."""
+        return np.asarray(self.sum_into[part] @ values.T).T
+
+    def _matrix(self, data: np.ndarray) -> sp.csr_matrix:
+        """K_II with the values ``data``: one matrix object whose values are replaced (the
+        linear solver copies them)."""
+        self._K.data = data
+        return self._K
+
+    def release(self) -> None:
+        """Free the linear solvers' factorizations and analyses."""
+        for linear in self._linear:
+            linear.release()
+        self._linear.clear()
+
+    def _linear_solvers(self, k: int) -> list[LinearSolver]:
+        """One linear solver per point of the batch (each keeps its point's factorization)."""
+        while len(self._linear) < k:
+            self._linear.append(make_linear_solver(self.config.solver.linear))
+        return self._linear[:k]
+
+    # -- one step of all points -------------------------------------------------------------
+    def solve(
+        self,
+        start_time: float,
+        start_F: np.ndarray,
+        start_inner: np.ndarray,
+        start_plastic: np.ndarray,
+        start_stress: np.ndarray,
+        time: float,
+        F: np.ndarray,
+        guess: np.ndarray,
+        names: np.ndarray,
+    ) -> BatchSolved:
+        """Equilibrium of every point at ``time`` and ``F`` (k, 2, 2) from its converged start
+        (``start_*``, points first) and the guess (k, n_inner, 2) [um] of its inner nodes.
+
+        Raises
+        ------
+        StepNotConverged
+            ``"RVE point N: ..."`` (N from ``names``) when a point does not converge, here and
+            by the per-point solver with its continuation.
+        """
+        k = len(F)
+        dt = time - start_time
+        if np.any(np.linalg.det(F) <= 0.0):
+            bad = int(names[int(np.argmax(np.linalg.det(F) <= 0.0))])
+            raise StepNotConverged(f"RVE point {bad}: det F <= 0", StepFailureKind.INADMISSIBLE)
+        linear = self._linear_solvers(k)
+        p, ok = self._evaluate(guess.reshape(k, -1).copy(), F, start_plastic, dt, None)
+        failed = ~ok
+        iterations = np.zeros(k, dtype=np.int64)
+        factorizations = np.zeros(k, dtype=np.int64)
+        last_norm = np.full(k, np.inf)
+        facts: list[Factorization | None] = [None] * k
+        clipped_left = np.zeros(k, dtype=np.int64)
+        done = np.zeros(k, dtype=bool)
+        limit = self.config.solver.max_iterations or _MAX_ITERATIONS
+        for iteration in range(limit + 1):
+            active = np.flatnonzero(~done & ~failed)
+            if not len(active):
+                break
+            converged, norm = self._converged(p.residual[active], p.force[active])
+            done[active[converged]] = True
+            iterations[active[converged]] = iteration
+            going = active[~converged]
+            chord_ok = norm[~converged] <= _CHORD_RATIO * last_norm[going]
+            last_norm[active] = norm
+            if iteration == limit:
+                failed[going] = True
+                break
+            if not len(going):
+                continue
+            current = p.take(going)
+            direction = np.empty((len(going), self.n))
+            need_exact: list[int] = []
+            need_clipped: list[int] = []
+            for j, i in enumerate(going):
+                fact = facts[i]
+                if chord_ok[j] and fact is not None:
+                    d = fact.solve(-current.residual[j])
+                    if np.dot(d, current.residual[j]) < 0.0:
+                        direction[j] = d
+                        continue
+                (need_exact if clipped_left[i] == 0 else need_clipped).append(int(j))
+            if need_exact:
+                rows = np.array(need_exact)
+                data = self._block("II", self._element_values(current.take(rows), clipped=False))
+                for j, values in zip(rows, data, strict=True):
+                    i = going[j]
+                    try:
+                        fact = linear[i].factorize(self._matrix(values))
+                    except StepNotConverged:
+                        fact = None
+                    factorizations[i] += 1
+                    if fact is not None and not (fact.n_negative or fact.n_perturbed > 0):
+                        d = fact.solve(-current.residual[j])
+                        if np.dot(d, current.residual[j]) < 0.0:
+                            direction[j], facts[i] = d, fact
+                            continue
+                    clipped_left[i] = _CLIPPED_AFTER_INDEFINITE
+                    need_clipped.append(int(j))
+            if need_clipped:
+                rows = np.array(need_clipped)
+                data = self._block("II", self._element_values(current.take(rows), clipped=True))
+                for j, values in zip(rows, data, strict=True):
+                    i = going[j]
+                    clipped_left[i] -= 1
+                    factorizations[i] += 1
+                    try:
+                        fact = linear[i].factorize(self._matrix(values))
+                    except StepNotConverged:
+                        failed[i], facts[i] = True, None
+                        continue
+                    direction[j], facts[i] = fact.solve(-current.residual[j]), fact
+            moving = ~failed[going]
+            rows = going[moving]
+            accepted, ok = self._line_search(
+                current.take(np.flatnonzero(moving)), direction[moving], F[rows], start_plastic[rows], dt
+            )
+            failed[rows[~ok]] = True
+            p.put(rows[ok], accepted.take(np.flatnonzero(ok)))
+        retry = np.flatnonzero(failed)
+        start_states = [
+            StepState(start_time, start_inner[i], np.zeros(0), start_F[i], start_plastic[i], start_stress[i])
+            for i in range(k)
+        ]
+        retried = {int(i): self._solve_one(start_states[i], time, F[i], guess[i], int(names[i])) for i in retry}
+        return self._results(p, retried, start_states, iterations, factorizations, F, dt)
+
+    def _solve_one(self, start: StepState, time: float, F: np.ndarray, guess: np.ndarray, name: int):
+        """A point the batch did not converge, by the per-point solver (with its continuation)."""
+        try:
+            return self.solver.solve(start, time, F, _NO_FREE, guess, np.zeros(0))
+        except StepNotConverged as failure:
+            raise type(failure)(
+                f"RVE point {name}: {failure.reason}",
+                failure.kind,
+                iterations=failure.iterations,
+                factorizations=failure.factorizations,
+            ) from None
+
+    # -- the line search of all points ------------------------------------------------------
+    def _line_search(
+        self, point: _Iterates, direction: np.ndarray, F: np.ndarray, plastic_start: np.ndarray, dt: float
+    ) -> tuple[_Iterates, np.ndarray]:
+        """:func:`espin.mechanics.line_search.line_search` of every point in lockstep: the
+        accepted trials and which points found one (the others could not lower the potential)."""
+        k = len(direction)
+        s0 = np.einsum("kn,kn->k", point.residual, direction)
+        lo, s_lo = np.zeros(k), s0.copy()
+        hi = np.full(k, np.nan)  # NaN: no upper end yet
+        s_hi = np.full(k, np.nan)  # NaN: the upper end's slope is unknown
+        alpha = np.ones(k)
+        result = point.take(np.arange(k))
+        best = point.take(np.arange(k))
+        has_best = np.zeros(k, dtype=bool)
+        searching = np.ones(k, dtype=bool)
+        accepted = np.zeros(k, dtype=bool)
+        base_norm = np.linalg.norm(point.residual, axis=1)
+        for _ in range(MAX_TRIALS):
+            rows = np.flatnonzero(searching)
+            if not len(rows):
+                break
+            a = alpha[rows]
+            trial, ok = self._evaluate(
+                point.z[rows] + a[:, None] * direction[rows], F[rows], plastic_start[rows], dt, point.plastic[rows]
+            )
+            bad = rows[~ok]  # overshot into inadmissible states: shorten
+            hi[bad], s_hi[bad] = alpha[bad], np.nan
+            alpha[bad] = lo[bad] + 0.1 * (alpha[bad] - lo[bad])
+            rows, trial = rows[ok], trial.take(np.flatnonzero(ok))
+            a = alpha[rows]
+            s = np.einsum("kn,kn->k", trial.residual, direction[rows])
+            candidate = ((s <= 0.0) & (a == 1.0)) | (np.abs(s) <= SLOPE_RATIO * np.abs(s0[rows]))
+            decreases = np.zeros(len(rows), dtype=bool)
+            if candidate.any():
+                c = np.flatnonzero(candidate)
+                decreases[c], broken = self._decreases(
+                    point, rows[c], trial.take(c), direction, a[c], s0, s[c], F, plastic_start, dt, base_norm
+                )
+                # An inadmissible midpoint ends the point's search: it fails here (as it does
+                # in the per-point line search, which raises) and is solved again one by one.
+                stop = rows[c[broken]]
+                searching[stop], has_best[stop] = False, False
+                keep = np.flatnonzero(~np.isin(rows, stop))
+                rows, trial, a, s = rows[keep], trial.take(keep), a[keep], s[keep]
+                candidate, decreases = candidate[keep], decreases[keep]
+            win = rows[decreases]
+            result.put(win, trial.take(np.flatnonzero(decreases)))
+            accepted[win] = True
+            searching[win] = False
+            rejected = candidate & ~decreases
+            up = ~candidate & (s > 0.0)
+            down = ~candidate & ~(s > 0.0)
+            hi[rows[rejected]], s_hi[rows[rejected]] = a[rejected], np.nan
+            hi[rows[up]], s_hi[rows[up]] = a[up], s[up]
+            lo[rows[down]], s_lo[rows[down]] = a[down], s[down]
+            best.put(rows[down], trial.take(np.flatnonzero(down)))
+            has_best[rows[down]] = True
+            move = rows[~decreases]
+            h, l_, sl, sh = hi[move], lo[move], s_lo[move], s_hi[move]
+            no_hi, no_slope = np.isnan(h), np.isnan(sh)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                guess = l_ - sl * (h - l_) / (sh - sl)
+            width = h - l_
+            bracketed = np.clip(guess, l_ + 0.1 * width, h - 0.1 * width)
+            alpha[move] = np.where(
+                no_hi, np.minimum(2.0 * alpha[move], 1.0), np.where(no_slope, l_ + 0.5 * width, bracketed)
+            )
+            narrow = ~no_hi & (width < SHORTEST)
+            searching[move[narrow]] = False
+        rest = np.flatnonzero(~accepted & has_best)
+        if len(rest):
+            fallback, _ = self._decreases(
+                point, rest, best.take(rest), direction, lo[rest], s0, s_lo[rest], F, plastic_start, dt, base_norm
+            )
+            result.put(rest[fallback], best.take(rest[fallback]))
+            accepted[rest[fallback]] = True
+        return result, accepted
+
+    def _decreases(
+        self,
+        point: _Iterates,
+        rows: np.ndarray,
+        trial: _Iterates,
+        direction: np.ndarray,
+        alpha: np.ndarray,
+        s0: np.ndarray,
+        s_trial: np.ndarray,
+        F: np.ndarray,
+        plastic_start: np.ndarray,
+        dt: float,
+        base_norm: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per trial: the potential fell from ``point`` (the line search's ``_decreases``), and
+        whether the midpoint it needed was inadmissible (then it did not fall)."""
+        out = np.linalg.norm(trial.residual, axis=1) <= base_norm[rows]
+        broken = np.zeros(len(rows), dtype=bool)
+        check = np.flatnonzero(~out)
+        if len(check):
+            r = rows[check]
+            middle, ok = self._evaluate(
+                point.z[r] + 0.5 * alpha[check, None] * direction[r], F[r], plastic_start[r], dt, point.plastic[r]
+            )
+            s_middle = np.einsum("kn,kn->k", np.where(ok[:, None], middle.residual, 0.0), direction[r])
+            out[check] = ok & (alpha[check] / 6.0 * (s0[r] + 4.0 * s_middle + s_trial[check]) < 0.0)
+            broken[check] = ~ok
+        return out, broken
+
+    # -- results ----------------------------------------------------------------------------
+    def _results(
+        self,
+        p: _Iterates,
+        retried: dict,
+        starts: list[StepState],
+        iterations: np.ndarray,
+        factorizations: np.ndarray,
+        F: np.ndarray,
+        dt: float,
+    ) -> BatchSolved:
+        """Stresses, macroscopic tangents, local errors and fractions of the converged points."""
+        k = len(F)
+        for i, result in retried.items():
+            law = result.law
+            p.z[i] = result.state.inner.ravel()
+            p.length[i], p.unit[i] = result.kinematics.length, result.kinematics.unit
+            p.stress[i], p.plastic[i], p.recruited[i] = law.stress, law.plastic_stretch, law.recruited
+            p.force[i], p.stiffness[i] = axial_force_and_stiffness(law, self.area, self.l0)
+            iterations[i], factorizations[i] = result.iterations, result.factorizations
+        values = self._element_values(p, clipped=False)
+        K_II = self._block("II", values)
+        # A = (modes K_BB modes^T - coupling^T K_II^-1 coupling) / V0, coupling = K_IB modes^T.
+        coupling = (self.sum_into["coupling"] @ values.T).T.reshape(k, self.n, 4)
+        corner = (self.sum_into["corner"] @ values.T).T.reshape(k, 4, 4)
+        A = np.empty((k, 2, 2, 2, 2))
+        P = np.empty((k, 2, 2))
+        errors = np.empty(k)
+        linear = self._linear_solvers(k)
+        stretch = p.length / self.l0
+        tangent = p.stiffness * self.l0 / self.area
+        for i in range(k):
+            fluctuation = linear[i].factorize(self._matrix(K_II[i])).solve(coupling[i]) if self.n else coupling[i]
+            A[i] = (corner[i] - coupling[i].T @ fluctuation).reshape(2, 2, 2, 2) / self.network.reference_volume
+            kinematics = Kinematics(p.unit[i] * p.length[i][:, None], p.length[i], p.unit[i])
+            P[i] = nominal_stress(self.network, p.force[i], kinematics)
+            law = LawState(p.stress[i], p.plastic[i], tangent[i], p.recruited[i])
+            start = starts[i]
+            errors[i] = local_error(
+                self.law, start.stress, start.plastic_stretch, law, stretch[i], self.tortuosity, dt, self.area * self.l0
+            )
+        volume = self.volume
+        threshold = self.config.output.yield_threshold
+        return BatchSolved(
+            P=P,
+            A=A,
+            inner=p.z.reshape(k, self.n_inner, 2).copy(),
+            plastic_stretch=p.plastic.copy(),
+            stress=p.stress.copy(),
+            local_error=errors,
+            recruited_fraction=(p.recruited @ volume) / volume.sum(),
+            yielded_fraction=(yielded(p.plastic, threshold) @ volume) / volume.sum(),
+            iterations=iterations,
+            factorizations=factorizations,
+        )

@@ -1,0 +1,81 @@
+"""The batched RVE solves of points that share a network (espin.specimen.batched_points) against the
+per-point solver, one point at a time: the same equilibria, stresses, tangents, plastic states and
+local errors, elastic and yielding, in tension, shear and compression; a failing point is named."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import espin
+from espin.core.config import apply_overrides
+from espin.core.errors import StepNotConverged
+from espin.mechanics.equilibrium import EquilibriumSolver, StepState
+from espin.mechanics.homogenization import nominal_stress
+from espin.mechanics.linear_solvers import make_linear_solver
+from espin.specimen.batched_points import BatchedRVE
+from espin.specimen.rve_points import rve_tolerance
+
+# (e11, shear): elastic, at the yield knee, well past it, with shear, in compression.
+LOADS = [(0.002, 0.0), (0.02, 0.004), (0.06, -0.01), (0.1, 0.02), (-0.01, 0.003)]
+
+
+@pytest.fixture(scope="module")
+def rve():
+    return espin.generate("plla", rve__size_ratio=30, rve__layers=2)
+
+
+def _F(e: float, g: float) -> np.ndarray:
+    return np.array([[1.0 + e, g], [0.3 * g, 1.0 - 0.3 * e]])
+
+
+def _one_by_one(solver, start, time, F, guess):
+    result = solver.solve(start, time, F, np.zeros((0, 2, 2)), guess, np.zeros(0))
+    P = nominal_stress(solver.network, result.force, result.kinematics)
+    return result, P, solver.macroscopic_tangent(result), solver.time_error(start, result)
+
+
+def test_batched_solves_equal_the_per_point_solves_from_a_yielded_start(rve):
+    """Two steps: from the undeformed state to the loads, then on from those (yielded) states."""
+    config = rve_tolerance(rve.config, 1e-6)
+    network = rve.network
+    batch = BatchedRVE(network, config)
+    solver = EquilibriumSolver.from_config(network, config, make_linear_solver(config.solver.linear))
+    X = solver.asm.reference[: network.n_inner]
+    k, n_el = len(LOADS), network.n_elements
+    rate = config.loading.strain_rate_per_s
+    F1 = np.array([_F(e, g) for e, g in LOADS])
+    F2 = np.array([_F(1.5 * e, 1.5 * g) for e, g in LOADS])
+    t1, t2 = 0.03 / rate, 0.05 / rate
+    starts = [StepState(0.0, X.copy(), np.zeros(0), np.eye(2), np.ones(n_el), np.zeros(n_el)) for _ in LOADS]
+    for F, time in ((F1, t1), (F2, t2)):
+        guess = np.array([s.inner + X @ (F_i - s.F).T for s, F_i in zip(starts, F)])
+        solved = batch.solve(starts[0].time, np.array([s.F for s in starts]), np.array([s.inner for s in starts]),
+                             np.array([s.plastic_stretch for s in starts]), np.array([s.stress for s in starts]),
+                             time, F, guess, np.arange(k))
+        for i in range(k):
+            result, P, A, error = _one_by_one(solver, starts[i], time, F[i], guess[i])
+            scale = np.abs(P).max()
+            # The RVE tolerance: 1e-9 of the largest element force; the stresses follow to about that.
+            assert np.abs(solved.P[i] - P).max() <= 1e-7 * scale
+            assert np.abs(solved.A[i] - A).max() <= 1e-6 * np.abs(A).max()
+            assert np.abs(solved.inner[i] - result.state.inner).max() <= 1e-6 * network.size
+            assert np.abs(solved.plastic_stretch[i] - result.state.plastic_stretch).max() <= 1e-9
+            assert solved.local_error[i] == pytest.approx(error, rel=1e-6, abs=1e-12)
+            assert abs(int(solved.iterations[i]) - result.iterations) <= 2
+        starts = [StepState(time, solved.inner[i], np.zeros(0), F[i], solved.plastic_stretch[i], solved.stress[i])
+                  for i in range(k)]
+    assert np.all(solved.yielded_fraction[1:4] > 0.1)  # the loads past the knee did yield
+    assert solved.yielded_fraction[0] == 0.0
+
+
+def test_a_batched_point_that_does_not_converge_is_named(rve):
+    config = apply_overrides(rve_tolerance(rve.config, 1e-6), {"solver.max_iterations": 1})
+    batch = BatchedRVE(rve.network, config)
+    X = batch.X_inner
+    k, n_el = 3, rve.network.n_elements
+    F = np.array([np.eye(2), np.eye(2), np.diag([1.05, 1.0])])
+    guess = np.einsum("nJ,kiJ->kni", X, F)
+    with pytest.raises(StepNotConverged, match="RVE point 12: "):
+        batch.solve(0.0, np.tile(np.eye(2), (k, 1, 1)), np.tile(X, (k, 1, 1)), np.ones((k, n_el)),
+                    np.zeros((k, n_el)), 5.0, F, guess, np.array([10, 11, 12]))
