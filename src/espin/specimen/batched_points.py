@@ -31,7 +31,7 @@ import scipy.sparse as sp
 from espin.core.config import Config
 from espin.core.errors import StepFailureKind, StepNotConverged
 from espin.geometry.network import Network
-from espin.mechanics.assembly import Kinematics
+from espin.mechanics.assembly import Kinematics, SparsePattern
 from espin.mechanics.equilibrium import EquilibriumSolver, StepState
 from espin.mechanics.fiber_law import STRETCH_FLOOR, LawState, axial_force_and_stiffness, update, yielded
 from espin.mechanics.homogenization import nominal_stress
@@ -170,12 +170,7 @@ class BatchedRVE:
             (np.tile(sign, n_el), (np.arange(16 * n_el), (3 * np.arange(n_el)[:, None] + component).ravel())),
             shape=(16 * n_el, 3 * n_el),
         )
-        self.sum_into = {
-            part: _sorted(
-                sp.csr_matrix((np.ones(len(p.entry)), (p.slot, p.entry)), shape=(p.matrix.nnz, 16 * n_el)) @ expand
-            )
-            for part, p in self.patterns.items()
-        }
+        self.sum_into = {part: _sorted(_summation(p, n_el) @ expand) for part, p in self.patterns.items()}
         # Border motion of a unit F_kL (row 2k + L), flattened like the border DOF; the
         # macroscopic tangent's K_IB modes^T (n x 4) and modes K_BB modes^T (4 x 4) as sums of
         # the element components too.
@@ -587,3 +582,10 @@ class BatchedRVE:
             iterations=iterations,
             factorizations=factorizations,
         )
+
+
+def _summation(pattern: SparsePattern, n_elements: int) -> sp.csr_matrix:
+    """(nnz, 16 n_elements) 0/1 matrix: which element-matrix entries each pattern slot sums."""
+    entry = np.flatnonzero(pattern.slot[: 16 * n_elements] >= 0)
+    ones = np.ones(len(entry))
+    return sp.csr_matrix((ones, (pattern.slot[entry], entry)), shape=(pattern.matrix.nnz, 16 * n_elements))
