@@ -19,8 +19,8 @@ V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
 * a chord step: an iteration whose residual ratio r_k / r_k-1, repeated once, brings the
   residual within the tolerance lends its factorization to the next one (no new
   factorization), as long as that gives a descent direction;
-* a semismooth correction at the slack/taut kink (modulus x1000 at e = lambda_r): the
-  elements whose recruitment at the full Newton step differs from the one the factorized
+* with the exact tangent, a semismooth correction at the slack/taut kink (modulus x1000 at
+  e = lambda_r): the elements whose recruitment at the full Newton step differs from the one the factorized
   tangent was built with are linearized on the side the step puts them (their force about
   the full-step trial), a low-rank change solved with the same factorization
   (Sherman-Morrison-Woodbury, :func:`low_rank_step`), repeated while that set changes;
@@ -165,6 +165,7 @@ class _Tangent:
     factorization: Factorization
     axial: np.ndarray  # (n_elements,) dT/dl in the matrix [uN/um]
     recruited: np.ndarray  # (n_elements,) bool: taut at the point it was built
+    clipped: bool  # the positive semi-definite tangent (an indefinite exact one was refused)
 
 
 @dataclass
@@ -430,11 +431,11 @@ class EquilibriumSolver:
             if not indefinite:
                 direction = fact.solve(-p.residual)
                 if np.dot(direction, p.residual) < 0.0:
-                    return direction, factorizations, _Tangent(fact, p.stiffness, p.law.recruited)
+                    return direction, factorizations, _Tangent(fact, p.stiffness, p.law.recruited, False)
             choice.clipped_left = _CLIPPED_AFTER_INDEFINITE
         choice.clipped_left -= 1
         fact = self.linear.factorize(self._hessian(p, step, clipped=True))
-        tangent = _Tangent(fact, np.maximum(p.stiffness, 0.0), p.law.recruited)
+        tangent = _Tangent(fact, np.maximum(p.stiffness, 0.0), p.law.recruited, True)
         return fact.solve(-p.residual), factorizations + 1, tangent
 
     def _element_modes(self, elements: np.ndarray, kin: Kinematics, step: _Step) -> np.ndarray:
@@ -456,8 +457,8 @@ class EquilibriumSolver:
         """The Newton direction with the elements that cross the slack/taut kink linearized
         on the side the full step puts them, and the full-step trial of the direction returned.
 
-        ``direction`` solved ``K dz = -r`` with ``tangent`` (built at ``p`` or, for a chord
-        step, at an earlier iterate q). An element whose recruitment at the trial z + dz
+        ``direction`` solved ``K dz = -r`` with ``tangent`` (the exact one, built at ``p``
+        or, for a chord step, at an earlier iterate q). An element whose recruitment at the trial z + dz
         differs from q's enters the model with its force linearized about the trial,
         T_e(l) ~ T_tr + k_tr (l - l_tr), instead of T_z + k_q (l - l_z): a change of rank
         one per element (delta_e = k_tr - k_q along its d l / d z = b_e) and a shift
@@ -477,7 +478,6 @@ class EquilibriumSolver:
                 break
             assumed = crossing
             k_model, k_tr = tangent.axial[crossing], trial.stiffness[crossing]
-            k_tr = np.maximum(k_tr, 0.0) if np.all(k_model >= 0.0) else k_tr
             shift = trial.force[crossing] - p.force[crossing] - k_tr * (trial.kin.length - p.kin.length)[crossing]
             modes = self._element_modes(crossing, p.kin, step)
             corrected = low_rank_step(tangent.factorization.solve, direction, modes, k_tr - k_model, shift)
@@ -621,7 +621,10 @@ class EquilibriumSolver:
                     break
                 direction, used, tangent = self._direction(p, step, chord, choice)
                 factorizations += used
-                direction, full = self._across_kinks(p, direction, tangent, step)
+                if tangent.clipped:  # buckling: the plain direction (its full step the first trial)
+                    full = self._evaluate(p.z + direction, step, p)
+                else:
+                    direction, full = self._across_kinks(p, direction, tangent, step)
 
                 def evaluate(z: np.ndarray, near: _Point, full: _Point = full) -> _Point:
                     return full if np.array_equal(z, full.z) else self._evaluate(z, step, near)
