@@ -55,7 +55,6 @@ residual history (the fiber law and the linear solver raise its kinds ``inadmiss
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
@@ -166,6 +165,9 @@ class _Tangent:
     axial: np.ndarray  # (n_elements,) dT/dl in the matrix [uN/um]
     recruited: np.ndarray  # (n_elements,) bool: taut at the point it was built
     clipped: bool  # the positive semi-definite tangent (an indefinite exact one was refused)
+    kin: Kinematics  # the geometry it was built with
+    solved: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    """Element -> (b_e, K^-1 b_e), b_e = d l_e / d z at ``kin``: solved once per tangent."""
 
 
 @dataclass
@@ -215,35 +217,30 @@ class _ThreadedLaw:
 
 
 def low_rank_step(
-    solve: Callable[[np.ndarray], np.ndarray],
-    direction: np.ndarray,
-    modes: np.ndarray,
-    delta: np.ndarray,
-    shift: np.ndarray,
+    direction: np.ndarray, modes: np.ndarray, solved: np.ndarray, delta: np.ndarray, shift: np.ndarray
 ) -> np.ndarray:
-    """Solution d of (K + B diag(delta) B^T) d = -r - B shift from a factorization of K.
+    """Solution d of (K + B diag(delta) B^T) d = -r - B shift from solves with K.
 
     By the Sherman-Morrison-Woodbury formula: with dz = K^-1 (-r) (``direction``) and
-    Y = K^-1 B (m solves), u = dz - Y shift and d = u - Y (I + diag(delta) B^T Y)^-1
+    Y = K^-1 B (``solved``), u = dz - Y shift and d = u - Y (I + diag(delta) B^T Y)^-1
     diag(delta) B^T u.
 
     Parameters
     ----------
-    solve
-        K^-1 applied to an (n,) or (n, m) array.
     direction : (n,) float64
         K^-1 (-r).
     modes : (n, m) float64
         B, one column per changed element (d l_e / d z, dimensionless).
+    solved : (n, m) float64
+        K^-1 B.
     delta : (m,) float64 [uN/um]
         Change of each element's axial stiffness.
     shift : (m,) float64 [uN]
         Change of each element's force model at the current iterate.
     """
-    Y = solve(modes)
-    u = direction - Y @ shift
-    capacitance = np.eye(len(delta)) + delta[:, None] * (modes.T @ Y)
-    return u - Y @ np.linalg.solve(capacitance, delta * (modes.T @ u))
+    u = direction - solved @ shift
+    capacitance = np.eye(len(delta)) + delta[:, None] * (modes.T @ solved)
+    return u - solved @ np.linalg.solve(capacitance, delta * (modes.T @ u))
 
 
 class EquilibriumSolver:
@@ -431,11 +428,11 @@ class EquilibriumSolver:
             if not indefinite:
                 direction = fact.solve(-p.residual)
                 if np.dot(direction, p.residual) < 0.0:
-                    return direction, factorizations, _Tangent(fact, p.stiffness, p.law.recruited, False)
+                    return direction, factorizations, _Tangent(fact, p.stiffness, p.law.recruited, False, p.kin)
             choice.clipped_left = _CLIPPED_AFTER_INDEFINITE
         choice.clipped_left -= 1
         fact = self.linear.factorize(self._hessian(p, step, clipped=True))
-        tangent = _Tangent(fact, np.maximum(p.stiffness, 0.0), p.law.recruited, True)
+        tangent = _Tangent(fact, np.maximum(p.stiffness, 0.0), p.law.recruited, True, p.kin)
         return fact.solve(-p.residual), factorizations + 1, tangent
 
     def _element_modes(self, elements: np.ndarray, kin: Kinematics, step: _Step) -> np.ndarray:
@@ -464,7 +461,8 @@ class EquilibriumSolver:
         one per element (delta_e = k_tr - k_q along its d l / d z = b_e) and a shift
         c_e = T_tr - T_z - k_tr (l_tr - l_z) of its force, so
         (K + B diag(delta) B^T) d = -r - B c, solved with the same factorization
-        (:func:`low_rank_step`, m more solves). Repeated from the new trial while the set of
+        (:func:`low_rank_step`; b_e at the tangent's geometry, so K^-1 b_e is solved once per
+        tangent and element, and chord steps reuse it). Repeated from the new trial while the set of
         crossing elements changes (at most :data:`_KINK_ROUNDS` rounds): a semismooth
         Newton step whose active set is taken from its own full step. The corrected
         direction is taken when its full step passes the line search's slope test with a
@@ -479,8 +477,14 @@ class EquilibriumSolver:
             assumed = crossing
             k_model, k_tr = tangent.axial[crossing], trial.stiffness[crossing]
             shift = trial.force[crossing] - p.force[crossing] - k_tr * (trial.kin.length - p.kin.length)[crossing]
-            modes = self._element_modes(crossing, p.kin, step)
-            corrected = low_rank_step(tangent.factorization.solve, direction, modes, k_tr - k_model, shift)
+            new = [e for e in crossing.tolist() if e not in tangent.solved]
+            if new:
+                columns = self._element_modes(np.array(new), tangent.kin, step)
+                solved = tangent.factorization.solve(columns)
+                tangent.solved.update((e, (columns[:, j], solved[:, j])) for j, e in enumerate(new))
+            modes = np.column_stack([tangent.solved[e][0] for e in crossing.tolist()])
+            solved = np.column_stack([tangent.solved[e][1] for e in crossing.tolist()])
+            corrected = low_rank_step(direction, modes, solved, k_tr - k_model, shift)
             if not np.dot(corrected, p.residual) < 0.0:
                 break
             try:
