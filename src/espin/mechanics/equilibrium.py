@@ -16,8 +16,17 @@ V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
   tangent without the negative geometric stiffness of compressed elements (positive
   semi-definite by construction); after an indefinite exact tangent the next few iterations
   use the clipped one directly;
-* a chord step: an iteration that cut the residual 10-fold or more lends its factorization
-  to the next one (no new factorization), as long as that gives a descent direction;
+* a chord step: an iteration whose residual ratio r_k / r_k-1, repeated once, brings the
+  residual within the tolerance lends its factorization to the next one (no new
+  factorization), as long as that gives a descent direction;
+* with the exact tangent, a semismooth correction at the slack/taut kink (modulus x1000 at
+  e = lambda_r): the elements whose recruitment at the full Newton step differs from the one the factorized
+  tangent was built with are linearized on the side the step puts them (their force about
+  the full-step trial), a low-rank change solved with the same factorization
+  (Sherman-Morrison-Woodbury, :func:`low_rank_step`), repeated while that set changes;
+  the corrected direction is kept when its full step passes the line search's slope test
+  with a smaller residual than the plain one's (the plain full step's evaluation is the
+  line search's first trial otherwise);
 * a line search on Phi along the Newton direction (:mod:`espin.mechanics.line_search`)
   through its exact derivative (the residual projected on the direction, one residual
   evaluation per trial); where the residual grew,
@@ -61,7 +70,7 @@ from espin.mechanics.assembly import Kinematics, NetworkAssembler
 from espin.mechanics.bending import FiberJoints, fiber_joints
 from espin.mechanics.crossings import crossing_joints, with_crossings
 from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
-from espin.mechanics.line_search import line_search
+from espin.mechanics.line_search import SLOPE_RATIO, line_search
 from espin.mechanics.linear_solvers import Factorization, LinearSolver
 from espin.mechanics.loading import LateralStress
 from espin.mechanics.time_steps import local_error
@@ -71,8 +80,9 @@ __all__ = ["StepState", "StepResult", "EquilibriumSolver"]
 _MAX_ITERATIONS = 200  # default per step: plla seed 6 needs 75 at its first step (kink cycling)
 _MAX_ITERATIONS_MIXED = 500  # under mixed control: buckling chains need hundreds
 _CLIPPED_AFTER_INDEFINITE = 3
-_CHORD_RATIO = 0.1  # an iteration that cut the residual this much lends its factorization to the next
 _SLACK_CONTINUATION = (100.0, 10.0, 1.0)  # E_b factors of the fallback, ending at the true law
+_KINK_ROUNDS = 3  # semismooth rounds of the kink correction per Newton iteration
+_KINK_MAX = 100  # more crossing elements than this: no correction (m solves would cost a factorization)
 _ELEMENTS_PER_THREAD = 10_000  # fewer per thread: the threads cost more than they save
 
 
@@ -147,6 +157,19 @@ class _Step:
     lateral: LateralStress | None  # the stress target of the one free component, if any
 
 
+@dataclass(frozen=True, eq=False)
+class _Tangent:
+    """A factorized tangent and what its elements entered it with."""
+
+    factorization: Factorization
+    axial: np.ndarray  # (n_elements,) dT/dl in the matrix [uN/um]
+    recruited: np.ndarray  # (n_elements,) bool: taut at the point it was built
+    clipped: bool  # the positive semi-definite tangent (an indefinite exact one was refused)
+    kin: Kinematics  # the geometry it was built with
+    solved: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    """Element -> (b_e, K^-1 b_e), b_e = d l_e / d z at ``kin``: solved once per tangent."""
+
+
 @dataclass
 class _TangentChoice:
     """Which tangent the next Newton iterations factorize: the exact one while it is positive
@@ -191,6 +214,33 @@ class _ThreadedLaw:
                 for name in ("stress", "plastic_stretch", "tangent", "recruited")
             )
         )
+
+
+def low_rank_step(
+    direction: np.ndarray, modes: np.ndarray, solved: np.ndarray, delta: np.ndarray, shift: np.ndarray
+) -> np.ndarray:
+    """Solution d of (K + B diag(delta) B^T) d = -r - B shift from solves with K.
+
+    By the Sherman-Morrison-Woodbury formula: with dz = K^-1 (-r) (``direction``) and
+    Y = K^-1 B (``solved``), u = dz - Y shift and d = u - Y (I + diag(delta) B^T Y)^-1
+    diag(delta) B^T u.
+
+    Parameters
+    ----------
+    direction : (n,) float64
+        K^-1 (-r).
+    modes : (n, m) float64
+        B, one column per changed element (d l_e / d z, dimensionless).
+    solved : (n, m) float64
+        K^-1 B.
+    delta : (m,) float64 [uN/um]
+        Change of each element's axial stiffness.
+    shift : (m,) float64 [uN]
+        Change of each element's force model at the current iterate.
+    """
+    u = direction - solved @ shift
+    capacitance = np.eye(len(delta)) + delta[:, None] * (modes.T @ solved)
+    return u - solved @ np.linalg.solve(capacitance, delta * (modes.T @ u))
 
 
 class EquilibriumSolver:
@@ -306,7 +356,7 @@ class EquilibriumSolver:
             residual[n] -= self.network.reference_volume * target
         return _Point(z, F, x, kin, stretch, law, force, stiffness, gradient, residual)
 
-    def _converged(self, p: _Point, n_free: int) -> tuple[bool, float]:
+    def _converged(self, p: _Point, n_free: int) -> tuple[bool, float, float]:
         n = 2 * self.n_inner
         g = p.residual[:n]
         force_norm = float(np.max(np.abs(g))) if n else 0.0
@@ -320,7 +370,7 @@ class EquilibriumSolver:
             stress = np.abs(p.residual[n:]) / V0
             P_scale = float(np.max(np.abs(p.gradient[n:].reshape(-1, 2).T @ self.border_reference))) / V0
             ok &= bool(np.all(stress <= self.config.rtol * P_scale + self.stress_tolerance_abs))
-        return ok, force_norm
+        return ok, force_norm, tolerance
 
     # -- tangent ------------------------------------------------------------------------------
     def _stiffness(self, force, stiffness, kin: Kinematics, clipped: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -357,16 +407,16 @@ class EquilibriumSolver:
         return sp.bmat([[K_II, coupling], [coupling.T, sp.csr_matrix(corner)]], format="csr")
 
     def _direction(
-        self, p: _Point, step: _Step, chord: Factorization | None, choice: _TangentChoice
-    ) -> tuple[np.ndarray, int, Factorization]:
-        """Newton direction, the number of factorizations it took and the factorization used.
+        self, p: _Point, step: _Step, chord: _Tangent | None, choice: _TangentChoice
+    ) -> tuple[np.ndarray, int, _Tangent]:
+        """Newton direction, the number of factorizations it took and the tangent used.
 
-        ``chord``: a factorization to reuse (a chord step, no factorization) if it gives a
+        ``chord``: a tangent to reuse (a chord step, no factorization) if it gives a
         descent direction. ``choice`` is updated: an indefinite exact tangent makes the next
         few iterations take the clipped one directly.
         """
         if chord is not None:
-            direction = chord.solve(-p.residual)
+            direction = chord.factorization.solve(-p.residual)
             if np.dot(direction, p.residual) < 0.0:
                 return direction, 0, chord
         factorizations = 0
@@ -378,11 +428,74 @@ class EquilibriumSolver:
             if not indefinite:
                 direction = fact.solve(-p.residual)
                 if np.dot(direction, p.residual) < 0.0:
-                    return direction, factorizations, fact
+                    return direction, factorizations, _Tangent(fact, p.stiffness, p.law.recruited, False, p.kin)
             choice.clipped_left = _CLIPPED_AFTER_INDEFINITE
         choice.clipped_left -= 1
         fact = self.linear.factorize(self._hessian(p, step, clipped=True))
-        return fact.solve(-p.residual), factorizations + 1, fact
+        tangent = _Tangent(fact, np.maximum(p.stiffness, 0.0), p.law.recruited, True, p.kin)
+        return fact.solve(-p.residual), factorizations + 1, tangent
+
+    def _element_modes(self, elements: np.ndarray, kin: Kinematics, step: _Step) -> np.ndarray:
+        """(n_unknowns, m) d l_e / d z of the given elements: -a at their first node, +a at
+        their second, border DOF mapped onto the free components by the step's modes."""
+        n = 2 * self.n_inner
+        columns = np.zeros((self.asm.n_dof, len(elements)))
+        a = kin.unit[elements]
+        nodes = self.network.element_nodes[elements]
+        m = np.arange(len(elements))
+        for k in range(2):
+            columns[2 * nodes[:, 0] + k, m] -= a[:, k]
+            columns[2 * nodes[:, 1] + k, m] += a[:, k]
+        return np.concatenate([columns[:n], step.modes @ columns[n:]])
+
+    def _across_kinks(
+        self, p: _Point, direction: np.ndarray, tangent: _Tangent, step: _Step
+    ) -> tuple[np.ndarray, _Point]:
+        """The Newton direction with the elements that cross the slack/taut kink linearized
+        on the side the full step puts them, and the full-step trial of the direction returned.
+
+        ``direction`` solved ``K dz = -r`` with ``tangent`` (the exact one, built at ``p``
+        or, for a chord step, at an earlier iterate q). An element whose recruitment at the trial z + dz
+        differs from q's enters the model with its force linearized about the trial,
+        T_e(l) ~ T_tr + k_tr (l - l_tr), instead of T_z + k_q (l - l_z): a change of rank
+        one per element (delta_e = k_tr - k_q along its d l / d z = b_e) and a shift
+        c_e = T_tr - T_z - k_tr (l_tr - l_z) of its force, so
+        (K + B diag(delta) B^T) d = -r - B c, solved with the same factorization
+        (:func:`low_rank_step`; b_e at the tangent's geometry, so K^-1 b_e is solved once per
+        tangent and element, and chord steps reuse it). Repeated from the new trial while the set of
+        crossing elements changes (at most :data:`_KINK_ROUNDS` rounds): a semismooth
+        Newton step whose active set is taken from its own full step. The corrected
+        direction is taken when its full step passes the line search's slope test with a
+        smaller residual than the plain full step's; else ``direction`` is returned.
+        """
+        plain = self._evaluate(p.z + direction, step, p)
+        trial, assumed = plain, np.zeros(0, dtype=np.int64)
+        for _ in range(_KINK_ROUNDS):
+            crossing = np.flatnonzero(trial.law.recruited != tangent.recruited)
+            if crossing.size == 0 or crossing.size > _KINK_MAX or np.array_equal(crossing, assumed):
+                break
+            assumed = crossing
+            k_model, k_tr = tangent.axial[crossing], trial.stiffness[crossing]
+            shift = trial.force[crossing] - p.force[crossing] - k_tr * (trial.kin.length - p.kin.length)[crossing]
+            new = [e for e in crossing.tolist() if e not in tangent.solved]
+            if new:
+                columns = self._element_modes(np.array(new), tangent.kin, step)
+                solved = tangent.factorization.solve(columns)
+                tangent.solved.update((e, (columns[:, j], solved[:, j])) for j, e in enumerate(new))
+            modes = np.column_stack([tangent.solved[e][0] for e in crossing.tolist()])
+            solved = np.column_stack([tangent.solved[e][1] for e in crossing.tolist()])
+            corrected = low_rank_step(direction, modes, solved, k_tr - k_model, shift)
+            if not np.dot(corrected, p.residual) < 0.0:
+                break
+            try:
+                trial = self._evaluate(p.z + corrected, step, p)
+            except InadmissibleState:
+                break
+            s0, s1 = float(np.dot(p.residual, corrected)), float(np.dot(trial.residual, corrected))
+            slope_ok = s1 <= 0.0 or abs(s1) <= SLOPE_RATIO * abs(s0)
+            if slope_ok and np.linalg.norm(step.weight * trial.residual) < np.linalg.norm(step.weight * plain.residual):
+                return corrected, trial
+        return direction, plain
 
     # -- one step -----------------------------------------------------------------------------
     def iteration_limit(self, n_free: int) -> int:
@@ -493,14 +606,14 @@ class EquilibriumSolver:
         history: list[float] = []
         factorizations = 0
         choice = _TangentChoice()
-        fact = None
+        tangent = None
         try:
             p = self._evaluate(np.concatenate([guess_inner.ravel(), guess_free]), step)
             for iteration in range(limit + 1):
-                ok, norm = self._converged(p, n_free)
-                # An iteration that cut the residual 1 / _CHORD_RATIO-fold lends its
-                # factorization to the next.
-                chord = fact if history and norm <= _CHORD_RATIO * history[-1] else None
+                ok, norm, tolerance = self._converged(p, n_free)
+                # An iteration whose residual ratio, repeated once, reaches the tolerance
+                # lends its factorization to the next.
+                chord = tangent if history and norm * norm <= tolerance * history[-1] else None
                 history.append(norm)
                 if ok:
                     n = 2 * self.n_inner
@@ -510,9 +623,17 @@ class EquilibriumSolver:
                     return StepResult(state, p.law, p.force, p.kin, iteration, factorizations, norm, history)
                 if iteration == limit:
                     break
-                direction, used, fact = self._direction(p, step, chord, choice)
+                direction, used, tangent = self._direction(p, step, chord, choice)
                 factorizations += used
-                p = line_search(p, direction, lambda z, near: self._evaluate(z, step, near), step.weight)
+                if tangent.clipped:  # buckling: the plain direction (its full step the first trial)
+                    full = self._evaluate(p.z + direction, step, p)
+                else:
+                    direction, full = self._across_kinks(p, direction, tangent, step)
+
+                def evaluate(z: np.ndarray, near: _Point, full: _Point = full) -> _Point:
+                    return full if np.array_equal(z, full.z) else self._evaluate(z, step, near)
+
+                p = line_search(p, direction, evaluate, step.weight)
         except StepNotConverged as failure:
             raise type(failure)(failure.reason, failure.kind, history=history, factorizations=factorizations) from None
         raise StepNotConverged(f"no convergence in {limit} iterations", history=history, factorizations=factorizations)
