@@ -62,7 +62,8 @@ def test_batched_solves_equal_the_per_point_solves_from_a_yielded_start(rve):
             assert np.abs(solved.inner[i] - result.state.inner).max() <= 1e-6 * network.size
             assert np.abs(solved.plastic_stretch[i] - result.state.plastic_stretch).max() <= 1e-9
             assert solved.local_error[i] == pytest.approx(error, rel=1e-6, abs=1e-12)
-            assert abs(int(solved.iterations[i]) - result.iterations) <= 2
+            # Iteration counts differ: the per-point solver also linearizes the elements that cross
+            # the slack/taut kink within a step, the batched one takes plain Newton steps.
         starts = [StepState(time, solved.inner[i], np.zeros(0), F[i], solved.plastic_stretch[i], solved.stress[i])
                   for i in range(k)]
     assert np.all(solved.yielded_fraction[1:4] > 0.1)  # the loads past the knee did yield
