@@ -326,6 +326,11 @@ class FiberConfig(_Section):
     """Rotational stiffness c of a fused crossing relative to a fiber joint of the same two
     elements (springs c E I / lbar), in (0, 1e4]; 1 (default): the weld as compliant as the
     fiber bent over one element, larger: a stiffer weld (docs/model.md section 3)."""
+    compression_limit: Annotated[float, Field(ge=0.0, le=0.9)] = 0.0
+    """Compression limit lambda_c of the fiber segments, in [0, 0.9]; 0 (default): none, the
+    paper's model. An element compressed below lambda_c times its deposited chord meets a
+    contact force A E_t (1 - lambda_c / lambda) that grows without bound as it shortens
+    (docs/model.md section 3); 0.5 keeps fused-crossing mats under lateral ``free`` solvable."""
 
     @model_validator(mode="after")
     def _check(self) -> FiberConfig:
@@ -639,6 +644,11 @@ class Config(_Section):
             raise ValueError(
                 'fiber.bending_modulus_MPa must be 0 with solver.kinematics = "affine" (bending '
                 "resists the non-affine motion of the nodes, which affine kinematics leaves out)"
+            )
+        if self.solver.kinematics == "affine" and self.fiber.compression_limit > 0.0:
+            raise ValueError(
+                'fiber.compression_limit must be 0 with solver.kinematics = "affine" (it stops '
+                "the non-affine collapse of short elements, which affine kinematics leaves out)"
             )
         return self
 

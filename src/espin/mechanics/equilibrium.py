@@ -32,6 +32,9 @@ V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
   next to an element of 1e-6 D the rounding of the positions alone exceeds the tolerance); so
   do the springs of fused crossings (``fiber.fused_crossing_fraction`` > 0,
   :mod:`espin.mechanics.crossings`), appended to them;
+* with a compression limit (``fiber.compression_limit`` > 0,
+  :mod:`espin.mechanics.compression_limit`), its contact force adds to the axial force of
+  each element compressed below it, and its stiffness to dT/dl;
 * when Newton fails, a continuation in the slack modulus before the driver cuts the step:
   the step is solved with E_b raised 100-fold (capped at E_t / 2), then 10-fold, then with
   the true E_b, each solve starting from the equilibrium of the one before. Slack and
@@ -59,6 +62,7 @@ from espin.core.errors import InadmissibleState, StepNotConverged
 from espin.geometry.network import Network
 from espin.mechanics.assembly import Kinematics, NetworkAssembler
 from espin.mechanics.bending import FiberJoints, fiber_joints
+from espin.mechanics.compression_limit import CompressionLimit
 from espin.mechanics.crossings import crossing_joints, with_crossings
 from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
 from espin.mechanics.line_search import line_search
@@ -215,6 +219,9 @@ class EquilibriumSolver:
         relative to a fiber joint's; phi > 0 (with
         ``bending_modulus_MPa`` > 0) adds their springs to the joints
         (:mod:`espin.mechanics.crossings`).
+    compression_limit
+        lambda_c of the elements' compression limit; 0: none
+        (:mod:`espin.mechanics.compression_limit`).
     """
 
     def __init__(
@@ -227,6 +234,7 @@ class EquilibriumSolver:
         fused_crossing_fraction: float = 0.0,
         crossing_seed: int = 0,
         crossing_stiffness_ratio: float = 1.0,
+        compression_limit: float = 0.0,
     ) -> None:
         self.network = network
         self.law = law
@@ -242,6 +250,7 @@ class EquilibriumSolver:
                     network, bending_modulus_MPa, fused_crossing_fraction, crossing_seed, crossing_stiffness_ratio
                 ),
             )
+        self.limit = CompressionLimit(compression_limit, law.taut_modulus) if compression_limit > 0 else None
         self.asm = NetworkAssembler(network, self.joints)
         self.l0 = network.element_length
         self.area = network.element_area
@@ -266,6 +275,7 @@ class EquilibriumSolver:
             config.fiber.fused_crossing_fraction,
             config.rve.seed,
             config.fiber.fused_crossing_stiffness_ratio,
+            config.fiber.compression_limit,
         )
 
     # -- evaluation ---------------------------------------------------------------------------
@@ -296,7 +306,7 @@ class EquilibriumSolver:
         law = self._law_update(
             step.law, stretch, step.start.plastic_stretch, step.dt, None if near is None else near.law.plastic_stretch
         )
-        force, stiffness = axial_force_and_stiffness(law, self.area, self.l0)
+        force, stiffness = self.element_forces(law, stretch)
         gradient = self.asm.gradient(force, kin)
         if self.joints is not None:
             gradient += self.joints.gradient(x, self.asm.n_dof)
@@ -305,6 +315,14 @@ class EquilibriumSolver:
             target, _ = step.lateral.nominal(float(np.vdot(F, step.directions[0])))
             residual[n] -= self.network.reference_volume * target
         return _Point(z, F, x, kin, stretch, law, force, stiffness, gradient, residual)
+
+    def element_forces(self, law: LawState, stretch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Axial force T [uN] and dT/dl [uN / um] of every element: the fiber law's, plus the
+        compression limit's contact where it is on."""
+        force, stiffness = axial_force_and_stiffness(law, self.area, self.l0)
+        if self.limit is None:
+            return force, stiffness
+        return self.limit.add(force, stiffness, stretch, self.area, self.l0)
 
     def _converged(self, p: _Point, n_free: int) -> tuple[bool, float]:
         n = 2 * self.n_inner
@@ -545,7 +563,7 @@ class EquilibriumSolver:
             Indexed [i, J, k, L].
         """
         kin = result.kinematics
-        _, stiffness = axial_force_and_stiffness(result.law, self.area, self.l0)
+        _, stiffness = self.element_forces(result.law, kin.length / self.l0)
         axial, transverse = self._stiffness(result.force, stiffness, kin, clipped=False)
         x = self.asm.positions(result.state.inner, result.state.F)
         K_II, K_IB, K_BB = self.asm.tangents(
