@@ -592,6 +592,12 @@ class SolverConfig(_Section):
     or 500 under mixed control (lateral free), where buckling chains need hundreds."""
     max_cuts: Annotated[int, Field(ge=0, le=60)] = 12
     """Times a load step may be halved before the solve fails, in [0, 60]."""
+    max_move_ratio: Annotated[float, Field(ge=0.0, le=1e6)] = 0.0
+    """Trust region of Newton's method: the largest non-affine move of any node per iteration,
+    in fiber diameters (a longer step is shortened along its direction), in [0, 1e6]; 0
+    (default): none. It changes the path of the iterations, not the equilibrium they reach;
+    0.5 keeps Newton from wandering through the floppy states of lateral ``free``
+    (docs/model.md section 4)."""
     time_rtol: Annotated[float, Field(ge=1e-8, lt=1.0)] | Literal["off"] = 1e-3
     """Local error of the plastic update per time step, relative to the fiber stresses, in
     [1e-8, 1): load steps are split into as many time steps as it takes (docs/model.md

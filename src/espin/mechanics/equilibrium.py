@@ -35,6 +35,12 @@ V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
 * with a compression limit (``fiber.compression_limit`` > 0,
   :mod:`espin.mechanics.compression_limit`), its contact force adds to the axial force of
   each element compressed below it, and its stiffness to dT/dl;
+* with a trust region (``solver.max_move_ratio`` = m > 0), a Newton direction that moves any
+  inner node by more than m D (D the mean fiber diameter) beyond the affine motion of the
+  free components of F is shortened to that along its direction (before the line search).
+  Where a floppy state has near-null directions (lateral ``free``: buckling chains, folding
+  joints), the full Newton step can throw nodes tens of micrometres, and Newton then wanders;
+  the shortened step costs iterations, never the solution (the residual is the true one);
 * when Newton fails, a continuation in the slack modulus before the driver cuts the step:
   the step is solved with E_b raised 100-fold (capped at E_t / 2), then 10-fold, then with
   the true E_b, each solve starting from the equilibrium of the one before. Slack and
@@ -251,6 +257,7 @@ class EquilibriumSolver:
                 ),
             )
         self.limit = CompressionLimit(compression_limit, law.taut_modulus) if compression_limit > 0 else None
+        self.max_move = config.max_move_ratio * float(np.mean(network.element_diameter))  # 0: no trust region
         self.asm = NetworkAssembler(network, self.joints)
         self.l0 = network.element_length
         self.area = network.element_area
@@ -530,10 +537,20 @@ class EquilibriumSolver:
                     break
                 direction, used, fact = self._direction(p, step, chord, choice)
                 factorizations += used
+                if self.max_move > 0:
+                    direction = self._trust_region(direction, step)
                 p = line_search(p, direction, lambda z, near: self._evaluate(z, step, near), step.weight)
         except StepNotConverged as failure:
             raise type(failure)(failure.reason, failure.kind, history=history, factorizations=factorizations) from None
         raise StepNotConverged(f"no convergence in {limit} iterations", history=history, factorizations=factorizations)
+
+    def _trust_region(self, direction: np.ndarray, step: _Step) -> np.ndarray:
+        """``direction`` shortened so that no inner node moves more than ``max_move`` [um]
+        beyond the affine motion of its free components of F (module docstring)."""
+        n = 2 * self.n_inner
+        affine = self.asm.reference[: self.n_inner] @ np.tensordot(direction[n:], step.directions, axes=1).T
+        move = float(np.max(np.abs(direction[:n].reshape(-1, 2) - affine), initial=0.0))
+        return direction * (self.max_move / move) if move > self.max_move else direction
 
     def time_error(self, start: StepState, result: StepResult) -> float:
         """Relative local time error of the step from ``start`` to ``result``
