@@ -107,3 +107,26 @@ def test_the_limit_makes_a_collapse_solvable_and_its_force_is_in_P():
     change = nominal_stress(net, moved.force, moved.kinematics, solver.joints,
                             asm.positions(moved.state.inner, F + dF)) - P
     assert np.allclose(change, np.einsum("iJkL,kL->iJ", A, dF), rtol=1e-3, atol=1e-3 * np.abs(change).max())
+
+
+@pytest.mark.slow
+def test_the_trust_region_changes_the_path_not_the_equilibrium():
+    """solver.max_move_ratio shortens Newton steps (more iterations at a tight cap) but the
+    equilibrium is the same: lateral fixed (unique), P within the solver's tolerance."""
+    kw = dict(rve__size_ratio=30, rve__layers=2, loading__max_strain=0.03, loading__steps=2)
+    free = espin.simulate("plla", **kw)
+    capped = espin.simulate("plla", solver__max_move_ratio=1e-3, **kw)
+    assert capped.iterations.sum() > free.iterations.sum()
+    assert np.allclose(capped.P, free.P, rtol=1e-6, atol=1e-6 * np.abs(free.P).max())
+
+
+def test_the_bonded_preset():
+    c = load_config("plla-bonded")
+    plla = load_config("plla")
+    f = c.fiber
+    assert (f.bending_modulus_MPa, f.fused_crossing_fraction, f.fused_crossing_stiffness_ratio) == (3000, 1, 4)
+    assert f.compression_limit == 0.5 and c.solver.max_move_ratio == 0.5 and c.loading.lateral == "free"
+    # the rest is the paper's mat
+    assert c.rve == plla.rve and c.targets == plla.targets
+    assert f.model_copy(update={"bending_modulus_MPa": 0.0, "fused_crossing_fraction": 0.0,
+                                "fused_crossing_stiffness_ratio": 1.0, "compression_limit": 0.0}) == plla.fiber

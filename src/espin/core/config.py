@@ -60,7 +60,7 @@ __all__ = [
     "referenced_files",
 ]
 
-PRESETS = ("plla",)
+PRESETS = ("plla", "plla-bonded")
 
 
 MAX_SEED = 2**63 - 1
