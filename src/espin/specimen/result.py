@@ -295,7 +295,10 @@ class SpecimenResult:
         plot_force(self.steps, folder / "force.png", title)
         last = self.steps[-1]
         fields = element_fields(self.membrane, last)
-        where = f"{title}: grip strain {100 * last.grip_strain:.3g} %"
+        where = (
+            f"{title}: grip strain {100 * last.grip_strain:.3g} %, gauge {100 * last.gauge_strain:.3g} % "
+            f"along, {100 * last.gauge_transverse_strain:.3g} % across"
+        )
         dofs = tuple(self.membrane.basis.nodal_dofs)
         plot_deformed(self.membrane.mesh, last.u, dofs, fields["P11"], "P11", folder / "specimen.png", where)
         if "yielded_fraction" in fields:
