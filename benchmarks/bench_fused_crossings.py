@@ -5,6 +5,7 @@ Run:  python benchmarks/bench_fused_crossings.py SIZE_RATIO LAYERS MAX_STRAIN ST
 e.g.  nice -n 10 timeout 240 python benchmarks/bench_fused_crossings.py 60 3 0.10 20 free \
           '{"fiber__bending_modulus_MPa": 3000.0, "fiber__fused_crossing_fraction": 1.0,
             "fiber__fused_crossing_stiffness_ratio": 4.0}'
+      (the plla-bonded values add "fiber__compression_limit": 0.5, "solver__max_move_ratio": 0.5)
 
 A plla RVE (seed 1) of L/D = SIZE_RATIO and LAYERS layers, uniaxial to MAX_STRAIN in STEPS
 reported steps, lateral ``free`` or ``fixed``, with the given config overrides (JSON, espin's

@@ -79,6 +79,8 @@ def test_patch_test_homogeneous_strip(grips, lateral):
     assert last.force_N == pytest.approx(expected * 5.0 * T, rel=1e-9)
     assert last.gauge_strain == pytest.approx(0.3, rel=1e-9)
     assert last.gauge_stress_MPa == pytest.approx(expected, rel=1e-9)
+    # homogeneous: the transverse extensometer reads the points' lateral strain
+    assert last.gauge_transverse_strain == pytest.approx(last.F[0, 1, 1] - 1.0, abs=1e-10)
 
 
 def test_small_strain_limit_is_the_uniaxial_modulus():
@@ -143,7 +145,7 @@ def test_cli_runs_a_closed_form_dogbone_and_keeps_its_folder(tmp_path):
     assert "SpecimenResult(" not in done.output  # a summary for people, not a Python repr
     assert re.search(r"^grip force +\d", done.output, flags=re.M), done.output
     table = np.loadtxt(out / "force_displacement.csv", delimiter=",", skiprows=1)
-    assert table.shape == (3, 10) and table[-1, 4] > table[1, 4] > 0.0
+    assert table.shape == (3, 11) and table[-1, 4] > table[1, 4] > 0.0
     # the gauge section (4 mm wide) strains more than the grips' 10 %: the wide ends barely stretch
     assert table[-1, 5] > 0.11
     again = CliRunner().invoke(app, args)
@@ -232,3 +234,18 @@ def test_lateral_fixed_holds_the_sides_but_not_the_notch():
     sides = np.flatnonzero(np.isclose(np.abs(mesh.p[1]), 5.0))
     assert np.abs(u_y[sides]).max() == 0.0
     assert np.abs(u_y[notch]).max() > 1e-4  # the notch root moves
+    # the transverse extensometer spans the net section at the notch, which contracts
+    assert last.gauge_transverse_strain < -1e-4
+
+
+def test_the_specimen_holds_its_sides_free_with_fused_crossings(monkeypatch):
+    """Default sides: free for a mat with fused crossings (plla-bonded), fixed for the paper's."""
+    import espin.specimen as specimen_module
+
+    seen = []
+    monkeypatch.setattr(specimen_module, "_run", lambda geometry, program, config, rve, settings, *a, **k:
+                        seen.append(settings.lateral))
+    for source in ("plla-bonded", "plla"):
+        specimen_module.specimen(source, "strip", model="surrogate", elements_across=1)
+    specimen_module.specimen("plla-bonded", "strip", model="surrogate", elements_across=1, lateral="fixed")
+    assert seen == ["free", "fixed", "fixed"]

@@ -63,12 +63,14 @@ def specimen_command(
     steps: Annotated[int, typer.Option(help="Recorded steps.")] = 20,
     grips: Annotated[str, typer.Option(help="clamped (no lateral motion at the grips) or sliding.")] = "clamped",
     lateral: Annotated[
-        str,
+        Optional[str],
         typer.Option(
             help="fixed (the outer sides keep their width; holes stay free) or free (traction-free sides: "
-            "in this 2-D fiber model almost no lateral stiffness, small strains only)."
+            "the paper's 2-D fiber model has almost no lateral stiffness, small strains only; a mat with "
+            "fused crossings, e.g. plla-bonded, holds its width). Default: free with fused crossings, "
+            "else fixed."
         ),
-    ] = "fixed",
+    ] = None,
     elements_across: Annotated[int, typer.Option(help="Elements across the narrowest width.")] = 4,
     rve_seeds: Annotated[str, typer.Option(help="shared (one RVE geometry) or per_point.")] = "shared",
     rtol: Annotated[float, typer.Option(help="Macro tolerance (the RVEs solve to 1e-3 of it).")] = 1e-6,

@@ -60,7 +60,7 @@ __all__ = [
     "referenced_files",
 ]
 
-PRESETS = ("plla",)
+PRESETS = ("plla", "plla-bonded")
 
 
 MAX_SEED = 2**63 - 1
@@ -326,6 +326,11 @@ class FiberConfig(_Section):
     """Rotational stiffness c of a fused crossing relative to a fiber joint of the same two
     elements (springs c E I / lbar), in (0, 1e4]; 1 (default): the weld as compliant as the
     fiber bent over one element, larger: a stiffer weld (docs/model.md section 3)."""
+    compression_limit: Annotated[float, Field(ge=0.0, le=0.9)] = 0.0
+    """Compression limit lambda_c of the fiber segments, in [0, 0.9]; 0 (default): none, the
+    paper's model. An element compressed below lambda_c times its deposited chord meets a
+    contact force A E_t (1 - lambda_c / lambda) that grows without bound as it shortens
+    (docs/model.md section 3); 0.5 keeps fused-crossing mats under lateral ``free`` solvable."""
 
     @model_validator(mode="after")
     def _check(self) -> FiberConfig:
@@ -587,6 +592,12 @@ class SolverConfig(_Section):
     or 500 under mixed control (lateral free), where buckling chains need hundreds."""
     max_cuts: Annotated[int, Field(ge=0, le=60)] = 12
     """Times a load step may be halved before the solve fails, in [0, 60]."""
+    max_move_ratio: Annotated[float, Field(ge=0.0, le=1e6)] = 0.0
+    """Trust region of Newton's method: the largest non-affine move of any node per iteration,
+    in fiber diameters (a longer step is shortened along its direction), in [0, 1e6]; 0
+    (default): none. It changes the path of the iterations, not the equilibrium they reach;
+    0.5 keeps Newton from wandering through the floppy states of lateral ``free``
+    (docs/model.md section 4)."""
     time_rtol: Annotated[float, Field(ge=1e-8, lt=1.0)] | Literal["off"] = 1e-3
     """Local error of the plastic update per time step, relative to the fiber stresses, in
     [1e-8, 1): load steps are split into as many time steps as it takes (docs/model.md
@@ -639,6 +650,11 @@ class Config(_Section):
             raise ValueError(
                 'fiber.bending_modulus_MPa must be 0 with solver.kinematics = "affine" (bending '
                 "resists the non-affine motion of the nodes, which affine kinematics leaves out)"
+            )
+        if self.solver.kinematics == "affine" and self.fiber.compression_limit > 0.0:
+            raise ValueError(
+                'fiber.compression_limit must be 0 with solver.kinematics = "affine" (it stops '
+                "the non-affine collapse of short elements, which affine kinematics leaves out)"
             )
         return self
 

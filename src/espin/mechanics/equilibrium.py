@@ -41,6 +41,15 @@ V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
   next to an element of 1e-6 D the rounding of the positions alone exceeds the tolerance); so
   do the springs of fused crossings (``fiber.fused_crossing_fraction`` > 0,
   :mod:`espin.mechanics.crossings`), appended to them;
+* with a compression limit (``fiber.compression_limit`` > 0,
+  :mod:`espin.mechanics.compression_limit`), its contact force adds to the axial force of
+  each element compressed below it, and its stiffness to dT/dl;
+* with a trust region (``solver.max_move_ratio`` = m > 0), a Newton direction that moves any
+  inner node by more than m D (D the mean fiber diameter) beyond the affine motion of the
+  free components of F is shortened to that along its direction (before the line search).
+  Where a floppy state has near-null directions (lateral ``free``: buckling chains, folding
+  joints), the full Newton step can throw nodes tens of micrometres, and Newton then wanders;
+  the shortened step costs iterations, never the solution (the residual is the true one);
 * when Newton fails, a continuation in the slack modulus before the driver cuts the step:
   the step is solved with E_b raised 100-fold (capped at E_t / 2), then 10-fold, then with
   the true E_b, each solve starting from the equilibrium of the one before. Slack and
@@ -68,6 +77,7 @@ from espin.core.errors import InadmissibleState, StepNotConverged
 from espin.geometry.network import Network
 from espin.mechanics.assembly import Kinematics, NetworkAssembler
 from espin.mechanics.bending import FiberJoints, fiber_joints
+from espin.mechanics.compression_limit import CompressionLimit
 from espin.mechanics.crossings import crossing_joints, with_crossings
 from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
 from espin.mechanics.line_search import SLOPE_RATIO, line_search
@@ -265,6 +275,9 @@ class EquilibriumSolver:
         relative to a fiber joint's; phi > 0 (with
         ``bending_modulus_MPa`` > 0) adds their springs to the joints
         (:mod:`espin.mechanics.crossings`).
+    compression_limit
+        lambda_c of the elements' compression limit; 0: none
+        (:mod:`espin.mechanics.compression_limit`).
     """
 
     def __init__(
@@ -277,6 +290,7 @@ class EquilibriumSolver:
         fused_crossing_fraction: float = 0.0,
         crossing_seed: int = 0,
         crossing_stiffness_ratio: float = 1.0,
+        compression_limit: float = 0.0,
     ) -> None:
         self.network = network
         self.law = law
@@ -292,6 +306,8 @@ class EquilibriumSolver:
                     network, bending_modulus_MPa, fused_crossing_fraction, crossing_seed, crossing_stiffness_ratio
                 ),
             )
+        self.limit = CompressionLimit(compression_limit, law.taut_modulus) if compression_limit > 0 else None
+        self.max_move = config.max_move_ratio * float(np.mean(network.element_diameter))  # 0: no trust region
         self.asm = NetworkAssembler(network, self.joints)
         self.l0 = network.element_length
         self.area = network.element_area
@@ -316,6 +332,7 @@ class EquilibriumSolver:
             config.fiber.fused_crossing_fraction,
             config.rve.seed,
             config.fiber.fused_crossing_stiffness_ratio,
+            config.fiber.compression_limit,
         )
 
     # -- evaluation ---------------------------------------------------------------------------
@@ -346,7 +363,7 @@ class EquilibriumSolver:
         law = self._law_update(
             step.law, stretch, step.start.plastic_stretch, step.dt, None if near is None else near.law.plastic_stretch
         )
-        force, stiffness = axial_force_and_stiffness(law, self.area, self.l0)
+        force, stiffness = self.element_forces(law, stretch)
         gradient = self.asm.gradient(force, kin)
         if self.joints is not None:
             gradient += self.joints.gradient(x, self.asm.n_dof)
@@ -355,6 +372,14 @@ class EquilibriumSolver:
             target, _ = step.lateral.nominal(float(np.vdot(F, step.directions[0])))
             residual[n] -= self.network.reference_volume * target
         return _Point(z, F, x, kin, stretch, law, force, stiffness, gradient, residual)
+
+    def element_forces(self, law: LawState, stretch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Axial force T [uN] and dT/dl [uN / um] of every element: the fiber law's, plus the
+        compression limit's contact where it is on."""
+        force, stiffness = axial_force_and_stiffness(law, self.area, self.l0)
+        if self.limit is None:
+            return force, stiffness
+        return self.limit.add(force, stiffness, stretch, self.area, self.l0)
 
     def _converged(self, p: _Point, n_free: int) -> tuple[bool, float, float]:
         n = 2 * self.n_inner
@@ -629,6 +654,10 @@ class EquilibriumSolver:
                     full = self._evaluate(p.z + direction, step, p)
                 else:
                     direction, full = self._across_kinks(p, direction, tangent, step)
+                if self.max_move > 0:
+                    bounded = self._trust_region(direction, step)
+                    if bounded is not direction:  # shortened: its own full step is the first trial
+                        direction, full = bounded, self._evaluate(p.z + bounded, step, p)
 
                 def evaluate(z: np.ndarray, near: _Point, full: _Point = full) -> _Point:
                     return full if np.array_equal(z, full.z) else self._evaluate(z, step, near)
@@ -637,6 +666,14 @@ class EquilibriumSolver:
         except StepNotConverged as failure:
             raise type(failure)(failure.reason, failure.kind, history=history, factorizations=factorizations) from None
         raise StepNotConverged(f"no convergence in {limit} iterations", history=history, factorizations=factorizations)
+
+    def _trust_region(self, direction: np.ndarray, step: _Step) -> np.ndarray:
+        """``direction`` shortened so that no inner node moves more than ``max_move`` [um]
+        beyond the affine motion of its free components of F (module docstring)."""
+        n = 2 * self.n_inner
+        affine = self.asm.reference[: self.n_inner] @ np.tensordot(direction[n:], step.directions, axes=1).T
+        move = float(np.max(np.abs(direction[:n].reshape(-1, 2) - affine), initial=0.0))
+        return direction * (self.max_move / move) if move > self.max_move else direction
 
     def time_error(self, start: StepState, result: StepResult) -> float:
         """Relative local time error of the step from ``start`` to ``result``
@@ -666,7 +703,7 @@ class EquilibriumSolver:
             Indexed [i, J, k, L].
         """
         kin = result.kinematics
-        _, stiffness = axial_force_and_stiffness(result.law, self.area, self.l0)
+        _, stiffness = self.element_forces(result.law, kin.length / self.l0)
         axial, transverse = self._stiffness(result.force, stiffness, kin, clipped=False)
         x = self.asm.positions(result.state.inner, result.state.F)
         K_II, K_IB, K_BB = self.asm.tangents(

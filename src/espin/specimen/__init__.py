@@ -133,7 +133,7 @@ def specimen(
     max_strain: float = 0.2,
     steps: int = 20,
     grips: str = "clamped",
-    lateral: str = "fixed",
+    lateral: str | None = None,
     elements_across: int = 4,
     shape_options: Mapping[str, float] | None = None,
     rve_seeds: str = "shared",
@@ -181,9 +181,12 @@ def specimen(
         ``"clamped"`` (u_y = 0 at the grips) or ``"sliding"``.
     lateral
         ``"fixed"``: the outer sides keep their width (u_y = 0; holes and notches stay free);
-        ``"free"``: traction-free sides, the real test. In this 2-D fiber model a free edge has
-        almost no lateral stiffness (docs/mechanics.md, "Compression-dominated states"), so
-        ``"free"`` with ``fe2`` is for small strains and small meshes.
+        ``"free"``: traction-free sides, the real test. In the paper's 2-D fiber model a free
+        edge has almost no lateral stiffness (docs/mechanics.md, "Compression-dominated
+        states"), so ``"free"`` with ``fe2`` is for small strains and small meshes; with fused
+        crossings (``fiber.fused_crossing_fraction`` > 0, the ``plla-bonded`` preset) the mat
+        holds its width (docs/mechanics.md, "Fused crossings"). Default (None): ``"free"`` with
+        fused crossings, else ``"fixed"``.
     elements_across
         Elements across the narrowest width (the mesh refinement of a built-in shape).
     rve_seeds
@@ -241,7 +244,7 @@ def specimen(
     from espin.core.progress import with_progress
 
     settings = SpecimenSettings(
-        model, thickness_mm, grips, lateral, rve_seeds, rtol, modulus_MPa, poisson_ratio, surrogate_reach
+        model, thickness_mm, grips, lateral or "fixed", rve_seeds, rtol, modulus_MPa, poisson_ratio, surrogate_reach
     )
     on_step = with_progress(
         on_step,
@@ -263,6 +266,8 @@ def specimen(
                 "TOML file or a Config, not an RVE"
             )
         program = GripProgram(max_strain, steps, config.loading.strain_rate_per_s)
+        if lateral is None and config.fiber.fused_crossing_fraction > 0:  # a mat that holds its width
+            settings = dataclasses.replace(settings, lateral="free")
     _check_memory(geometry, model, config, rve)
     samples = None
     if surrogate_from is not None:

@@ -48,9 +48,16 @@ _MAX_ITERATIONS = 200
 
 
 def batchable(config: Config) -> bool:
-    """Whether the RVEs of ``config`` can be solved in a batch: no fiber bending (its joints'
-    springs are not batched; those points take the per-point solver)."""
-    return config.fiber.bending_modulus_MPa == 0.0
+    """Whether the RVEs of ``config`` can be solved in a batch: the paper's network (fiber
+    bending, fused crossings, the compression limit and the trust region are not batched:
+    those points take the per-point solver)."""
+    fiber, solver = config.fiber, config.solver
+    return (
+        fiber.bending_modulus_MPa == 0.0
+        and fiber.fused_crossing_fraction == 0.0
+        and fiber.compression_limit == 0.0
+        and solver.max_move_ratio == 0.0
+    )
 
 
 @dataclass(frozen=True, eq=False)

@@ -4,7 +4,8 @@ Files of a results folder (units mm, N, MPa, s):
 
 - ``force_displacement.csv``: one row per recorded step (appended as the run goes): time,
   grip strain and displacement, grip force, the gauge section's engineering strain and stress,
-  macro Newton iterations, cuts and time steps;
+  its transverse strain (across the section midway between the grips; negative as it
+  contracts), macro Newton iterations, cuts and time steps;
 - ``fields.pvd`` + ``vtk/step_NNNN.vtu``: the mesh with point data ``displacement_mm`` (for
   ParaView's Warp By Vector) and cell data (element means of the quadrature points):
   Green-Lagrange strain ``E11``, ``E22``, ``E12``, nominal stress ``P11``, ``P12``, ``P21``,
@@ -78,6 +79,7 @@ CURVE_COLUMNS = (
     "force_N",
     "gauge_strain",
     "gauge_stress_MPa",
+    "gauge_transverse_strain",
     "iterations",
     "cuts",
     "substeps",
@@ -99,6 +101,7 @@ def _row(step: SpecimenStep) -> str:
         step.force_N,
         step.gauge_strain,
         step.gauge_stress_MPa,
+        step.gauge_transverse_strain,
         step.iterations,
         step.cuts,
         step.substeps,
@@ -292,7 +295,10 @@ class SpecimenResult:
         plot_force(self.steps, folder / "force.png", title)
         last = self.steps[-1]
         fields = element_fields(self.membrane, last)
-        where = f"{title}: grip strain {100 * last.grip_strain:.3g} %"
+        where = (
+            f"{title}: grip strain {100 * last.grip_strain:.3g} %, gauge {100 * last.gauge_strain:.3g} % "
+            f"along, {100 * last.gauge_transverse_strain:.3g} % across"
+        )
         dofs = tuple(self.membrane.basis.nodal_dofs)
         plot_deformed(self.membrane.mesh, last.u, dofs, fields["P11"], "P11", folder / "specimen.png", where)
         if "yielded_fraction" in fields:

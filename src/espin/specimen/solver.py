@@ -38,6 +38,7 @@ from espin.mechanics.linear_solvers import make_linear_solver
 from espin.mechanics.march import MarchFailed, ReportTally, StepPolicy, march
 from espin.specimen.materials import PointMaterial
 from espin.specimen.membrane import Membrane
+from espin.specimen.mesh_checks import inside_cells
 from espin.specimen.shapes import Specimen
 
 log = logging.getLogger(__name__)
@@ -99,6 +100,10 @@ class SpecimenStep:
         Engineering strain of the gauge length (extensometer on the centre line).
     gauge_stress_MPa : float
         Force / (gauge width x thickness) [MPa].
+    gauge_transverse_strain : float
+        Engineering strain across the gauge section, midway between the grips (a transverse
+        extensometer over the material's width there: the gauge width, or the net width at a
+        notch); negative when the specimen contracts.
     iterations, cuts, substeps : int
         Macro Newton iterations of the step (all attempts), its halvings and the time steps it took.
     residual_history : list of float [N]
@@ -118,6 +123,7 @@ class SpecimenStep:
     force_N: float
     gauge_strain: float
     gauge_stress_MPa: float
+    gauge_transverse_strain: float
     iterations: int
     cuts: int
     substeps: int
@@ -200,8 +206,15 @@ class _Constraints:
         return np.where(self.is_moving, strain * self.length, 0.0)
 
 
+_TRANSVERSE_TRIALS = 200
+"""Half-widths tried for the transverse extensometer, from W_g / 2 down toward 0."""
+
+
 class _Extensometer:
-    """u_x at the gauge marks on the centre line: (u(x_c + L_g / 2) - u(x_c - L_g / 2)) / L_g."""
+    """u_x at the gauge marks on the centre line: (u(x_c + L_g / 2) - u(x_c - L_g / 2)) / L_g;
+    and across: u_y at marks y_c +- h at x_c, h the largest half-width up to W_g / 2 whose
+    marks both lie on the material (the net section at a notch),
+    (u_y(y_c + h) - u_y(y_c - h)) / (2 h); NaN for a mesh with no material across x_c."""
 
     def __init__(self, membrane: Membrane, specimen: Specimen) -> None:
         mesh = specimen.mesh
@@ -211,11 +224,27 @@ class _Extensometer:
         y = 0.5 * (mesh.p[1].min() + mesh.p[1].max())
         self.probes = scalar.probes(np.array([[centre - half, centre + half], [y, y]]))
         self.dofs_x = membrane.basis.nodal_dofs[0]
+        self.dofs_y = membrane.basis.nodal_dofs[1]
         self.length = specimen.gauge_length_mm
+        heights = 0.5 * specimen.gauge_width_mm * np.linspace(1.0, 0.0, _TRANSVERSE_TRIALS, endpoint=False)
+        marks = np.concatenate(
+            [np.column_stack([np.full_like(heights, centre), y + sign * heights]) for sign in (1, -1)]
+        )
+        on = inside_cells(mesh.p, mesh.t, marks).reshape(2, -1).all(axis=0)
+        self.height = float(heights[np.argmax(on)])
+        self.across = (
+            scalar.probes(np.array([[centre, centre], [y - self.height, y + self.height]])) if on.any() else None
+        )
 
     def strain(self, u: np.ndarray) -> float:
         ends = self.probes @ u[self.dofs_x]
         return float((ends[1] - ends[0]) / self.length)
+
+    def transverse_strain(self, u: np.ndarray) -> float:
+        if self.across is None:
+            return float("nan")
+        ends = self.across @ u[self.dofs_y]
+        return float((ends[1] - ends[0]) / (2.0 * self.height))
 
 
 @dataclass(frozen=True, eq=False)
@@ -408,6 +437,7 @@ def run_specimen(
             force,
             gauge.strain(state.u),
             force / area,
+            gauge.transverse_strain(state.u),
             *counts,
             history,
             state.u.copy(),
