@@ -249,3 +249,15 @@ def test_the_specimen_holds_its_sides_free_with_fused_crossings(monkeypatch):
         specimen_module.specimen(source, "strip", model="surrogate", elements_across=1)
     specimen_module.specimen("plla-bonded", "strip", model="surrogate", elements_across=1, lateral="fixed")
     assert seen == ["free", "fixed", "fixed"]
+
+
+def test_a_singular_surrogate_tangent_cuts_the_step_instead_of_crashing():
+    import scipy.sparse as sp
+
+    from espin.core.errors import StepFailureKind
+    from espin.specimen.solver import _MacroSolves
+
+    singular = sp.csr_matrix(np.array([[1.0, 1.0], [1.0, 1.0]]))  # SuperLU's LU: exactly singular
+    with pytest.raises(StepNotConverged) as failure:
+        _MacroSolves(symmetric=False).factorize(singular)(np.ones(2))
+    assert failure.value.kind == StepFailureKind.SINGULAR

@@ -291,7 +291,12 @@ class _MacroSolves:
             return np.copy
         if self.linear is not None:
             return self.linear.factorize(K.tocsr()).solve
-        return spla.splu(K.tocsc()).solve
+        try:
+            return spla.splu(K.tocsc()).solve
+        except RuntimeError as exc:  # "Factor is exactly singular": the step is cut
+            raise StepNotConverged(
+                f"LU factorization of the {K.shape[0]}-unknown macro tangent failed: {exc}", StepFailureKind.SINGULAR
+            ) from exc
 
 
 class _GripSteps:
