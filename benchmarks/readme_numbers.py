@@ -44,10 +44,11 @@ COMMANDS: dict[str, tuple[list[str], str | None]] = {
     "specimen holed surrogate": (["espin", "specimen", "plla", "--model", "surrogate", "--shape", "holed_strip",
                                   "--workers", "2", "-o", "holed"], r"(?m)^grip force.*$"),
     "specimen dogbone from samples": (["espin", "specimen", "plla", "--model", "surrogate", "--shape", "dogbone",
-                                       "--surrogate-from", "holed/surrogate_samples.csv", "-o", "dog_sur"],
+                                       "--surrogate-from", "holed/surrogate_samples.csv", "--elements-across", "2",
+                                       "-o", "dog_sur"],
                                       r"(?m)^grip force.*$"),
     "specimen dogbone FE^2": (["espin", "specimen", "plla", "--shape", "dogbone", "--elements-across", "2",
-                               "--workers", "2", "-o", "dogbone"], r"(?m)^(quadrature points|grip force).*$"),
+                               "--workers", "2", "-o", "dogbone"], r"(?m)^\s*(?:quadrature points|grip force).*$"),
     "docs quick build": (["mkdocs", "build", "--strict", "-d", "SCRATCH/site"], None),  # from the clone, as the README
 }
 LONG = {"specimen dogbone FE^2", "docs quick build"}

@@ -95,6 +95,11 @@ RUNS: dict[str, Run | Skip] = {
             folders={"my_mat_test": "simulate"}),
     "espin generate --set 'rve.orientation={von_mises={mean_deg=0, kappa=2}}' --set rve.max_deviation_deg=20 -o aligned_rve":
         Run(outputs=_in("aligned_rve", RVE_FILES), folders={"aligned_rve": "generate"}),
+    "espin simulate plla-bonded --set rve.size_ratio=100 --set rve.layers=5 --max-strain 0.1 --steps 10 "
+    "-o bonded_free":  # 15 s as written
+        Run("espin simulate plla-bonded --set rve.size_ratio=100 --set rve.layers=5 --max-strain 0.1 --steps 10 "
+            f"-o bonded_free --max-strain 0.02 --steps 2 {SMALL}",
+            outputs=("bonded_free/curve.csv",), folders={"bonded_free": "simulate"}),
     # From SEM images to a virtual mat
     "espin example-data":
         Run(outputs=("mat.tif", "spec1.csv", "spec2.csv", "spec3.csv")),
@@ -146,9 +151,10 @@ RUNS: dict[str, Run | Skip] = {
             outputs=_in("holed", ("force_displacement.csv", "force.png", "specimen.png", "fields.pvd",
                                   "surrogate_samples.csv")),
             folders={"holed": "specimen"}),
-    "espin specimen plla --model surrogate --shape dogbone --surrogate-from holed/surrogate_samples.csv -o dog_sur":
+    "espin specimen plla --model surrogate --shape dogbone --surrogate-from holed/surrogate_samples.csv "
+    "--elements-across 2 -o dog_sur":
         Run("espin specimen plla --model surrogate --shape dogbone --surrogate-from holed/surrogate_samples.csv "
-            f"-o dog_sur --max-strain 0.02 --steps 2 {TINY}",
+            f"--elements-across 2 -o dog_sur --max-strain 0.02 --steps 2 {TINY}",
             outputs=_in("dog_sur", ("force_displacement.csv", "force.png", "specimen.png", "surrogate_samples.csv")),
             folders={"dog_sur": "specimen"}),
     "espin specimen plla --shape dogbone --elements-across 2 --workers 2 -o dogbone":
