@@ -382,3 +382,20 @@ def test_factor_size_follows_a_new_pattern(solver: ls.LinearSolver) -> None:
     with make_linear_solver(solver.name) as fresh:
         assert after_change == fresh.factorize(large).nnz_factor
     assert after_change > solver.factorize(small).nnz_factor
+
+
+def test_a_curve_does_not_depend_on_the_mkl_thread_count(tmp_path):
+    """Same inputs, same curve on 1 or 2 MKL threads (PARDISO's factorizations included)."""
+    import espin
+    from threadpoolctl import threadpool_limits
+
+    def curve(name: str) -> str:
+        espin.simulate("plla", tmp_path / name, loading__steps=40, loading__max_strain=0.03, solver__time_rtol="off",
+                       output__figures=False, rve__size_ratio=30, rve__layers=2)
+        return (tmp_path / name / "curve.csv").read_text()
+
+    with threadpool_limits(limits=2):
+        two = curve("two")
+    with threadpool_limits(limits=1):
+        one = curve("one")
+    assert one == two
