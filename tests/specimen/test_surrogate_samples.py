@@ -192,3 +192,15 @@ def test_the_command_line_reports_the_build_off_a_terminal_and_resumes(tmp_path,
     again = CliRunner().invoke(app, argv)
     assert again.exit_code == 0, again.output
     assert "4 finished paths reused" in again.output and "RVE paths done" not in again.output
+
+
+def test_a_nearly_crushed_point_is_inadmissible_not_a_nan(built):
+    """det F > 0 but so small that a difference probe of dS/dE inverts the point: the step must be
+    cut (InadmissibleState), not evaluated through the square root of a negative det C."""
+    from espin.core.errors import InadmissibleState
+
+    F = np.array([np.eye(2), np.diag([1.0, 1e-4])])
+    with np.errstate(invalid="raise"), pytest.raises(InadmissibleState, match="det F near 0 at 1 point"):
+        built.stress(F, np.tile(np.eye(2), (2, 1, 1)), 1.0)
+    P, _, _ = built.stress(F[:1], np.eye(2)[None], 1.0)
+    assert np.all(np.isfinite(P))

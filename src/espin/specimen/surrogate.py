@@ -222,6 +222,9 @@ class Surrogate:
         if U_start is None or dt <= 0.0:
             speed = np.ones(len(E_all))
         else:
+            crushed = np.linalg.det(np.eye(2) + 2.0 * _symmetric(E_all)) <= 0.0
+            if np.any(crushed):  # J so small that a probe of dS/dE inverts the point
+                raise InadmissibleState(f"det F near 0 at {len(np.unique(np.nonzero(crushed)[0] % n))} point(s)")
             change = _stretch(E_all) - np.concatenate([U_start] * 7)
             speed = np.abs(change).max(axis=(1, 2)) / (dt * self.strain_rate_per_s)
         values = self._values(E_all, np.maximum(speed, 1e-12)).reshape(7, n, -1)
