@@ -106,6 +106,20 @@ def test_a_step_over_the_time_error_is_rejected_and_redone_smaller():
     assert len(accepted) == tallies[0].substeps and problem.commits[-1] == 1.0
 
 
+def test_a_step_whose_foreseen_error_is_over_the_tolerance_is_rejected_unsolved_with_the_same_steps():
+    solved, foreseeing = _Fake(error_per_s2=1.0, iterations=1), _Fake(error_per_s2=1.0, iterations=1)
+    reports = [1.0, 1.5, 3.0]
+    plain = _run(solved, reports, time_rtol=0.01)
+    tallies = []
+    march(foreseeing, reports, StepPolicy(time_rtol=0.01), on_report=tallies.append,
+          estimate=lambda start, end: foreseeing.error_per_s2 * (end - start) ** 2)
+    assert foreseeing.commits == solved.commits  # the same time steps
+    assert foreseeing.attempts == [(a, b) for a, b in solved.attempts if (b - a) ** 2 <= 0.01 + 1e-15]
+    assert foreseeing.rollbacks == 0 < solved.rollbacks  # nothing solved was thrown away
+    assert [t.rejected for t in tallies] == [t.rejected for t in plain] and sum(t.rejected for t in tallies) > 0
+    assert sum(t.iterations for t in tallies) == len(foreseeing.commits) < sum(t.iterations for t in plain)
+
+
 def test_the_budget_and_the_smallest_step_stop_a_flow_too_fast_to_follow():
     with pytest.raises(MarchFailed, match="more than 20 time steps") as stopped:
         _run(_Fake(error_per_s2=1e4), [1.0], time_rtol=1e-3, budget=20, smallest=0.0)

@@ -363,12 +363,25 @@ class _ProgramSteps:
         )
         self.previous: StepState | None = None  # the state before, for the predictor
 
-    def attempt(self, start: float, end: float) -> StepResult:
+    def _guess(self, end: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The prescribed F at ``end`` and the predictor's inner positions and free values."""
         F_next = self.program.prescribed_F(end)
         guess_inner, guess_free = _predict(
             self.state, self.previous, end, F_next, self.directions, self.solver.asm, self.solver.n_inner
         )
+        return F_next, guess_inner, guess_free
+
+    def attempt(self, start: float, end: float) -> StepResult:
+        F_next, guess_inner, guess_free = self._guess(end)
         return self.solver.solve(self.state, end, F_next, self.directions, guess_inner, guess_free, self.lateral)
+
+    def estimate(self, start: float, end: float) -> float:
+        """The step's local time error foreseen at its predictor (the march's ``estimate``;
+        :meth:`~espin.mechanics.equilibrium.EquilibriumSolver.predicted_error`)."""
+        F_next, guess_inner, guess_free = self._guess(end)
+        return self.solver.predicted_error(
+            self.state, end, F_next, self.directions, guess_inner, guess_free, self.lateral
+        )
 
     def error(self, trial: StepResult) -> float:
         return self.solver.time_error(self.state, trial)
@@ -466,7 +479,8 @@ def run_program(
 
     policy = StepPolicy.from_solver(config.solver)
     try:
-        march(steps, program.time[1:], policy, on_report=reached)
+        estimate = steps.estimate if isinstance(steps, _ProgramSteps) else None
+        march(steps, program.time[1:], policy, on_report=reached, estimate=estimate)
     except MarchFailed as stopped:
         raise fail(stopped.failure, stopped.tally.index, stopped.time, stopped.tally.cuts) from None
     return result_from_records(config, program, records)

@@ -318,6 +318,7 @@ class EquilibriumSolver:
         self.force_tolerance_abs = config.atol * law.taut_modulus * float(np.mean(self.area))
         fiber_fraction = float(np.sum(self.area * network.element_contour_length)) / network.reference_volume
         self.stress_tolerance_abs = config.atol * law.taut_modulus * fiber_fraction
+        self._guess: tuple[_Step, _Point] | None = None  # kept by predicted_error for solve
 
     @classmethod
     def from_config(cls, network: Network, config: Config, linear_solver: LinearSolver) -> EquilibriumSolver:
@@ -546,22 +547,79 @@ class EquilibriumSolver:
             When Newton does not converge within the iteration limit, the line search
             cannot lower the potential, the state becomes non-finite or the tangent singular.
         """
-        # With a backend that does not use OpenBLAS, OpenBLAS (numpy's vector products here
-        # gain nothing from threads) runs on one thread: its threads spin after each call
-        # and took a core from the next factorization (PARDISO at plla size: 0.098 s per
-        # factorization in the run, 0.067 s without; SuperLU needs its threads).
-        openblas = (
-            nullcontext()
-            if getattr(self.linear, "uses_openblas", True)
-            else ThreadpoolController().select(internal_api="openblas").limit(limits=1)
-        )
-        with openblas:
+        with self._openblas_limit():
             try:
                 return self._solve(start, time, F_prescribed, directions, guess_inner, guess_free, self.law, lateral)
             except StepNotConverged as failure:
                 return self._solve_by_continuation(
                     failure, start, time, F_prescribed, directions, guess_inner, guess_free, lateral
                 )
+
+    def _openblas_limit(self):
+        """OpenBLAS on one thread with a backend that does not use it, else no limit.
+
+        numpy's vector products here gain nothing from OpenBLAS's threads, and they spin after
+        each call and took a core from the next factorization (PARDISO at plla size: 0.098 s
+        per factorization in the run, 0.067 s without; SuperLU needs its threads).
+        """
+        if getattr(self.linear, "uses_openblas", True):
+            return nullcontext()
+        return ThreadpoolController().select(internal_api="openblas").limit(limits=1)
+
+    def predicted_error(
+        self,
+        start: StepState,
+        time: float,
+        F_prescribed: np.ndarray,
+        directions: np.ndarray,
+        guess_inner: np.ndarray,
+        guess_free: np.ndarray,
+        lateral: LateralStress | None = None,
+    ) -> float:
+        """Local time error of the step the arguments of :meth:`solve` describe, at its guess.
+
+        The fiber law evaluated at the guess (the step's predictor) instead of the
+        equilibrium: on plla the predicted error is 0.98-1.02 of the converged step's through
+        the yield knee, where steps are rejected, and below it later (docs/performance.md). The
+        evaluated guess is kept, and :meth:`solve` of the same step starts from it (one
+        evaluation for both). 0 when the guess is inadmissible (:meth:`solve` will say so).
+        """
+        step = self._context(start, time, F_prescribed, directions, self.law, lateral)
+        with self._openblas_limit():
+            try:
+                p = self._evaluate(np.concatenate([guess_inner.ravel(), guess_free]), step)
+            except InadmissibleState:
+                return 0.0
+        self._guess = (step, p)
+        return local_error(
+            self.law,
+            start.stress,
+            start.plastic_stretch,
+            p.law,
+            p.stretch,
+            self.tortuosity,
+            time - start.time,
+            self.area * self.l0,
+        )
+
+    def _first_point(self, z: np.ndarray, step: _Step) -> _Point:
+        """The evaluated guess ``z`` of ``step``: the one :meth:`predicted_error` kept if it is
+        this step's, else evaluated now."""
+        kept, self._guess = self._guess, None
+        if kept is not None:
+            other, p = kept
+            same = (
+                other.start is step.start
+                and other.dt == step.dt
+                and other.law is step.law
+                and other.lateral is step.lateral
+                and np.array_equal(other.F_prescribed, step.F_prescribed)
+                and np.array_equal(other.directions, step.directions)
+                and np.array_equal(p.z, z)
+            )
+            if same:
+                return p
+        return self._evaluate(z, step)
 
     def _solve_by_continuation(
         self,
@@ -633,7 +691,7 @@ class EquilibriumSolver:
         choice = _TangentChoice()
         tangent = None
         try:
-            p = self._evaluate(np.concatenate([guess_inner.ravel(), guess_free]), step)
+            p = self._first_point(np.concatenate([guess_inner.ravel(), guess_free]), step)
             for iteration in range(limit + 1):
                 ok, norm, tolerance = self._converged(p, n_free)
                 # An iteration whose residual ratio, repeated once, reaches the tolerance

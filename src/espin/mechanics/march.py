@@ -13,6 +13,9 @@ whose size follows one :class:`StepPolicy`:
   tolerance it is rolled back and done again with the step the error asks for
   (0.9 sqrt(tol / error) times the step, by a factor between 1/5 and 2; docs/model.md
   section 4); the step after a rejected one does not grow;
+* with an ``estimate`` of the local time error before a step is solved (the RVE's: the fiber
+  law at the step's predictor), a step whose estimate is over the tolerance is rejected
+  unsolved, with the step the estimate asks for, as if it had been solved and judged;
 * an accepted step lets the next one double when it converged in fewer than
   ``easy_fraction`` of the problem's iteration limit, never right after a cut, and never
   beyond what the error allows;
@@ -190,6 +193,7 @@ def march(
     *,
     start: float = 0.0,
     on_report: Callable[[ReportTally[T]], None] | None = None,
+    estimate: Callable[[float, float], float] | None = None,
 ) -> None:
     """March ``problem`` from ``start`` through every reported time (module docstring).
 
@@ -206,6 +210,10 @@ def march(
         Time of the committed state [s].
     on_report
         Called with each report's :class:`ReportTally` once its time is reached.
+    estimate
+        ``estimate(start, end)``: the relative local time error of the step from the
+        committed state at ``start`` to ``end`` [s], foreseen before it is solved (used only
+        with ``policy.time_rtol``); None: every step is solved before it is judged.
 
     Raises
     ------
@@ -254,6 +262,17 @@ def march(
                         end,
                     )
                 raise MarchFailed(StepNotConverged(below, StepFailureKind.STIFF), tally, end)
+            if estimate is not None and policy.time_rtol is not None and h > 0.0:
+                foreseen = estimate(t, end)
+                if foreseen > policy.time_rtol:  # rejected unsolved, as below
+                    step = error_step(h, foreseen, policy.time_rtol)
+                    rejected_before = True
+                    tally.rejected += 1
+                    cut_by = None
+                    log.debug(
+                        "time %.6g s: step rejected unsolved (foreseen error %.3g), next %.3g s", end, foreseen, step
+                    )
+                    continue
             try:
                 trial = problem.attempt(t, end)
             except StepNotConverged as failure:
