@@ -2,23 +2,27 @@
 
 :class:`BatchedRVE` runs the Newton method of :class:`espin.mechanics.equilibrium.EquilibriumSolver`
 (whole F prescribed, no bending) on all points at once: the points are the leading axis of every
-array, so one evaluation of the network (kinematics, the fiber law's return mapping, nodal forces)
-is a handful of numpy calls over (points x elements) arrays, and so is one assembly of the tangents
-(one sparsity pattern, values summed by one sparse product). Each point keeps its own Newton state:
+array, and each Newton round makes one call of a compiled kernel (:mod:`espin.specimen.batched_kernels`)
+per task for all the points that need it: the evaluation (kinematics, the fiber law's return
+mapping, element forces, residual), the tangents K_II filled into the one sparsity pattern and
+factorized by Cholesky with one symbolic analysis for all points, the triangular solves. Each
+point keeps its own Newton state:
 
-* the exact tangent when its factorization shows it positive definite, else the clipped one for
-  the next few iterations; a chord step after an iteration that cut the residual 10-fold;
+* the exact tangent when its Cholesky factorization succeeds (K_II positive definite), else the
+  clipped one for the next few iterations (by Cholesky too; a clipped tangent that is singular
+  by the linear solver of ``solver.linear``, whose LDL^T perturbs the zero pivots); a chord step
+  with the point's last factorization after an iteration that cut the residual 10-fold;
 * the line search of :mod:`espin.mechanics.line_search`, run for all points in lockstep (each point
   its own bracket; one evaluation of all the points that need a trial per round);
 * convergence by the same test per point; converged points drop out of the batch.
 
-The factorizations are per point (the matrices share one pattern; the linear solver analyses it
-once per solver and keeps one factorization per point for the chord steps), called in one loop
-per iteration. A point whose Newton fails here is solved again by the per-point solver (which
-adds the continuation in the slack modulus) and raises as today when that fails too.
+A point whose Newton fails here (an inadmissible iterate, a return mapping that does not
+converge, no descent) is solved again by the per-point solver (which adds the continuation in
+the slack modulus) and raises as today, naming the point, when that fails too.
 
 The results are today's per-point solve (:meth:`EquilibriumSolver.solve`) within the RVE
-tolerance: the same iterates up to the rounding of the sums over a point's DOF.
+tolerance: the same iterates up to the rounding of the sums over a point's DOF and of the
+factorization.
 """
 
 from __future__ import annotations
@@ -385,7 +389,7 @@ class BatchedRVE:
             for i in range(k)
         ]
         retried = {int(i): self._solve_one(start_states[i], time, F[i], guess[i], int(names[i])) for i in retry}
-        return self._results(p, retried, start_states, iterations, factorizations, F, dt)
+        return self._results(p, retried, start_states, iterations, factorizations, F, dt, factors)
 
     def _solve_one(self, start: StepState, time: float, F: np.ndarray, guess: np.ndarray, name: int):
         """A point the batch did not converge, by the per-point solver (with its continuation)."""
@@ -517,8 +521,10 @@ class BatchedRVE:
         factorizations: np.ndarray,
         F: np.ndarray,
         dt: float,
+        factors: _Factors,
     ) -> BatchSolved:
-        """Stresses, macroscopic tangents, local errors and fractions of the converged points."""
+        """Stresses, macroscopic tangents, local errors and fractions of the converged points
+        (``factors``: the Newton iterations', whose memory the tangents at the solutions take)."""
         k = len(F)
         for i, result in retried.items():
             law = result.law
@@ -534,7 +540,8 @@ class BatchedRVE:
         A = np.empty((k, 2, 2, 2, 2))
         P = np.empty((k, 2, 2))
         errors = np.empty(k)
-        factors, points = _Factors(self, k), np.arange(k)
+        factors.kind[:], points = _NONE, np.arange(k)
+        factors.singular.clear()
         for i in map(int, np.flatnonzero(~factors.factorize(p, points, points, clipped=False))):
             factors.kind[i], factors.singular[i] = (
                 _SINGULAR,
