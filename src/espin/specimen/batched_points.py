@@ -211,6 +211,7 @@ class BatchedRVE:
         self._K = _sorted(self.patterns["II"].matrix)
         self.slot = self.patterns["II"].slot
         self.cholesky = batched_kernels.CholeskyPattern.of(self._K)
+        self._factor_memory = (np.empty((0, self._K.nnz)), np.empty((0, self.cholesky.nnz)))
 
     # -- evaluation -------------------------------------------------------------------------
     def _evaluate(
@@ -285,10 +286,11 @@ class BatchedRVE:
         return self._K
 
     def release(self) -> None:
-        """Free the linear solvers' factorizations and analyses."""
+        """Free the linear solvers' factorizations and analyses and the factors' memory."""
         for linear in self._linear:
             linear.release()
         self._linear.clear()
+        self._factor_memory = (np.empty((0, self._K.nnz)), np.empty((0, self.cholesky.nnz)))
 
     def _linear_solvers(self, k: int) -> list[LinearSolver]:
         """One linear solver per point of the batch (each keeps its point's factorization)."""
@@ -583,8 +585,9 @@ class _Factors:
 
     def __init__(self, batch: BatchedRVE, k: int) -> None:
         self.batch = batch
-        self.K = np.empty((k, batch._K.nnz))
-        self.L = np.empty((k, batch.cholesky.nnz))
+        if len(batch._factor_memory[0]) < k:  # kept between solves: no fresh pages per call
+            batch._factor_memory = (np.empty((k, batch._K.nnz)), np.empty((k, batch.cholesky.nnz)))
+        self.K, self.L = (memory[:k] for memory in batch._factor_memory)
         self.kind = np.zeros(k, dtype=np.int8)  # _NONE, _CHOLESKY or _SINGULAR
         self.singular: dict[int, Factorization] = {}
 
