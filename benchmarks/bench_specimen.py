@@ -7,6 +7,10 @@
   and ``--layers`` choose the RVE (default L/D 60 x 3; the balanced RVE is 100 x 5), ``--steps``
   and ``--strain`` shorten the program for a quick check; ``--tag`` names the archive (e.g.
   ``old`` for the same run on an older checkout);
+* ``points``: ``--points`` RVE points of one network (``--size-ratio``, ``--layers``) evaluated
+  twice in this process, from rest to F = diag(1.01, 0.99) (F11, F12, F21 +- 0.004) and again at the same time
+  with F changed by up to 3e-4: process CPU time and RVE iterations of each trial (run it with
+  the old code's PYTHONPATH for the ratio; ``--tag`` saves P and A for a comparison);
 * ``compare NAME OTHER``: the forces of two archived runs, step by step (relative difference),
   and their counts and rates;
 * ``surrogate``: the surrogate route (built once and archived as ``surrogate_samples.csv``, then
@@ -77,6 +81,29 @@ def fe2(across: int, workers: int, size_ratio: int, layers: int, strain: float, 
         name += f"_{steps}steps"
     _archive(name + (f"_{tag}" if tag else ""), result,
              {"wall_s": time.perf_counter() - start, "rve_dofs": 2 * rve.network.n_inner})
+
+
+def points(n: int, size_ratio: int, layers: int, tag: str) -> None:
+    """The RVE solves of ``n`` points of one network, two trials, timed by process CPU time."""
+    from espin.specimen.rve_points import RVEPoints, rve_tolerance
+
+    rve = espin.generate("plla", rve__size_ratio=size_ratio, rve__layers=layers)
+    config = rve_tolerance(rve.config, 1e-6)
+    rve_points = RVEPoints(rve.network, config, n)
+    rng = np.random.default_rng(0)
+    F1 = np.array([[[1.01 + rng.uniform(-0.004, 0.004), rng.uniform(-0.004, 0.004)],
+                    [rng.uniform(-0.004, 0.004), 0.99]] for _ in range(n)])
+    F2 = F1 + rng.uniform(-3e-4, 3e-4, F1.shape)
+    time_s = 0.01 / config.loading.strain_rate_per_s
+    out = {}
+    for label, F in (("first", F1), ("second", F2)):
+        iterations, cpu = rve_points.rve_iterations, time.process_time()
+        out[f"P_{label}"], out[f"A_{label}"] = rve_points.evaluate(F, time_s)
+        print(f"{label} trial, {n} points, L/D {size_ratio} x {layers}: {time.process_time() - cpu:.2f} s CPU, "
+              f"{rve_points.rve_iterations - iterations} RVE iterations", flush=True)
+    if tag:
+        DATA.mkdir(parents=True, exist_ok=True)
+        np.savez(DATA / f"points_{n}_rve{size_ratio}x{layers}_{tag}.npz", **out)
 
 
 def compare(name: str, other: str) -> None:
@@ -236,7 +263,7 @@ def report() -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("part", choices=("fe2", "surrogate", "dogbone", "dask", "free", "report", "compare"))
+    parser.add_argument("part", choices=("fe2", "points", "surrogate", "dogbone", "dask", "free", "report", "compare"))
     parser.add_argument("names", nargs="*", help="compare: two archived runs")
     parser.add_argument("--across", type=int, default=2)
     parser.add_argument("--size-ratio", type=int, default=60)
@@ -245,11 +272,14 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=STEPS)
     parser.add_argument("--tag", default="")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--points", type=int, default=96, help="points: how many")
     parser.add_argument("--reuse", action="store_true", help="surrogate: the archived samples, not built again")
     args = parser.parse_args()
     logging.disable(logging.WARNING)
     if args.part == "fe2":
         fe2(args.across, args.workers, args.size_ratio, args.layers, args.strain, args.steps, args.tag)
+    elif args.part == "points":
+        points(args.points, args.size_ratio, args.layers, args.tag)
     elif args.part == "compare":
         compare(*args.names)
     elif args.part == "surrogate":

@@ -2,23 +2,27 @@
 
 :class:`BatchedRVE` runs the Newton method of :class:`espin.mechanics.equilibrium.EquilibriumSolver`
 (whole F prescribed, no bending) on all points at once: the points are the leading axis of every
-array, so one evaluation of the network (kinematics, the fiber law's return mapping, nodal forces)
-is a handful of numpy calls over (points x elements) arrays, and so is one assembly of the tangents
-(one sparsity pattern, values summed by one sparse product). Each point keeps its own Newton state:
+array, and each Newton round makes one call of a compiled kernel (:mod:`espin.specimen.batched_kernels`)
+per task for all the points that need it: the evaluation (kinematics, the fiber law's return
+mapping, element forces, residual), the tangents K_II filled into the one sparsity pattern and
+factorized by Cholesky with one symbolic analysis for all points, the triangular solves. Each
+point keeps its own Newton state:
 
-* the exact tangent when its factorization shows it positive definite, else the clipped one for
-  the next few iterations; a chord step after an iteration that cut the residual 10-fold;
+* the exact tangent when its Cholesky factorization succeeds (K_II positive definite), else the
+  clipped one for the next few iterations (by Cholesky too; a clipped tangent that is singular
+  by the linear solver of ``solver.linear``, whose LDL^T perturbs the zero pivots); a chord step
+  with the point's last factorization after an iteration that cut the residual 10-fold;
 * the line search of :mod:`espin.mechanics.line_search`, run for all points in lockstep (each point
   its own bracket; one evaluation of all the points that need a trial per round);
 * convergence by the same test per point; converged points drop out of the batch.
 
-The factorizations are per point (the matrices share one pattern; the linear solver analyses it
-once per solver and keeps one factorization per point for the chord steps), called in one loop
-per iteration. A point whose Newton fails here is solved again by the per-point solver (which
-adds the continuation in the slack modulus) and raises as today when that fails too.
+A point whose Newton fails here (an inadmissible iterate, a return mapping that does not
+converge, no descent) is solved again by the per-point solver (which adds the continuation in
+the slack modulus) and raises as today, naming the point, when that fails too.
 
 The results are today's per-point solve (:meth:`EquilibriumSolver.solve`) within the RVE
-tolerance: the same iterates up to the rounding of the sums over a point's DOF.
+tolerance: the same iterates up to the rounding of the sums over a point's DOF and of the
+factorization.
 """
 
 from __future__ import annotations
@@ -33,11 +37,13 @@ from espin.core.errors import StepFailureKind, StepNotConverged
 from espin.geometry.network import Network
 from espin.mechanics.assembly import Kinematics, SparsePattern
 from espin.mechanics.equilibrium import EquilibriumSolver, StepState
-from espin.mechanics.fiber_law import STRETCH_FLOOR, LawState, axial_force_and_stiffness, update, yielded
+from espin.mechanics.fiber_law import _MAX_FLOW_SCALE, STRETCH_FLOOR, LawState, axial_force_and_stiffness, yielded
+from espin.mechanics.fiber_law import _parameters as _law_parameters
 from espin.mechanics.homogenization import nominal_stress
 from espin.mechanics.line_search import MAX_TRIALS, SHORTEST, SLOPE_RATIO
 from espin.mechanics.linear_solvers import Factorization, LinearSolver, make_linear_solver
 from espin.mechanics.time_steps import local_error
+from espin.specimen import batched_kernels
 
 __all__ = ["BatchedRVE", "BatchSolved", "batchable"]
 
@@ -45,6 +51,8 @@ _NO_FREE = np.zeros((0, 2, 2))
 _CLIPPED_AFTER_INDEFINITE = 3  # as the per-point solver
 _CHORD_RATIO = 0.1
 _MAX_ITERATIONS = 200
+_NO_NEAR = np.zeros((0, 0))
+_NONE, _CHOLESKY, _SINGULAR = 0, 1, 2  # the factorization a point holds
 
 
 def batchable(config: Config) -> bool:
@@ -177,7 +185,7 @@ class BatchedRVE:
             (np.tile(sign, n_el), (np.arange(16 * n_el), (3 * np.arange(n_el)[:, None] + component).ravel())),
             shape=(16 * n_el, 3 * n_el),
         )
-        self.sum_into = {part: _sorted(_summation(p, n_el) @ expand) for part, p in self.patterns.items()}
+        self.sum_into = {part: _sorted(_summation(self.patterns[part], n_el) @ expand) for part in ("IB", "BB")}
         # Border motion of a unit F_kL (row 2k + L), flattened like the border DOF; the
         # macroscopic tangent's K_IB modes^T (n x 4) and modes K_BB modes^T (4 x 4) as sums of
         # the element components too.
@@ -201,6 +209,9 @@ class BatchedRVE:
         self.volume = network.element_area * network.element_contour_length
         self._linear: list[LinearSolver] = []
         self._K = _sorted(self.patterns["II"].matrix)
+        self.slot = self.patterns["II"].slot
+        self.cholesky = batched_kernels.CholeskyPattern.of(self._K)
+        self._factor_memory = (np.empty((0, self._K.nnz)), np.empty((0, self.cholesky.nnz)))
 
     # -- evaluation -------------------------------------------------------------------------
     def _evaluate(
@@ -208,51 +219,36 @@ class BatchedRVE:
     ) -> tuple[_Iterates, np.ndarray]:
         """The iterates ``z`` (k, n) at ``F`` (k, 2, 2) from the plastic stretches at the step's
         start; ``near``: plastic stretches that start the return mapping. Returns them and which
-        points are admissible (the others' rows are not evaluated: NaN)."""
-        k = len(z)
-        ok = np.all(np.isfinite(z), axis=1)
-        rows = np.flatnonzero(ok)
-        m, e = len(rows), len(self.l0)
-        inner = z[rows].reshape(m, self.n_inner, 2)
-        border = self.X_border @ F[rows].transpose(0, 2, 1)
-        x = np.concatenate([inner, border], axis=1)
-        vector = x[:, self.nodes[:, 1]] - x[:, self.nodes[:, 0]]
-        length = np.hypot(vector[..., 0], vector[..., 1])
-        safe = length > 0.0
-        unit = np.where(safe[..., None], vector / np.where(safe, length, 1.0)[..., None], self.reference_unit)
-        tile = (m, 1)
-        law = update(
-            self.law,
-            (length / self.l0).ravel(),
-            plastic_start[rows].ravel(),
-            np.tile(self.tortuosity, tile).ravel(),
-            dt,
-            None if near is None else near[rows].ravel(),
-        )
-        force, stiffness = axial_force_and_stiffness(
-            law, np.tile(self.area, tile).ravel(), np.tile(self.l0, tile).ravel()
-        )
-        force = force.reshape(m, e)
-        ta = force[..., None] * unit
-        values = np.concatenate([-ta, ta], axis=2).reshape(m, -1)
-        offsets = (self.n_dof * np.arange(m))[:, None]
-        gradient = np.bincount((self.dof + offsets).ravel(), values.ravel(), minlength=m * self.n_dof)
-        evaluated = _Iterates(
-            z[rows],
-            length,
-            unit,
-            law.stress.reshape(m, e),
-            law.plastic_stretch.reshape(m, e),
-            law.recruited.reshape(m, e),
-            force,
-            stiffness.reshape(m, e),
-            gradient.reshape(m, self.n_dof)[:, : self.n],
-        )
-        if m == k:
-            return evaluated, ok
+        points are admissible (z finite, the return mapping converged; the others' rows: NaN)."""
+        k, e = len(z), len(self.l0)
         out = _Iterates.empty(k, e, self.n)
         out.z[:] = z
-        out.put(rows, evaluated)
+        ok = batched_kernels.evaluate(
+            out.z,
+            np.ascontiguousarray(F),
+            np.ascontiguousarray(plastic_start),
+            _NO_NEAR if near is None else np.ascontiguousarray(near),
+            self.X_border,
+            self.nodes,
+            self.reference_unit,
+            self.l0,
+            self.area,
+            self.tortuosity,
+            min(self.law.flow_rate * dt, _MAX_FLOW_SCALE),
+            _law_parameters(self.law),
+            out.length,
+            out.unit,
+            out.stress,
+            out.plastic,
+            out.recruited,
+            out.force,
+            out.stiffness,
+            out.residual,
+        )
+        if not ok.all():
+            bad = ~ok
+            for name in ("length", "unit", "stress", "plastic", "force", "stiffness", "residual"):
+                getattr(out, name)[bad] = np.nan
         return out, ok
 
     def _converged(self, residual: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -283,10 +279,6 @@ class BatchedRVE:
         )
         return components.reshape(len(a0), -1)
 
-    def _block(self, part: str, values: np.ndarray) -> np.ndarray:
-        """(k, nnz) data of the tangent block ``part`` for each point."""
-        return np.asarray(self.sum_into[part] @ values.T).T
-
     def _matrix(self, data: np.ndarray) -> sp.csr_matrix:
         """K_II with the values ``data``: one matrix object whose values are replaced (the
         linear solver copies them)."""
@@ -294,10 +286,11 @@ class BatchedRVE:
         return self._K
 
     def release(self) -> None:
-        """Free the linear solvers' factorizations and analyses."""
+        """Free the linear solvers' factorizations and analyses and the factors' memory."""
         for linear in self._linear:
             linear.release()
         self._linear.clear()
+        self._factor_memory = (np.empty((0, self._K.nnz)), np.empty((0, self.cholesky.nnz)))
 
     def _linear_solvers(self, k: int) -> list[LinearSolver]:
         """One linear solver per point of the batch (each keeps its point's factorization)."""
@@ -332,13 +325,12 @@ class BatchedRVE:
         if np.any(np.linalg.det(F) <= 0.0):
             bad = int(names[int(np.argmax(np.linalg.det(F) <= 0.0))])
             raise StepNotConverged(f"RVE point {bad}: det F <= 0", StepFailureKind.INADMISSIBLE)
-        linear = self._linear_solvers(k)
         p, ok = self._evaluate(guess.reshape(k, -1).copy(), F, start_plastic, dt, None)
         failed = ~ok
         iterations = np.zeros(k, dtype=np.int64)
         factorizations = np.zeros(k, dtype=np.int64)
         last_norm = np.full(k, np.inf)
-        facts: list[Factorization | None] = [None] * k
+        factors = _Factors(self, k)
         clipped_left = np.zeros(k, dtype=np.int64)
         done = np.zeros(k, dtype=bool)
         limit = self.config.solver.max_iterations or _MAX_ITERATIONS
@@ -359,46 +351,33 @@ class BatchedRVE:
                 continue
             current = p.take(going)
             direction = np.empty((len(going), self.n))
-            need_exact: list[int] = []
-            need_clipped: list[int] = []
-            for j, i in enumerate(going):
-                fact = facts[i]
-                if chord_ok[j] and fact is not None:
-                    d = fact.solve(-current.residual[j])
-                    if np.dot(d, current.residual[j]) < 0.0:
+            # A chord step with the point's last factorization where the residual fell 10-fold.
+            chord = np.flatnonzero(chord_ok & factors.held(going))
+            descends = np.zeros(len(going), dtype=bool)
+            if len(chord):
+                direction[chord] = factors.solve(going[chord], -current.residual[chord])
+                descends[chord] = np.einsum("kn,kn->k", direction[chord], current.residual[chord]) < 0.0
+            need = ~descends
+            exact = np.flatnonzero(need & (clipped_left[going] == 0))
+            if len(exact):
+                factorizations[going[exact]] += 1
+                pd = factors.factorize(current, exact, going[exact], clipped=False)
+                tried = exact[pd]
+                direction[tried] = factors.solve(going[tried], -current.residual[tried])
+                descends[tried] = np.einsum("kn,kn->k", direction[tried], current.residual[tried]) < 0.0
+                clipped_left[going[exact[~descends[exact]]]] = _CLIPPED_AFTER_INDEFINITE
+            clipped = np.flatnonzero(~descends & (clipped_left[going] > 0))
+            if len(clipped):
+                clipped_left[going[clipped]] -= 1
+                factorizations[going[clipped]] += 1
+                pd = factors.factorize(current, clipped, going[clipped], clipped=True)
+                direction[clipped[pd]] = factors.solve(going[clipped[pd]], -current.residual[clipped[pd]])
+                for j in clipped[~pd]:  # singular: PARDISO's LDL^T with perturbed pivots
+                    d = factors.factorize_singular(current, j, going[j])
+                    if d is None:
+                        failed[going[j]] = True
+                    else:
                         direction[j] = d
-                        continue
-                (need_exact if clipped_left[i] == 0 else need_clipped).append(int(j))
-            if need_exact:
-                rows = np.array(need_exact)
-                data = self._block("II", self._element_values(current.take(rows), clipped=False))
-                for j, values in zip(rows, data, strict=True):
-                    i = going[j]
-                    try:
-                        fact = linear[i].factorize(self._matrix(values))
-                    except StepNotConverged:
-                        fact = None
-                    factorizations[i] += 1
-                    if fact is not None and not (fact.n_negative or fact.n_perturbed > 0):
-                        d = fact.solve(-current.residual[j])
-                        if np.dot(d, current.residual[j]) < 0.0:
-                            direction[j], facts[i] = d, fact
-                            continue
-                    clipped_left[i] = _CLIPPED_AFTER_INDEFINITE
-                    need_clipped.append(int(j))
-            if need_clipped:
-                rows = np.array(need_clipped)
-                data = self._block("II", self._element_values(current.take(rows), clipped=True))
-                for j, values in zip(rows, data, strict=True):
-                    i = going[j]
-                    clipped_left[i] -= 1
-                    factorizations[i] += 1
-                    try:
-                        fact = linear[i].factorize(self._matrix(values))
-                    except StepNotConverged:
-                        failed[i], facts[i] = True, None
-                        continue
-                    direction[j], facts[i] = fact.solve(-current.residual[j]), fact
             moving = ~failed[going]
             rows = going[moving]
             accepted, ok = self._line_search(
@@ -412,7 +391,7 @@ class BatchedRVE:
             for i in range(k)
         ]
         retried = {int(i): self._solve_one(start_states[i], time, F[i], guess[i], int(names[i])) for i in retry}
-        return self._results(p, retried, start_states, iterations, factorizations, F, dt)
+        return self._results(p, retried, start_states, iterations, factorizations, F, dt, factors)
 
     def _solve_one(self, start: StepState, time: float, F: np.ndarray, guess: np.ndarray, name: int):
         """A point the batch did not converge, by the per-point solver (with its continuation)."""
@@ -544,8 +523,10 @@ class BatchedRVE:
         factorizations: np.ndarray,
         F: np.ndarray,
         dt: float,
+        factors: _Factors,
     ) -> BatchSolved:
-        """Stresses, macroscopic tangents, local errors and fractions of the converged points."""
+        """Stresses, macroscopic tangents, local errors and fractions of the converged points
+        (``factors``: the Newton iterations', whose memory the tangents at the solutions take)."""
         k = len(F)
         for i, result in retried.items():
             law = result.law
@@ -555,19 +536,24 @@ class BatchedRVE:
             p.force[i], p.stiffness[i] = axial_force_and_stiffness(law, self.area, self.l0)
             iterations[i], factorizations[i] = result.iterations, result.factorizations
         values = self._element_values(p, clipped=False)
-        K_II = self._block("II", values)
         # A = (modes K_BB modes^T - coupling^T K_II^-1 coupling) / V0, coupling = K_IB modes^T.
         coupling = (self.sum_into["coupling"] @ values.T).T.reshape(k, self.n, 4)
         corner = (self.sum_into["corner"] @ values.T).T.reshape(k, 4, 4)
         A = np.empty((k, 2, 2, 2, 2))
         P = np.empty((k, 2, 2))
         errors = np.empty(k)
-        linear = self._linear_solvers(k)
+        factors.kind[:], points = _NONE, np.arange(k)
+        factors.singular.clear()
+        for i in map(int, np.flatnonzero(~factors.factorize(p, points, points, clipped=False))):
+            factors.kind[i], factors.singular[i] = (
+                _SINGULAR,
+                self._linear_solvers(k)[i].factorize(self._matrix(factors.K[i])),
+            )
+        fluctuation = factors.solve(points, coupling)
         stretch = p.length / self.l0
         tangent = p.stiffness * self.l0 / self.area
         for i in range(k):
-            fluctuation = linear[i].factorize(self._matrix(K_II[i])).solve(coupling[i]) if self.n else coupling[i]
-            A[i] = (corner[i] - coupling[i].T @ fluctuation).reshape(2, 2, 2, 2) / self.network.reference_volume
+            A[i] = (corner[i] - coupling[i].T @ fluctuation[i]).reshape(2, 2, 2, 2) / self.network.reference_volume
             kinematics = Kinematics(p.unit[i] * p.length[i][:, None], p.length[i], p.unit[i])
             P[i] = nominal_stress(self.network, p.force[i], kinematics)
             law = LawState(p.stress[i], p.plastic[i], tangent[i], p.recruited[i])
@@ -589,6 +575,76 @@ class BatchedRVE:
             iterations=iterations,
             factorizations=factorizations,
         )
+
+
+class _Factors:
+    """The tangent factorizations of the points of one batch solve (kept for the chord steps):
+    the compiled Cholesky factorization (:mod:`espin.specimen.batched_kernels`) of all the
+    points that need one in one call, and for a tangent that is not positive definite the
+    linear solver of ``solver.linear`` (PARDISO's LDL^T), one per point."""
+
+    def __init__(self, batch: BatchedRVE, k: int) -> None:
+        self.batch = batch
+        if len(batch._factor_memory[0]) < k:  # kept between solves: no fresh pages per call
+            batch._factor_memory = (np.empty((k, batch._K.nnz)), np.empty((k, batch.cholesky.nnz)))
+        self.K, self.L = (memory[:k] for memory in batch._factor_memory)
+        self.kind = np.zeros(k, dtype=np.int8)  # _NONE, _CHOLESKY or _SINGULAR
+        self.singular: dict[int, Factorization] = {}
+
+    def held(self, points: np.ndarray) -> np.ndarray:
+        """Which of ``points`` hold a factorization."""
+        return self.kind[points] != _NONE
+
+    def factorize(self, p: _Iterates, rows: np.ndarray, points: np.ndarray, clipped: bool) -> np.ndarray:
+        """The (``clipped``) tangents of rows ``rows`` of ``p``, the batch's ``points``, by
+        Cholesky; returns which were positive definite (those points now hold the factor)."""
+        batch = self.batch
+        pd = batched_kernels.factorize(
+            rows,
+            points,
+            p.length,
+            p.unit,
+            p.force,
+            p.stiffness,
+            batch.l0,
+            clipped,
+            batch.slot,
+            batch._K.nnz,
+            batch.cholesky.arrays(),
+            self.K,
+            self.L,
+        )
+        self.kind[points] = np.where(pd, _CHOLESKY, _NONE)
+        return pd
+
+    def factorize_singular(self, p: _Iterates, row: int, point: int) -> np.ndarray | None:
+        """The direction -K^-1 r of row ``row`` of ``p`` (the batch's ``point``) whose clipped
+        tangent (in ``K`` from :meth:`factorize`) is not positive definite, by the linear
+        solver; None when it fails."""
+        batch = self.batch
+        try:
+            fact = batch._linear_solvers(point + 1)[point].factorize(batch._matrix(self.K[point]))
+        except StepNotConverged:
+            self.kind[point] = _NONE
+            return None
+        self.kind[point], self.singular[point] = _SINGULAR, fact
+        return fact.solve(-p.residual[row])
+
+    def solve(self, points: np.ndarray, B: np.ndarray) -> np.ndarray:
+        """K^-1 B[j] of every point ``points[j]`` with its held factorization (B: (m, n) or
+        (m, n, c))."""
+        single = B.ndim == 2
+        B3 = B[..., None] if single else B
+        out = np.empty_like(B3)
+        own = self.kind[points] == _CHOLESKY
+        if own.any():
+            c = self.batch.cholesky
+            out[own] = batched_kernels.solve(
+                points[own], self.K, self.L, np.ascontiguousarray(B3[own]), c.perm, c.l_ptr, c.l_row, c.k_ptr, c.k_col
+            )
+        for j in np.flatnonzero(~own):
+            out[j] = self.singular[int(points[j])].solve(B3[j])
+        return out[..., 0] if single else out
 
 
 def _summation(pattern: SparsePattern, n_elements: int) -> sp.csr_matrix:
