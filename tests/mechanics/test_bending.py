@@ -90,6 +90,25 @@ def test_gradient_and_hessian_match_finite_differences(small_rve):
     assert np.linalg.eigvalsh(joints.blocks(x, exact=False)).min() >= -1e-9 * abs(H).max()
 
 
+def test_clipped_blocks_are_the_rank_one_part_with_a_clipped_cosine(small_rve):
+    """exact=False keeps k max(cos(Delta), 0) J J^T, J = d theta / dx: zero for the joints
+    turned past 90 degrees, and the exact blocks minus it is the curvature term k sin(Delta)
+    d^2 theta / dx^2, whose trace vanishes (theta is harmonic in each node's position)."""
+    net = small_rve.network
+    joints = fiber_joints(net, E_BEND)
+    x = _perturbed(net, 0.3, seed=4)
+    change, jacobian, _, _ = joints._geometry(x)
+    assert np.any(np.cos(change) < 0)  # some joints are turned past 90 degrees
+    rank_one = jacobian[:, :, None] * jacobian[:, None, :]
+    clipped = joints.blocks(x, exact=False)
+    expected = (joints.stiffness * np.maximum(np.cos(change), 0.0))[:, None, None] * rank_one
+    assert np.allclose(clipped, expected, rtol=1e-12, atol=1e-12 * np.abs(expected).max())
+    curvature = joints.blocks(x, exact=True) - (joints.stiffness * np.cos(change))[:, None, None] * rank_one
+    scale = np.abs(curvature).max()
+    assert scale > 0
+    assert np.abs(np.trace(curvature, axis1=1, axis2=2)).max() <= 1e-9 * scale
+
+
 def test_rigid_motion_stores_nothing(small_rve):
     net = small_rve.network
     joints = fiber_joints(net, E_BEND)

@@ -43,11 +43,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from espin.geometry.network import Network
+from espin.mechanics import joint_kernels
 from espin.mechanics.fiber_law import STRETCH_FLOOR
 
 __all__ = ["FiberJoints", "fiber_joints"]
-
-_ROTATE = np.array([[0.0, -1.0], [1.0, 0.0]])  # perp(w) = R w
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,22 +76,12 @@ class FiberJoints:
         return np.stack([2 * self.nodes, 2 * self.nodes + 1], axis=2).reshape(-1, 6)
 
     def _geometry(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Angle change theta - theta_0 (wrapped to [-pi, pi)), u, v, and
-        d theta / d(x_a, x_b, x_c); all zero for a joint with an element below its floor
-        (u and v are then unit vectors, harmless in the curvature term)."""
-        u = x[self.nodes[:, 1]] - x[self.nodes[:, 0]]
-        v = x[self.nodes[:, 2]] - x[self.nodes[:, 1]]
-        uu, vv = np.einsum("ij,ij->i", u, u), np.einsum("ij,ij->i", v, v)
-        active = (uu > self.floor[:, 0] ** 2) & (vv > self.floor[:, 1] ** 2)
-        u = np.where(active[:, None], u, [1.0, 0.0])
-        v = np.where(active[:, None], v, [1.0, 0.0])
-        uu, vv = np.where(active, uu, 1.0), np.where(active, vv, 1.0)
-        theta = np.arctan2(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0], np.einsum("ij,ij->i", u, v))
-        change = np.where(active, np.remainder(theta - self.reference_angle + np.pi, 2.0 * np.pi) - np.pi, 0.0)
-        du = (u @ _ROTATE.T) / uu[:, None]  # -d theta / du
-        dv = (v @ _ROTATE.T) / vv[:, None]  # d theta / dv
-        jacobian = np.where(active[:, None], np.hstack([du, -du - dv, dv]), 0.0)
-        return change, u, v, jacobian
+        """Angle change theta - theta_0 (wrapped to [-pi, pi)), d theta / d(x_a, x_b, x_c), |u|^2
+        and |v|^2 (:func:`espin.mechanics.joint_kernels.geometry`); change and derivative are
+        zero, |u|^2 and |v|^2 one, for a joint with an element below its floor."""
+        return joint_kernels.geometry(
+            np.ascontiguousarray(x, dtype=float), self.nodes, self.floor, self.reference_angle
+        )
 
     def energy(self, x: np.ndarray) -> float:
         """Stored bending energy [uN um] at node positions ``x`` (n_nodes, 2) [um]."""
@@ -101,7 +90,7 @@ class FiberJoints:
 
     def gradient(self, x: np.ndarray, n_dof: int) -> np.ndarray:
         """(n_dof,) gradient of the bending energy [uN] (the force the surroundings exert)."""
-        change, _, _, jacobian = self._geometry(x)
+        change, jacobian, _, _ = self._geometry(x)
         values = (self.stiffness * np.sin(change))[:, None] * jacobian
         return np.bincount(self.dof.ravel(), values.ravel(), minlength=n_dof)
 
@@ -111,20 +100,16 @@ class FiberJoints:
         ``exact`` False keeps only k max(cos(Delta), 0) (d theta/dx)(d theta/dx)^T, positive
         semi-definite.
         """
-        change, u, v, jacobian = self._geometry(x)
-        cosine = np.cos(change) if exact else np.maximum(np.cos(change), 0.0)
-        hessian = (self.stiffness * cosine)[:, None, None] * jacobian[:, :, None] * jacobian[:, None, :]
-        if exact:
-            hessian += (self.stiffness * np.sin(change))[:, None, None] * _curvature(u, v)
-        return hessian
+        x = np.ascontiguousarray(x, dtype=float)
+        return joint_kernels.blocks(x, self.nodes, self.floor, self.reference_angle, self.stiffness, exact)
 
     def force_resolution(self, x: np.ndarray, n_dof: int) -> np.ndarray:
         """(n_dof,) how precisely the joints' forces at each DOF are known at positions ``x``
         [uN]: 4 eps max |x| sum over the node's joints of k (1 / |u|^2 + 1 / |v|^2) (module
         notes); zero at nodes without joints."""
-        _, u, v, jacobian = self._geometry(x)
+        _, jacobian, uu, vv = self._geometry(x)
         active = np.any(jacobian != 0.0, axis=1)
-        sensitivity = self.stiffness * (1.0 / np.einsum("ij,ij->i", u, u) + 1.0 / np.einsum("ij,ij->i", v, v))
+        sensitivity = self.stiffness * (1.0 / uu + 1.0 / vv)
         per_node = np.where(active, sensitivity, 0.0)[:, None] * np.ones((1, 6))
         scale = 4.0 * np.finfo(float).eps * float(np.max(np.abs(x)))
         return scale * np.bincount(self.dof.ravel(), per_node.ravel(), minlength=n_dof)
@@ -135,30 +120,9 @@ class FiberJoints:
 
         Each joint's forces sum to zero, so the origin of ``y`` does not matter.
         """
-        change, _, _, jacobian = self._geometry(x)
+        change, jacobian, _, _ = self._geometry(x)
         force = ((self.stiffness * np.sin(change))[:, None] * jacobian).reshape(-1, 3, 2)
         return np.einsum("nki,nkj->ij", force, y[self.nodes])
-
-
-def _curvature(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(n, 6, 6) d^2 theta / d(x_a, x_b, x_c)^2 with theta = angle(v) - angle(u), u = x_b - x_a,
-    v = x_c - x_b: the blocks of -d perp(u)/|u|^2 / du over (a, b) and of
-    d perp(v)/|v|^2 / dv over (b, c), with the signs of u and v."""
-    hu, hv = _perp_derivative(u), _perp_derivative(v)
-    out = np.zeros((len(u), 3, 2, 3, 2))
-    out[:, 0, :, 0] = -hu
-    out[:, 0, :, 1] = out[:, 1, :, 0] = hu
-    out[:, 1, :, 1] = hv - hu
-    out[:, 1, :, 2] = out[:, 2, :, 1] = -hv
-    out[:, 2, :, 2] = hv
-    return out.reshape(-1, 6, 6)
-
-
-def _perp_derivative(w: np.ndarray) -> np.ndarray:
-    """(n, 2, 2) d(perp(w) / |w|^2) / dw = R / |w|^2 - 2 R w w^T / |w|^4."""
-    ww = np.einsum("ij,ij->i", w, w)
-    outer = (w @ _ROTATE.T)[:, :, None] * w[:, None, :]
-    return _ROTATE[None] / ww[:, None, None] - 2.0 * outer / (ww * ww)[:, None, None]
 
 
 def fiber_joints(network: Network, modulus_MPa: float) -> FiberJoints:
