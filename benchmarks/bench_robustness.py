@@ -22,7 +22,8 @@ failure. Tasks run on espin's task pool (local processes); each finished task is
 
 Printed: one row per task (case, its parameters, DOF, loading, converged, factorizations per
 reported step with failed attempts included: median and max, wall seconds, microseconds per DOF
-and reported step) and a summary: converged fraction, median factorizations per step, the
+and reported step) and a summary: converged fraction (in all and per loading), median
+factorizations per reported step (over every reported step of every task), the
 slowest cases against the median wall per DOF, and the failures with their messages.
 """
 
@@ -181,6 +182,9 @@ def report(folder: Path, cases: list[dict]) -> None:
     print(f"\nconverged: {len(ok)} of {len(records)} ({100.0 * len(ok) / len(records):.1f} %); "
           f"factorizations per reported step: median {statistics.median(per_step) if per_step else math.nan:.1f}, "
           f"max {max(per_step) if per_step else math.nan:.0f}; wall per DOF and step: median {1e6 * median:.2f} us")
+    print("converged per loading: " + ", ".join(
+        f"{name} {sum(r['converged'] for r in records if r['loading'] == name)}/"
+        f"{sum(r['loading'] == name for r in records)}" for name in LOADINGS))
     worst = sorted(ok, key=lambda r: per_dof[r["key"]], reverse=True)[:5]
     for r in worst:
         print(f"  slowest: case {r['index']} {r['loading']}: {per_dof[r['key']] / median:.1f} x the median")
@@ -196,7 +200,7 @@ def _select(text: str, n: int) -> list[int]:
     out: list[int] = []
     for part in text.split(","):
         a, _, b = part.partition("-")
-        out += list(range(int(a), int(b) if b else int(a) + 1))
+        out += list(range(int(a), (int(b) if b else int(a)) + 1))  # "26-40": 26 to 40, both included
     return [i for i in out if i < n]
 
 
@@ -208,7 +212,7 @@ def main() -> int:
     parser.add_argument("--out", type=Path, default=Path("robustness"))
     parser.add_argument("--workers", type=int, default=None)
     parser.add_argument("--cap-s", type=float, default=240.0)
-    parser.add_argument("--cases", default="", help="e.g. 0-10,40 (default: all)")
+    parser.add_argument("--cases", default="", help="e.g. 0-10,40: cases 0 to 10 and 40 (default: all)")
     parser.add_argument("--loadings", default=",".join(LOADINGS))
     parser.add_argument("--set", action="append", default=[], help="KEY=VALUE for every task (TOML value)")
     parser.add_argument("--report", type=Path, default=None, help="print the table of a folder and stop")
