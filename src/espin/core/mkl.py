@@ -41,8 +41,16 @@ def load_mkl() -> MKL:
     as soon as a factorization ends instead of spinning for 200 ms on the cores that the
     fiber law and assembly need between factorizations (plla tensile test: 54.7 s -> 48.8 s
     on 2 cores). It acts only if this loads the OpenMP runtime, as it does in espin.
+
+    Sets ``MKL_CBWR=AUTO`` unless the environment has it: MKL's conditional numerical
+    reproducibility, so that the same matrix factorizes to the same bits in every process.
+    Without it MKL's kernels depend on how the arrays happen to be aligned in memory: the
+    same plla test with a Poisson lateral condition ended 1e-15 apart in three processes, and
+    a bonded mat at plla size with free sides took 40 Newton iterations in one run and stalled
+    for 608 in the next. It acts only if this loads MKL, as it does in espin.
     """
     os.environ.setdefault("KMP_BLOCKTIME", "0")
+    os.environ.setdefault("MKL_CBWR", "AUTO")
     try:
         from pypardiso.pardiso_wrapper import PyPardisoSolver
 
