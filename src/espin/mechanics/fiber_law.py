@@ -121,6 +121,14 @@ class FiberLaw:
             if not (ok and np.isfinite(getattr(self, name))):
                 raise ConfigError(f"FiberLaw.{name} must be finite and {allowed}")
 
+    def kernel_constants(self) -> tuple[float, float, float, float]:
+        """E_t [MPa], E_b [MPa], b_p [MPa] and c_p [-] as the compiled kernels take them."""
+        return self.taut_modulus, self.slack_modulus, self.flow_resistance, self.hardening_exponent
+
+    def flow_scale(self, dt: ArrayLike) -> np.ndarray:
+        """a_p dt [-] over time steps ``dt`` [s], capped so that a huge step stays finite."""
+        return np.minimum(self.flow_rate * np.asarray(dt), _MAX_FLOW_SCALE)
+
     @classmethod
     def from_config(cls, cfg: FiberConfig) -> FiberLaw:
         """The law of a validated ``fiber`` config section."""
@@ -209,15 +217,10 @@ def _return_map(
 ) -> np.ndarray:
     """Signed plastic increment of every element (1-D arrays; stretch already floored, lr >= 1)."""
     flow = np.empty_like(stretch)
-    failed = kernels.return_map(stretch, plastic_old, lr, adt, *_parameters(law), flow)
+    failed = kernels.return_map(stretch, plastic_old, lr, adt, *law.kernel_constants(), flow)
     if failed:
         raise _not_converged(failed)
     return flow
-
-
-def _parameters(law: FiberLaw) -> tuple[float, float, float, float]:
-    """E_t, E_b, b_p, c_p as the kernels take them."""
-    return law.taut_modulus, law.slack_modulus, law.flow_resistance, law.hardening_exponent
 
 
 def _prepare(law: FiberLaw, dt: ArrayLike, *arrays: ArrayLike) -> tuple[np.ndarray, ...]:
@@ -228,7 +231,7 @@ def _prepare(law: FiberLaw, dt: ArrayLike, *arrays: ArrayLike) -> tuple[np.ndarr
         raise ValueError("dt must be finite and >= 0")
     if not all(np.all(np.isfinite(x)) for x in out) or np.any(out[-2] <= 0):
         raise InadmissibleState("the fiber law met a non-finite stretch or tortuosity, or a plastic stretch <= 0")
-    return (*out, np.minimum(law.flow_rate * dt, _MAX_FLOW_SCALE))
+    return (*out, law.flow_scale(dt))
 
 
 def update(
@@ -295,7 +298,7 @@ def update(
     stress, plastic, tangent = np.empty_like(lam), np.empty_like(lam), np.empty_like(lam)
     recruited = np.empty(lam.shape, dtype=bool)
     failed = kernels.law_update(
-        lam, plastic_old, lr, adt, guess, *_parameters(law), stress, plastic, tangent, recruited
+        lam, plastic_old, lr, adt, guess, *law.kernel_constants(), stress, plastic, tangent, recruited
     )
     if failed:
         raise _not_converged(failed)

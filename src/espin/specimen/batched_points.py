@@ -37,8 +37,7 @@ from espin.core.errors import StepFailureKind, StepNotConverged
 from espin.geometry.network import Network
 from espin.mechanics.assembly import Kinematics, SparsePattern
 from espin.mechanics.equilibrium import EquilibriumSolver, StepState
-from espin.mechanics.fiber_law import _MAX_FLOW_SCALE, STRETCH_FLOOR, LawState, axial_force_and_stiffness, yielded
-from espin.mechanics.fiber_law import _parameters as _law_parameters
+from espin.mechanics.fiber_law import STRETCH_FLOOR, LawState, axial_force_and_stiffness, yielded
 from espin.mechanics.homogenization import nominal_stress
 from espin.mechanics.line_search import MAX_TRIALS, SHORTEST, SLOPE_RATIO
 from espin.mechanics.linear_solvers import Factorization, LinearSolver, make_linear_solver
@@ -234,8 +233,8 @@ class BatchedRVE:
             self.l0,
             self.area,
             self.tortuosity,
-            min(self.law.flow_rate * dt, _MAX_FLOW_SCALE),
-            _law_parameters(self.law),
+            float(self.law.flow_scale(dt)),
+            self.law.kernel_constants(),
             out.length,
             out.unit,
             out.stress,
