@@ -59,3 +59,32 @@ def test_steps_rejected_at_their_predictor_keep_the_time_steps_and_save_factoriz
     np.testing.assert_array_equal(foreseen.substeps, solved.substeps)
     np.testing.assert_array_equal(foreseen.P, solved.P)
     assert foreseen.factorizations.sum() < solved.factorizations.sum()
+
+
+def test_crossing_elements_are_linearized_about_their_kink():
+    """The kink correction's linearization of an element is its law's at the slack/taut kink
+    e = lambda_r: the force is continuous there, the taut side E_t / lambda_r stiffer than the
+    slack side's E_b (the law's 1000:1 for plla), for elements that have flowed too."""
+    from espin.mechanics.equilibrium import EquilibriumSolver, StepState
+    from espin.mechanics.fiber_law import update
+
+    rve = generate("plla", rve__size_ratio=30, rve__layers=2)
+    network, config = rve.network, rve.config
+    solver = EquilibriumSolver.from_config(network, config, make_linear_solver("auto"))
+    rng = np.random.default_rng(0)
+    n = network.n_elements
+    plastic = 1.0 + rng.uniform(0.0, 0.05, n)  # some have flowed
+    start = StepState(0.0, network.node_position[: network.n_inner], np.zeros(0), np.eye(2), plastic, np.zeros(n))
+    step = solver._context(start, 0.1, np.diag([1.02, 1.0]), np.zeros((0, 2, 2)), solver.law, None)
+    p = solver._evaluate(network.node_position[: network.n_inner].ravel() * 1.0, step)
+    elements = np.arange(n)
+    lr = np.maximum(network.element_tortuosity, 1.0)
+    l_t, force_t, k_t = solver._at_kink(elements, np.ones(n, dtype=bool), p, step)
+    l_s, force_s, k_s = solver._at_kink(elements, np.zeros(n, dtype=bool), p, step)
+    law_t = update(solver.law, l_t / solver.l0, plastic, lr, step.dt)
+    law_s = update(solver.law, l_s / solver.l0, plastic, lr, step.dt)
+    assert law_t.recruited.all() and not law_s.recruited.any()
+    np.testing.assert_allclose(l_t / solver.l0 / law_t.plastic_stretch, lr, rtol=1e-8)
+    np.testing.assert_allclose(force_t, force_s, rtol=1e-6, atol=1e-9 * float(np.max(np.abs(force_t))))
+    law = solver.law
+    np.testing.assert_allclose(k_t / k_s, law.taut_modulus / lr / law.slack_modulus, rtol=1e-3)

@@ -22,7 +22,7 @@ V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
 * with the exact tangent, a semismooth correction at the slack/taut kink (modulus x1000 at
   e = lambda_r): the elements whose recruitment at the full Newton step differs from the one the factorized
   tangent was built with are linearized on the side the step puts them (their force about
-  the full-step trial), a low-rank change solved with the same factorization
+  the kink, on that side), a low-rank change solved with the same factorization
   (Sherman-Morrison-Woodbury, :func:`low_rank_step`), repeated while that set changes;
   the corrected direction is kept when its full step passes the line search's slope test
   with a smaller residual than the plain one's (the plain full step's evaluation is the
@@ -93,6 +93,8 @@ _CLIPPED_AFTER_INDEFINITE = 3
 _SLACK_CONTINUATION = (100.0, 10.0, 1.0)  # E_b factors of the fallback, ending at the true law
 _KINK_ROUNDS = 3  # semismooth rounds of the kink correction per Newton iteration
 _KINK_MAX = 100  # more crossing elements than this: no correction (m solves would cost a factorization)
+_KINK_FIXED_POINT = 3  # iterations of lambda = lambda_r lambda_p(lambda) for the kink's stretch
+_KINK_SIDE = 1e-9  # relative offset of the stretch that evaluates one side of the kink
 _ELEMENTS_PER_THREAD = 10_000  # fewer per thread: the threads cost more than they save
 
 
@@ -482,10 +484,10 @@ class EquilibriumSolver:
 
         ``direction`` solved ``K dz = -r`` with ``tangent`` (the exact one, built at ``p``
         or, for a chord step, at an earlier iterate q). An element whose recruitment at the trial z + dz
-        differs from q's enters the model with its force linearized about the trial,
-        T_e(l) ~ T_tr + k_tr (l - l_tr), instead of T_z + k_q (l - l_z): a change of rank
-        one per element (delta_e = k_tr - k_q along its d l / d z = b_e) and a shift
-        c_e = T_tr - T_z - k_tr (l_tr - l_z) of its force, so
+        differs from q's enters the model with its force linearized about its kink, on the
+        trial's side (:meth:`_at_kink`), T_e(l) ~ T_k + k_k (l - l_k), instead of
+        T_z + k_q (l - l_z): a change of rank one per element (delta_e = k_k - k_q along its
+        d l / d z = b_e) and a shift c_e = T_k - T_z - k_k (l_k - l_z) of its force, so
         (K + B diag(delta) B^T) d = -r - B c, solved with the same factorization
         (:func:`low_rank_step`; b_e at the tangent's geometry, so K^-1 b_e is solved once per
         tangent and element, and chord steps reuse it). Repeated from the new trial while the set of
@@ -501,8 +503,9 @@ class EquilibriumSolver:
             if crossing.size == 0 or crossing.size > _KINK_MAX or np.array_equal(crossing, assumed):
                 break
             assumed = crossing
-            k_model, k_tr = tangent.axial[crossing], trial.stiffness[crossing]
-            shift = trial.force[crossing] - p.force[crossing] - k_tr * (trial.kin.length - p.kin.length)[crossing]
+            k_model = tangent.axial[crossing]
+            l_k, force_k, k_tr = self._at_kink(crossing, trial.law.recruited[crossing], p, step)
+            shift = force_k - p.force[crossing] - k_tr * (l_k - p.kin.length[crossing])
             new = [e for e in crossing.tolist() if e not in tangent.solved]
             if new:
                 columns = self._element_modes(np.array(new), tangent.kin, step)
@@ -522,6 +525,26 @@ class EquilibriumSolver:
             if slope_ok and np.linalg.norm(step.weight * trial.residual) < np.linalg.norm(step.weight * plain.residual):
                 return corrected, trial
         return direction, plain
+
+    def _at_kink(
+        self, elements: np.ndarray, taut: np.ndarray, p: _Point, step: _Step
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Length [um], axial force [uN] and dT/dl [uN/um] of ``elements`` at their slack/taut
+        kink, on the side ``taut`` says.
+
+        The kink is at e = lambda / lambda_p = lambda_r, where lambda_p is the step's plastic
+        stretch at that stretch: lambda = lambda_r lambda_p(lambda), a fixed point reached in
+        a few iterations because an element at its kink barely flows.
+        """
+        lr = np.maximum(self.tortuosity[elements], 1.0)
+        old = step.start.plastic_stretch[elements]
+        lam = lr * p.law.plastic_stretch[elements]
+        for _ in range(_KINK_FIXED_POINT):
+            lam = lr * update(step.law, lam, old, lr, step.dt).plastic_stretch
+        lam = lam * np.where(taut, 1.0 + _KINK_SIDE, 1.0 - _KINK_SIDE)
+        state = update(step.law, lam, old, lr, step.dt)
+        force, stiffness = axial_force_and_stiffness(state, self.area[elements], self.l0[elements])
+        return lam * self.l0[elements], force, stiffness
 
     # -- one step -----------------------------------------------------------------------------
     def iteration_limit(self, n_free: int) -> int:
