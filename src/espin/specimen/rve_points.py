@@ -6,7 +6,9 @@ the whole F prescribed (its border nodes follow x = F X) over the time step from
 state to the macro time (the fiber law is rate-dependent: the RVE time step is the macro time
 step, one RVE step per macro step); it returns the nominal stress P and the algorithmic
 macroscopic tangent dP/dF (:meth:`espin.mechanics.equilibrium.EquilibriumSolver.macroscopic_tangent`).
-Each solve starts from the point's last solution with the new affine part (warm start). Trials
+Each solve starts from the point's last solution moved to first order in the change of F (its
+sensitivity dz/dF, which the macroscopic tangent computes anyway; points solved one by one: the
+new affine part). Trials
 become the state only on :meth:`RVEPoints.commit` (the macro step converged) and are dropped on
 :meth:`RVEPoints.rollback` (it was cut).
 
@@ -65,6 +67,10 @@ class PointStates:
     plastic_stretch : list of (n_elements,) float64
     stress : list of (n_elements,) float64 [MPa]
         Element stresses t (they start the next step's local-error estimate).
+    sensitivity : list of (2 n_inner, 4) float64 or None [um]
+        d inner / dF_kL at the solution (column 2 k + L; :class:`BatchSolved`), the first-order
+        predictor of the next solve; None where it is not known (the start, the points solved
+        one by one).
 
     The lists have one array per point (per-point realizations differ in size).
     """
@@ -74,6 +80,7 @@ class PointStates:
     inner: list[np.ndarray]
     plastic_stretch: list[np.ndarray]
     stress: list[np.ndarray]
+    sensitivity: list[np.ndarray | None]
 
     def take(self, index: np.ndarray) -> PointStates:
         return PointStates(
@@ -82,6 +89,7 @@ class PointStates:
             [self.inner[i] for i in index],
             [self.plastic_stretch[i] for i in index],
             [self.stress[i] for i in index],
+            [self.sensitivity[i] for i in index],
         )
 
 
@@ -148,6 +156,7 @@ def _solve_batch(chunk: _Chunk) -> _Solved:
         recruited_fraction=solved.recruited_fraction,
         yielded_fraction=solved.yielded_fraction,
         iterations=solved.iterations,
+        sensitivity=list(solved.sensitivity),
     )
 
 
@@ -191,6 +200,7 @@ def _solve_chunk(chunk: _Chunk) -> _Solved:
         recruited_fraction=np.array([r.recruited_fraction for r in records]),
         yielded_fraction=np.array([r.yielded_fraction for r in records]),
         iterations=np.array([r.iterations for r, _ in results]),
+        sensitivity=[None] * len(results),
     )
 
 
@@ -207,6 +217,7 @@ class _Solved:
     recruited_fraction: np.ndarray
     yielded_fraction: np.ndarray
     iterations: np.ndarray
+    sensitivity: list[np.ndarray | None]  # (2 n_inner, 4) [um] per point (PointStates)
 
     @classmethod
     def joined(cls, parts: Sequence[_Solved]) -> _Solved:
@@ -229,6 +240,15 @@ def _raise_failed_chunk(outcome: TaskOutcome, points: np.ndarray) -> NoReturn:
         raise RuntimeError(f"{outcome.error} ({where})")
     exception.add_note(where)
     raise exception
+
+
+def _predictor(inner: np.ndarray, reference: np.ndarray, sensitivity: np.ndarray | None, dF: np.ndarray) -> np.ndarray:
+    """The warm start of a point's next solve [um]: its last solution ``inner`` (n_inner, 2)
+    moved to first order by the change ``dF`` of F (``sensitivity``: dz/dF, PointStates), or
+    without it by the affine part X dF^T of the change (``reference``: X)."""
+    if sensitivity is None:
+        return inner + reference @ dF.T
+    return inner + (sensitivity @ dF.ravel()).reshape(inner.shape)
 
 
 def replay_point(network: Network, config: Config, times: np.ndarray, F: np.ndarray) -> list[StepRecord]:
@@ -309,6 +329,7 @@ class RVEPoints:
             inner,
             [np.ones(net.n_elements) for net in self.networks],
             [np.zeros(net.n_elements) for net in self.networks],
+            [None] * n_points,
         )
         self._error = 0.0
         self._trial: PointStates | None = None
@@ -323,8 +344,10 @@ class RVEPoints:
 
     def evaluate(self, F: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray]:
         last = self._trial if self._trial is not None and self._trial.time == time else self.state
-        # Warm start: the last solution's non-affine part with the new affine part.
-        guess = [w + X @ (F_p - F_last).T for w, X, F_p, F_last in zip(last.inner, self._reference, F, last.F)]
+        guess = [
+            _predictor(w, X, S, F_p - F_last)
+            for w, X, S, F_p, F_last in zip(last.inner, self._reference, last.sensitivity, F, last.F)
+        ]
         parts = np.array_split(np.arange(self.n_points), self.chunks)
         tasks = [
             _Chunk(
@@ -348,7 +371,9 @@ class RVEPoints:
         solved = _Solved.joined([results[k] for k in range(len(tasks))])
         self.solves += self.n_points
         self.rve_iterations += int(solved.iterations.sum())
-        self._trial = PointStates(time, F.copy(), solved.inner, solved.plastic_stretch, solved.stress)
+        self._trial = PointStates(
+            time, F.copy(), solved.inner, solved.plastic_stretch, solved.stress, solved.sensitivity
+        )
         self._error = float(solved.local_error.max())
         self._trial_fields = {
             "yielded_fraction": solved.yielded_fraction,
