@@ -8,7 +8,8 @@ step, one RVE step per macro step); it returns the nominal stress P and the algo
 macroscopic tangent dP/dF (:meth:`espin.mechanics.equilibrium.EquilibriumSolver.macroscopic_tangent`).
 Each solve starts from the point's last solution moved to first order in the change of F (its
 sensitivity dz/dF, which the macroscopic tangent computes anyway; points solved one by one: the
-new affine part). Trials
+new affine part), the first trial of a time step also along the last step's motion in time
+(:meth:`RVEPoints._guess`). Trials
 become the state only on :meth:`RVEPoints.commit` (the macro step converged) and are dropped on
 :meth:`RVEPoints.rollback` (it was cut).
 
@@ -333,6 +334,7 @@ class RVEPoints:
         )
         self._error = 0.0
         self._trial: PointStates | None = None
+        self._previous: PointStates | None = None  # the committed state before ``state``
         self._trial_fields: dict[str, np.ndarray] = {}
         self.fields_committed: dict[str, np.ndarray] = {
             name: np.zeros(n_points) for name in ("yielded_fraction", "recruited_fraction")
@@ -343,11 +345,7 @@ class RVEPoints:
         self.history_F: list[np.ndarray] = []
 
     def evaluate(self, F: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray]:
-        last = self._trial if self._trial is not None and self._trial.time == time else self.state
-        guess = [
-            _predictor(w, X, S, F_p - F_last)
-            for w, X, S, F_p, F_last in zip(last.inner, self._reference, last.sensitivity, F, last.F)
-        ]
+        guess = self._guess(F, time)
         parts = np.array_split(np.arange(self.n_points), self.chunks)
         tasks = [
             _Chunk(
@@ -382,6 +380,29 @@ class RVEPoints:
         }
         return solved.P, solved.A
 
+    def _guess(self, F: np.ndarray, time: float) -> list[np.ndarray]:
+        """Every point's warm start [um] at ``F`` and ``time`` (module docstring): a new trial of
+        the step from the last trial, moved to first order in F; the first trial of a time step
+        from the committed state, also moved along the last step's motion in time (the plastic
+        flow goes on: z_n + r (z_n - z_n-1) + dz/dF (F - F_n - r (F_n - F_n-1)), r the ratio of
+        the time steps)."""
+        trial = self._trial is not None and self._trial.time == time
+        last = self._trial if trial else self.state
+        assert last is not None
+        before = self._previous
+        if trial or before is None or not before.time < last.time:
+            return [
+                _predictor(w, X, S, F_p - F_last)
+                for w, X, S, F_p, F_last in zip(last.inner, self._reference, last.sensitivity, F, last.F)
+            ]
+        r = (time - last.time) / (last.time - before.time)
+        return [
+            _predictor(w + r * (w - w_before), X, S, F_p - F_last - r * (F_last - F_before))
+            for w, w_before, X, S, F_p, F_last, F_before in zip(
+                last.inner, before.inner, self._reference, last.sensitivity, F, last.F, before.F
+            )
+        ]
+
     def time_error(self) -> float:
         """Largest relative local error of the plastic update over the points at the last trial
         (:func:`espin.mechanics.time_steps.local_error`)."""
@@ -390,6 +411,7 @@ class RVEPoints:
     def commit(self) -> None:
         if self._trial is None:
             return
+        self._previous = self.state
         self.state = self._trial
         self.fields_committed = dict(self._trial_fields)
         self.history_time.append(self.state.time)
