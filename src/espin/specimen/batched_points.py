@@ -88,7 +88,7 @@ class BatchSolved:
     local_error, recruited_fraction, yielded_fraction : (n,) float64
     iterations, factorizations : (n,) int64
         Newton iterations and factorizations of each point's solve.
-    sensitivity : (n, 2 n_inner, 4) float64 [um]
+    sensitivity : (n, 2 n_inner, 4) float32 [um]
         dz / dF_kL of the inner DOF z at the solution (column 2 k + L), at fixed plastic state
         of the step start and fixed time step: the first-order predictor of the next solve.
     """
@@ -600,7 +600,7 @@ class BatchedRVE:
             yielded_fraction=(yielded(p.plastic, threshold) @ volume) / volume.sum(),
             iterations=iterations,
             factorizations=factorizations,
-            sensitivity=-fluctuation,
+            sensitivity=(-fluctuation).astype(np.float32),  # a predictor: single precision is enough
         )
 
 

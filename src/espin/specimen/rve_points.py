@@ -27,7 +27,7 @@ L^2 N_l D, the specimen's P (the macro thickness is the mat's).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, NoReturn
 
 import numpy as np
@@ -68,7 +68,7 @@ class PointStates:
     plastic_stretch : list of (n_elements,) float64
     stress : list of (n_elements,) float64 [MPa]
         Element stresses t (they start the next step's local-error estimate).
-    sensitivity : list of (2 n_inner, 4) float64 or None [um]
+    sensitivity : list of (2 n_inner, 4) float32 or None [um]
         d inner / dF_kL at the solution (column 2 k + L; :class:`BatchSolved`), the first-order
         predictor of the next solve; None where it is not known (the start, the points solved
         one by one).
@@ -354,7 +354,7 @@ class RVEPoints:
                 [self.networks[i] for i in part],
                 self.shared,
                 self.config,
-                self.state.take(part),
+                replace(self.state.take(part), sensitivity=[None] * len(part)),  # not needed there
                 [guess[i] for i in part],
                 F[part],
                 time,
