@@ -45,7 +45,7 @@ from espin.mechanics.fiber_law import (
     elastic_modulus,
     yielded,
 )
-from espin.mechanics.line_search import MAX_TRIALS, SHORTEST, SLOPE_RATIO
+from espin.mechanics.line_search import MAX_TRIALS, SHORTEST, accepts, next_step, shortened, simpson_decrease
 from espin.mechanics.linear_solvers import Factorization, LinearSolver, make_linear_solver
 from espin.mechanics.time_steps import flow_rate
 from espin.specimen import batched_kernels
@@ -455,11 +455,11 @@ class BatchedRVE:
             if not ok.all():
                 bad = rows[~ok]  # overshot into inadmissible states: shorten
                 hi[bad], s_hi[bad] = alpha[bad], np.nan
-                alpha[bad] = lo[bad] + 0.1 * (alpha[bad] - lo[bad])
+                alpha[bad] = shortened(alpha[bad], lo[bad])
                 rows, at = rows[ok], at[ok]
             a = alpha[rows]
             s = np.einsum("kn,kn->k", trial.residual[at], direction[rows])
-            candidate = ((s <= 0.0) & (a == 1.0)) | (np.abs(s) <= SLOPE_RATIO * np.abs(s0[rows]))
+            candidate = accepts(s, a, s0[rows])
             decreases = np.zeros(len(rows), dtype=bool)
             if candidate.any():
                 c = np.flatnonzero(candidate)
@@ -488,17 +488,8 @@ class BatchedRVE:
                 best.put(rows[down], trial, at[down])
                 has_best[rows[down]] = True
             move = rows[~decreases]
-            h, l_, sl, sh = hi[move], lo[move], s_lo[move], s_hi[move]
-            no_hi, no_slope = np.isnan(h), np.isnan(sh)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                guess = l_ - sl * (h - l_) / (sh - sl)
-            width = h - l_
-            bracketed = np.clip(guess, l_ + 0.1 * width, h - 0.1 * width)
-            alpha[move] = np.where(
-                no_hi, np.minimum(2.0 * alpha[move], 1.0), np.where(no_slope, l_ + 0.5 * width, bracketed)
-            )
-            narrow = ~no_hi & (width < SHORTEST)
-            searching[move[narrow]] = False
+            alpha[move] = next_step(alpha[move], lo[move], hi[move], s_lo[move], s_hi[move])
+            searching[move[hi[move] - lo[move] < SHORTEST]] = False
         rest = np.flatnonzero(~accepted & has_best)
         if len(rest):
             fallback, _ = self._decreases(
@@ -534,7 +525,7 @@ class BatchedRVE:
                 point.z[r] + 0.5 * alpha[check, None] * direction[r], F[r], plastic_start[r], dt, point.plastic[r]
             )
             s_middle = np.einsum("kn,kn->k", np.where(ok[:, None], middle.residual, 0.0), direction[r])
-            out[check] = ok & (alpha[check] / 6.0 * (s0[r] + 4.0 * s_middle + s_trial[check]) < 0.0)
+            out[check] = ok & (simpson_decrease(alpha[check], s0[r], s_middle, s_trial[check]) < 0.0)
             broken[check] = ~ok
         return out, broken
 
