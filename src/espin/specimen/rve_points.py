@@ -386,11 +386,9 @@ class RVEPoints:
         from the committed state, also moved along the last step's motion in time (the plastic
         flow goes on: z_n + r (z_n - z_n-1) + dz/dF (F - F_n - r (F_n - F_n-1)), r the ratio of
         the time steps)."""
-        trial = self._trial is not None and self._trial.time == time
-        last = self._trial if trial else self.state
-        assert last is not None
+        last = self._trial if self._trial is not None and self._trial.time == time else self.state
         before = self._previous
-        if trial or before is None or not before.time < last.time:
+        if last is self._trial or before is None or not before.time < last.time:
             return [
                 _predictor(w, X, S, F_p - F_last)
                 for w, X, S, F_p, F_last in zip(last.inner, self._reference, last.sensitivity, F, last.F)
