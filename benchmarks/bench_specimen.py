@@ -24,7 +24,8 @@
   speed-up from 1 to 2 workers, the dogbone).
 
 Every run prints elements, quadrature points (RVEs), DOF, wall seconds, macro iterations, time
-steps, RVE solves and their rate, and the peak memory, and archives its force-displacement table
+steps, RVE solves and their rate per wall and per CPU second (user + system of the run and its
+workers: compare these on a loaded machine), and the peak memory, and archives its force-displacement table
 and counts in benchmarks/data/specimen/ (``NAME.csv`` and ``NAME.json``). The RVE: plla, L/D 60,
 3 layers, seed 1 (the default of ``espin.specimen``); thickness 0.1 mm.
 """
@@ -53,15 +54,22 @@ def _peak_mb() -> float:
     return max(own, children) / 1024.0
 
 
+def _cpu_s() -> float:
+    """User + system CPU seconds of this process and its finished workers."""
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
 def _archive(name: str, result, extra: dict) -> None:
     DATA.mkdir(parents=True, exist_ok=True)
     result.to_dataframe().to_csv(DATA / f"{name}.csv", index=False)
     counts = {k: v for k, v in result.counts.items()}
     counts.update(extra, elements=result.specimen.n_elements, points=result.membrane.n_points,
-                  dofs=result.membrane.n_dofs, peak_memory_mb=round(_peak_mb(), 1))
+                  dofs=result.membrane.n_dofs, peak_memory_mb=round(_peak_mb(), 1), cpu_s=round(_cpu_s(), 1))
     (DATA / f"{name}.json").write_text(json.dumps(counts, indent=1, default=str))
     solves = counts.get("rve_solves", 0)
-    rate = f", {solves / counts['seconds']:.0f} RVE solves/s" if solves else ""
+    rate = (f", {solves / counts['seconds']:.0f} RVE solves/s ({counts['cpu_s']:.0f} s of CPU, "
+            f"{solves / counts['cpu_s']:.0f} per CPU s)" if solves else "")
     print(f"{name}: {counts['elements']} elements, {counts['points']} points, {counts['dofs']} DOF, "
           f"{counts['seconds']:.1f} s, {counts['macro_iterations']} macro iterations, {counts['time_steps']} time "
           f"steps, {solves} RVE solves{rate}, {counts.get('rve_iterations', 0)} RVE iterations, "

@@ -54,7 +54,7 @@ def test_cholesky_factors_and_solves_every_point(batch):
                               pattern.k_col)
     for i in range(k):
         matrix = sp.csr_matrix((K[i], batch._K.indices, batch._K.indptr), shape=(n, n))
-        factor = sp.csc_matrix((L[i], pattern.l_row, pattern.l_ptr), shape=(n, n)).toarray()
+        factor = pattern.factor(L[i]).toarray()
         permuted = matrix.toarray()[np.ix_(pattern.perm, pattern.perm)]
         scale = np.abs(permuted).max()
         assert np.abs(factor @ factor.T - permuted).max() <= 1e-12 * scale

@@ -80,3 +80,33 @@ def test_a_batched_point_that_does_not_converge_is_named(rve):
     with pytest.raises(StepNotConverged, match="RVE point 12: "):
         batch.solve(0.0, np.tile(np.eye(2), (k, 1, 1)), np.tile(X, (k, 1, 1)), np.ones((k, n_el)),
                     np.zeros((k, n_el)), 5.0, F, guess, np.array([10, 11, 12]))
+
+
+def test_the_sensitivity_of_the_inner_nodes_is_their_derivative_in_F(rve):
+    """dz/dF at a solution (the predictor of the next solve) against central differences of the
+    solutions at F +- h dF, the same step (start, time); past the yield knee, with shear."""
+    config = rve_tolerance(rve.config, 1e-9)
+    network = rve.network
+    batch = BatchedRVE(network, config)
+    X = batch.X_inner
+    n_el = network.n_elements
+    time = 0.04 / config.loading.strain_rate_per_s
+    F = _F(0.04, 0.01)
+    dF = np.array([[0.3, -0.2], [0.5, -0.4]])
+    h = 1e-6
+    Fs = np.array([F, F + h * dF, F - h * dF])
+    solved = batch.solve(0.0, np.tile(np.eye(2), (3, 1, 1)), np.tile(X, (3, 1, 1)), np.ones((3, n_el)),
+                         np.zeros((3, n_el)), time, Fs, np.einsum("nJ,kiJ->kni", X, Fs), np.arange(3))
+    difference = (solved.inner[1] - solved.inner[2]).ravel() / (2.0 * h)
+    predicted = solved.sensitivity[0] @ dF.ravel()
+    assert np.abs(predicted - difference).max() <= 1e-6 * np.abs(difference).max()
+    # The predictor starts the next trial closer than the affine guess: fewer iterations.
+    F_next = F + 2e-3 * dF
+    guesses = {"affine": solved.inner[0] + X @ (F_next - F).T,
+               "predictor": solved.inner[0] + (solved.sensitivity[0] @ (F_next - F).ravel()).reshape(-1, 2)}
+    iterations = {}
+    for name, guess in guesses.items():
+        again = batch.solve(0.0, np.eye(2)[None], X[None], np.ones((1, n_el)), np.zeros((1, n_el)), time,
+                            F_next[None], guess[None], np.arange(1))
+        iterations[name] = int(again.iterations[0])
+    assert iterations["predictor"] < iterations["affine"]

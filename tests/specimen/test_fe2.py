@@ -135,6 +135,28 @@ def test_states_change_only_on_commit(rve):
     assert len(points.history_F) == 1 and points.fields()["yielded_fraction"].max() > 0.0
 
 
+def test_the_first_trial_of_a_time_step_follows_the_last_step_in_time(rve):
+    """Steady straining past the yield knee in small steps: the warm start of a new time step
+    moved along the last step's motion (the plastic flow goes on) lies closer to the solution
+    than the last solution moved by dz/dF alone."""
+    rate = rve.config.loading.strain_rate_per_s
+    points = RVEPoints(rve.network, rve_tolerance(rve.config, MACRO_RTOL), 2)
+    F = lambda e: np.array([np.diag([1.0 + e, 1.0 - 0.3 * e]), [[1.0 + e, 0.2 * e], [0.0, 1.0]]])  # noqa: E731
+    points.evaluate(F(0.0), 0.0)
+    points.commit()
+    for e in (0.03, 0.031, 0.032):
+        points.evaluate(F(e), e / rate)
+        points.commit()
+    e, time = 0.033, 0.033 / rate
+    along_time = points._guess(F(e), time)
+    last = points.state
+    along_F = [(w.ravel() + S @ (F_p - F_l).ravel()).reshape(w.shape)
+               for w, S, F_p, F_l in zip(last.inner, last.sensitivity, F(e), last.F)]
+    points.evaluate(F(e), time)
+    for w, guess, first_order in zip(points._trial.inner, along_time, along_F):
+        assert np.sqrt(np.mean((guess - w) ** 2)) < 0.5 * np.sqrt(np.mean((first_order - w) ** 2))
+
+
 @pytest.mark.slow
 def test_specimen_folder_and_reopened_point(rve, tmp_path):
     out = tmp_path / "run"

@@ -12,10 +12,15 @@ The search knows the problem only through ``evaluate(z, near)``: it returns the 
 (anything with ``z`` and ``residual``; ``near`` an evaluated point of the same step, a warm
 start) or raises :class:`~espin.core.errors.InadmissibleState` where z lies outside the model's
 domain (the search then shortens the step).
+
+The rules of a trial (:func:`accepts`, :func:`next_step`, :func:`shortened`,
+:func:`simpson_decrease`) take floats or arrays, so that the line searches of many problems in
+lockstep (:mod:`espin.specimen.batched_points`) follow them too.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Protocol, TypeVar
 
@@ -23,7 +28,7 @@ import numpy as np
 
 from espin.core.errors import InadmissibleState, StepFailureKind, StepNotConverged
 
-__all__ = ["Evaluated", "line_search"]
+__all__ = ["Evaluated", "line_search", "accepts", "next_step", "shortened", "simpson_decrease"]
 
 SLOPE_RATIO = 0.5
 """|s(alpha)| <= SLOPE_RATIO |s(0)| accepts a trial."""
@@ -43,6 +48,36 @@ class Evaluated(Protocol):
 
 
 P = TypeVar("P", bound=Evaluated)
+Value = float | np.ndarray  # one trial or many in lockstep
+
+
+def accepts(s: Value, alpha: Value, s0: Value) -> np.ndarray:
+    """Whether a trial at step ``alpha`` with slope ``s`` passes the slope test (before the
+    check that the potential fell): the full step still descends, or |s| <= SLOPE_RATIO |s0|."""
+    return np.asarray(((s <= 0.0) & (alpha == 1.0)) | (np.abs(s) <= SLOPE_RATIO * np.abs(s0)))
+
+
+def next_step(alpha: Value, lo: Value, hi: Value, s_lo: Value, s_hi: Value) -> np.ndarray:
+    """The next trial's step after a rejected one at ``alpha``: the bracket [lo, hi] with the
+    slopes at its ends (``hi`` NaN: no upper end yet, the step doubles up to 1; ``s_hi`` NaN:
+    the upper end's slope is unknown, bisection), else safeguarded regula falsi (at least a
+    tenth of the bracket from either end)."""
+    width = hi - lo
+    with np.errstate(invalid="ignore", divide="ignore"):
+        guess = lo - s_lo * width / (s_hi - s_lo)
+    bracketed = np.clip(guess, lo + 0.1 * width, hi - 0.1 * width)
+    return np.where(np.isnan(hi), np.minimum(2.0 * alpha, 1.0), np.where(np.isnan(s_hi), lo + 0.5 * width, bracketed))
+
+
+def shortened(alpha: Value, lo: Value) -> Value:
+    """The step after a trial at ``alpha`` that left the admissible states (its bracket's upper end)."""
+    return lo + 0.1 * (alpha - lo)
+
+
+def simpson_decrease(alpha: Value, s0: Value, s_middle: Value, s_trial: Value) -> Value:
+    """The potential's increment from the iterate to the trial at ``alpha`` by Simpson's rule on
+    the slopes at 0, alpha / 2 and alpha."""
+    return alpha / 6.0 * (s0 + 4.0 * s_middle + s_trial)
 
 
 def line_search(point: P, direction: np.ndarray, evaluate: Callable[[np.ndarray, P], P], weight: np.ndarray) -> P:
@@ -66,35 +101,27 @@ def line_search(point: P, direction: np.ndarray, evaluate: Callable[[np.ndarray,
     """
     s0 = float(np.dot(point.residual, direction))
     lo, s_lo = 0.0, s0
-    hi: float | None = None
-    s_hi: float | None = None
+    hi = s_hi = math.nan  # no upper end yet; its slope unknown
     best = None  # the trial at ``lo``: the potential still falls there
     alpha = 1.0
     for _ in range(MAX_TRIALS):
         try:
             trial = evaluate(point.z + alpha * direction, point)
         except InadmissibleState:  # overshot into inadmissible states: shorten
-            hi, s_hi = alpha, None
-            alpha = lo + 0.1 * (alpha - lo)
+            hi, s_hi = alpha, math.nan
+            alpha = float(shortened(alpha, lo))
             continue
         s = float(np.dot(trial.residual, direction))
-        if (s <= 0.0 and alpha == 1.0) or abs(s) <= SLOPE_RATIO * abs(s0):
+        if accepts(s, alpha, s0):
             if _decreases(point, trial, direction, alpha, s0, s, evaluate, weight):
                 return trial
-            hi, s_hi = alpha, None
+            hi, s_hi = alpha, math.nan
         elif s > 0.0:
             hi, s_hi = alpha, s
         else:
             lo, s_lo, best = alpha, s, trial
-        if hi is None:
-            alpha = min(2.0 * alpha, 1.0)
-        elif s_hi is None:
-            alpha = lo + 0.5 * (hi - lo)
-        else:
-            guess = lo - s_lo * (hi - lo) / (s_hi - s_lo)
-            width = hi - lo
-            alpha = float(np.clip(guess, lo + 0.1 * width, hi - 0.1 * width))
-        if hi is not None and hi - lo < SHORTEST:
+        alpha = float(next_step(alpha, lo, hi, s_lo, s_hi))
+        if hi - lo < SHORTEST:
             break
     if best is not None and _decreases(point, best, direction, lo, s0, s_lo, evaluate, weight):
         return best  # no better point found, but the potential falls up to it
@@ -117,4 +144,4 @@ def _decreases(
         return True
     middle = evaluate(point.z + 0.5 * alpha * direction, point)
     s_middle = float(np.dot(middle.residual, direction))
-    return alpha / 6.0 * (s0 + 4.0 * s_middle + s_trial) < 0.0
+    return bool(simpson_decrease(alpha, s0, s_middle, s_trial) < 0.0)

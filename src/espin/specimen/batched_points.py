@@ -35,13 +35,19 @@ import scipy.sparse as sp
 from espin.core.config import Config
 from espin.core.errors import StepFailureKind, StepNotConverged
 from espin.geometry.network import Network
-from espin.mechanics.assembly import Kinematics, SparsePattern
+from espin.mechanics.assembly import SparsePattern
 from espin.mechanics.equilibrium import EquilibriumSolver, StepState
-from espin.mechanics.fiber_law import STRETCH_FLOOR, LawState, axial_force_and_stiffness, yielded
-from espin.mechanics.homogenization import nominal_stress
-from espin.mechanics.line_search import MAX_TRIALS, SHORTEST, SLOPE_RATIO
+from espin.mechanics.fiber_law import (
+    STRETCH_FLOOR,
+    FiberLaw,
+    LawState,
+    axial_force_and_stiffness,
+    elastic_modulus,
+    yielded,
+)
+from espin.mechanics.line_search import MAX_TRIALS, SHORTEST, accepts, next_step, shortened, simpson_decrease
 from espin.mechanics.linear_solvers import Factorization, LinearSolver, make_linear_solver
-from espin.mechanics.time_steps import local_error
+from espin.mechanics.time_steps import flow_rate
 from espin.specimen import batched_kernels
 
 __all__ = ["BatchedRVE", "BatchSolved", "batchable"]
@@ -82,6 +88,9 @@ class BatchSolved:
     local_error, recruited_fraction, yielded_fraction : (n,) float64
     iterations, factorizations : (n,) int64
         Newton iterations and factorizations of each point's solve.
+    sensitivity : (n, 2 n_inner, 4) float32 [um]
+        dz / dF_kL of the inner DOF z at the solution (column 2 k + L), at fixed plastic state
+        of the step start and fixed time step: the first-order predictor of the next solve.
     """
 
     P: np.ndarray
@@ -94,6 +103,7 @@ class BatchSolved:
     yielded_fraction: np.ndarray
     iterations: np.ndarray
     factorizations: np.ndarray
+    sensitivity: np.ndarray
 
 
 @dataclass(eq=False)
@@ -112,26 +122,26 @@ class _Iterates:
 
     @classmethod
     def empty(cls, k: int, e: int, n: int) -> _Iterates:
-        """k points of e elements and n DOF, not evaluated (NaN)."""
-        nan = np.nan
+        """k points of e elements and n DOF, not filled."""
         return cls(
-            z=np.full((k, n), nan),
-            length=np.full((k, e), nan),
-            unit=np.full((k, e, 2), nan),
-            stress=np.full((k, e), nan),
-            plastic=np.full((k, e), nan),
-            recruited=np.zeros((k, e), dtype=bool),
-            force=np.full((k, e), nan),
-            stiffness=np.full((k, e), nan),
-            residual=np.full((k, n), nan),
+            z=np.empty((k, n)),
+            length=np.empty((k, e)),
+            unit=np.empty((k, e, 2)),
+            stress=np.empty((k, e)),
+            plastic=np.empty((k, e)),
+            recruited=np.empty((k, e), dtype=bool),
+            force=np.empty((k, e)),
+            stiffness=np.empty((k, e)),
+            residual=np.empty((k, n)),
         )
 
     def take(self, rows: np.ndarray) -> _Iterates:
         return _Iterates(**{name: getattr(self, name)[rows] for name in self.__dataclass_fields__})
 
-    def put(self, rows: np.ndarray, other: _Iterates) -> None:
+    def put(self, rows: np.ndarray, other: _Iterates, other_rows: np.ndarray) -> None:
+        """Rows ``rows`` from rows ``other_rows`` of ``other``."""
         for name in self.__dataclass_fields__:
-            getattr(self, name)[rows] = getattr(other, name)
+            getattr(self, name)[rows] = getattr(other, name)[other_rows]
 
 
 def _sorted(matrix: sp.spmatrix) -> sp.csr_matrix:
@@ -206,6 +216,7 @@ class BatchedRVE:
         self.sum_into["coupling"] = _sorted(to_coupling @ self.sum_into["IB"])
         self.sum_into["corner"] = _sorted(sp.csr_matrix(to_corner) @ self.sum_into["BB"])
         self.volume = network.element_area * network.element_contour_length
+        self.element_vector = network.element_vector
         self._linear: list[LinearSolver] = []
         self._K = _sorted(self.patterns["II"].matrix)
         self.slot = self.patterns["II"].slot
@@ -248,6 +259,7 @@ class BatchedRVE:
             bad = ~ok
             for name in ("length", "unit", "stress", "plastic", "force", "stiffness", "residual"):
                 getattr(out, name)[bad] = np.nan
+            out.recruited[bad] = False
         return out, ok
 
     def _converged(self, residual: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -377,20 +389,22 @@ class BatchedRVE:
                         failed[going[j]] = True
                     else:
                         direction[j] = d
-            moving = ~failed[going]
+            moving = np.flatnonzero(~failed[going])
             rows = going[moving]
-            accepted, ok = self._line_search(
-                current.take(np.flatnonzero(moving)), direction[moving], F[rows], start_plastic[rows], dt
-            )
+            point = current if len(moving) == len(going) else current.take(moving)
+            ok = self._line_search(point, direction[moving], F[rows], start_plastic[rows], dt, p, rows)
             failed[rows[~ok]] = True
-            p.put(rows[ok], accepted.take(np.flatnonzero(ok)))
-        retry = np.flatnonzero(failed)
-        start_states = [
-            StepState(start_time, start_inner[i], np.zeros(0), start_F[i], start_plastic[i], start_stress[i])
-            for i in range(k)
-        ]
-        retried = {int(i): self._solve_one(start_states[i], time, F[i], guess[i], int(names[i])) for i in retry}
-        return self._results(p, retried, start_states, iterations, factorizations, F, dt, factors)
+        retried = {
+            i: self._solve_one(
+                StepState(start_time, start_inner[i], np.zeros(0), start_F[i], start_plastic[i], start_stress[i]),
+                time,
+                F[i],
+                guess[i],
+                int(names[i]),
+            )
+            for i in map(int, np.flatnonzero(failed))
+        }
+        return self._results(p, retried, start_stress, start_plastic, iterations, factorizations, F, dt, factors)
 
     def _solve_one(self, start: StepState, time: float, F: np.ndarray, guess: np.ndarray, name: int):
         """A point the batch did not converge, by the per-point solver (with its continuation)."""
@@ -406,18 +420,25 @@ class BatchedRVE:
 
     # -- the line search of all points ------------------------------------------------------
     def _line_search(
-        self, point: _Iterates, direction: np.ndarray, F: np.ndarray, plastic_start: np.ndarray, dt: float
-    ) -> tuple[_Iterates, np.ndarray]:
+        self,
+        point: _Iterates,
+        direction: np.ndarray,
+        F: np.ndarray,
+        plastic_start: np.ndarray,
+        dt: float,
+        out: _Iterates,
+        out_rows: np.ndarray,
+    ) -> np.ndarray:
         """:func:`espin.mechanics.line_search.line_search` of every point in lockstep: the
-        accepted trials and which points found one (the others could not lower the potential)."""
+        accepted trials into rows ``out_rows`` of ``out``; returns which points found one (the
+        others could not lower the potential)."""
         k = len(direction)
         s0 = np.einsum("kn,kn->k", point.residual, direction)
         lo, s_lo = np.zeros(k), s0.copy()
         hi = np.full(k, np.nan)  # NaN: no upper end yet
         s_hi = np.full(k, np.nan)  # NaN: the upper end's slope is unknown
         alpha = np.ones(k)
-        result = point.take(np.arange(k))
-        best = point.take(np.arange(k))
+        best = _Iterates.empty(k, len(self.l0), self.n)  # the trial at ``lo`` where has_best
         has_best = np.zeros(k, dtype=bool)
         searching = np.ones(k, dtype=bool)
         accepted = np.zeros(k, dtype=bool)
@@ -430,64 +451,59 @@ class BatchedRVE:
             trial, ok = self._evaluate(
                 point.z[rows] + a[:, None] * direction[rows], F[rows], plastic_start[rows], dt, point.plastic[rows]
             )
-            bad = rows[~ok]  # overshot into inadmissible states: shorten
-            hi[bad], s_hi[bad] = alpha[bad], np.nan
-            alpha[bad] = lo[bad] + 0.1 * (alpha[bad] - lo[bad])
-            rows, trial = rows[ok], trial.take(np.flatnonzero(ok))
+            at = np.arange(len(rows))  # rows of ``trial``
+            if not ok.all():
+                bad = rows[~ok]  # overshot into inadmissible states: shorten
+                hi[bad], s_hi[bad] = alpha[bad], np.nan
+                alpha[bad] = shortened(alpha[bad], lo[bad])
+                rows, at = rows[ok], at[ok]
             a = alpha[rows]
-            s = np.einsum("kn,kn->k", trial.residual, direction[rows])
-            candidate = ((s <= 0.0) & (a == 1.0)) | (np.abs(s) <= SLOPE_RATIO * np.abs(s0[rows]))
+            s = np.einsum("kn,kn->k", trial.residual[at], direction[rows])
+            candidate = accepts(s, a, s0[rows])
             decreases = np.zeros(len(rows), dtype=bool)
             if candidate.any():
                 c = np.flatnonzero(candidate)
                 decreases[c], broken = self._decreases(
-                    point, rows[c], trial.take(c), direction, a[c], s0, s[c], F, plastic_start, dt, base_norm
+                    point, rows[c], trial.residual[at[c]], direction, a[c], s0, s[c], F, plastic_start, dt, base_norm
                 )
-                # An inadmissible midpoint ends the point's search: it fails here (as it does
-                # in the per-point line search, which raises) and is solved again one by one.
-                stop = rows[c[broken]]
-                searching[stop], has_best[stop] = False, False
-                keep = np.flatnonzero(~np.isin(rows, stop))
-                rows, trial, a, s = rows[keep], trial.take(keep), a[keep], s[keep]
-                candidate, decreases = candidate[keep], decreases[keep]
-            win = rows[decreases]
-            result.put(win, trial.take(np.flatnonzero(decreases)))
-            accepted[win] = True
-            searching[win] = False
+                if broken.any():
+                    # An inadmissible midpoint ends the point's search: it fails here (as it
+                    # does in the per-point line search, which raises) and is solved again one by one.
+                    stop = rows[c[broken]]
+                    searching[stop], has_best[stop] = False, False
+                    keep = np.flatnonzero(~np.isin(rows, stop))
+                    rows, at, a, s = rows[keep], at[keep], a[keep], s[keep]
+                    candidate, decreases = candidate[keep], decreases[keep]
+            win = np.flatnonzero(decreases)
+            out.put(out_rows[rows[win]], trial, at[win])
+            accepted[rows[win]] = True
+            searching[rows[win]] = False
             rejected = candidate & ~decreases
             up = ~candidate & (s > 0.0)
             down = ~candidate & ~(s > 0.0)
             hi[rows[rejected]], s_hi[rows[rejected]] = a[rejected], np.nan
             hi[rows[up]], s_hi[rows[up]] = a[up], s[up]
             lo[rows[down]], s_lo[rows[down]] = a[down], s[down]
-            best.put(rows[down], trial.take(np.flatnonzero(down)))
-            has_best[rows[down]] = True
+            if down.any():
+                best.put(rows[down], trial, at[down])
+                has_best[rows[down]] = True
             move = rows[~decreases]
-            h, l_, sl, sh = hi[move], lo[move], s_lo[move], s_hi[move]
-            no_hi, no_slope = np.isnan(h), np.isnan(sh)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                guess = l_ - sl * (h - l_) / (sh - sl)
-            width = h - l_
-            bracketed = np.clip(guess, l_ + 0.1 * width, h - 0.1 * width)
-            alpha[move] = np.where(
-                no_hi, np.minimum(2.0 * alpha[move], 1.0), np.where(no_slope, l_ + 0.5 * width, bracketed)
-            )
-            narrow = ~no_hi & (width < SHORTEST)
-            searching[move[narrow]] = False
+            alpha[move] = next_step(alpha[move], lo[move], hi[move], s_lo[move], s_hi[move])
+            searching[move[hi[move] - lo[move] < SHORTEST]] = False
         rest = np.flatnonzero(~accepted & has_best)
         if len(rest):
             fallback, _ = self._decreases(
-                point, rest, best.take(rest), direction, lo[rest], s0, s_lo[rest], F, plastic_start, dt, base_norm
+                point, rest, best.residual[rest], direction, lo[rest], s0, s_lo[rest], F, plastic_start, dt, base_norm
             )
-            result.put(rest[fallback], best.take(rest[fallback]))
+            out.put(out_rows[rest[fallback]], best, rest[fallback])
             accepted[rest[fallback]] = True
-        return result, accepted
+        return accepted
 
     def _decreases(
         self,
         point: _Iterates,
         rows: np.ndarray,
-        trial: _Iterates,
+        trial_residual: np.ndarray,
         direction: np.ndarray,
         alpha: np.ndarray,
         s0: np.ndarray,
@@ -497,9 +513,10 @@ class BatchedRVE:
         dt: float,
         base_norm: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Per trial: the potential fell from ``point`` (the line search's ``_decreases``), and
-        whether the midpoint it needed was inadmissible (then it did not fall)."""
-        out = np.linalg.norm(trial.residual, axis=1) <= base_norm[rows]
+        """Per trial (its residual ``trial_residual``): the potential fell from ``point`` (the
+        line search's ``_decreases``), and whether the midpoint it needed was inadmissible (then
+        it did not fall)."""
+        out = np.linalg.norm(trial_residual, axis=1) <= base_norm[rows]
         broken = np.zeros(len(rows), dtype=bool)
         check = np.flatnonzero(~out)
         if len(check):
@@ -508,7 +525,7 @@ class BatchedRVE:
                 point.z[r] + 0.5 * alpha[check, None] * direction[r], F[r], plastic_start[r], dt, point.plastic[r]
             )
             s_middle = np.einsum("kn,kn->k", np.where(ok[:, None], middle.residual, 0.0), direction[r])
-            out[check] = ok & (alpha[check] / 6.0 * (s0[r] + 4.0 * s_middle + s_trial[check]) < 0.0)
+            out[check] = ok & (simpson_decrease(alpha[check], s0[r], s_middle, s_trial[check]) < 0.0)
             broken[check] = ~ok
         return out, broken
 
@@ -517,7 +534,8 @@ class BatchedRVE:
         self,
         p: _Iterates,
         retried: dict,
-        starts: list[StepState],
+        start_stress: np.ndarray,
+        start_plastic: np.ndarray,
         iterations: np.ndarray,
         factorizations: np.ndarray,
         F: np.ndarray,
@@ -538,9 +556,6 @@ class BatchedRVE:
         # A = (modes K_BB modes^T - coupling^T K_II^-1 coupling) / V0, coupling = K_IB modes^T.
         coupling = (self.sum_into["coupling"] @ values.T).T.reshape(k, self.n, 4)
         corner = (self.sum_into["corner"] @ values.T).T.reshape(k, 4, 4)
-        A = np.empty((k, 2, 2, 2, 2))
-        P = np.empty((k, 2, 2))
-        errors = np.empty(k)
         factors.kind[:], points = _NONE, np.arange(k)
         factors.singular.clear()
         for i in map(int, np.flatnonzero(~factors.factorize(p, points, points, clipped=False))):
@@ -549,22 +564,25 @@ class BatchedRVE:
                 self._linear_solvers(k)[i].factorize(self._matrix(factors.K[i])),
             )
         fluctuation = factors.solve(points, coupling)
-        stretch = p.length / self.l0
+        A = (corner - np.einsum("kna,knb->kab", coupling, fluctuation)).reshape(k, 2, 2, 2, 2)
+        # P of every point (homogenization.nominal_stress) and its local time error.
+        P = np.einsum("ke,kei,eJ->kiJ", p.force, p.unit, self.element_vector)
         tangent = p.stiffness * self.l0 / self.area
-        for i in range(k):
-            A[i] = (corner[i] - coupling[i].T @ fluctuation[i]).reshape(2, 2, 2, 2) / self.network.reference_volume
-            kinematics = Kinematics(p.unit[i] * p.length[i][:, None], p.length[i], p.unit[i])
-            P[i] = nominal_stress(self.network, p.force[i], kinematics)
-            law = LawState(p.stress[i], p.plastic[i], tangent[i], p.recruited[i])
-            start = starts[i]
-            errors[i] = local_error(
-                self.law, start.stress, start.plastic_stretch, law, stretch[i], self.tortuosity, dt, self.area * self.l0
-            )
+        errors = _local_errors(
+            self.law,
+            start_stress,
+            start_plastic,
+            LawState(p.stress, p.plastic, tangent, p.recruited),
+            p.length / self.l0,
+            self.tortuosity,
+            dt,
+            self.area * self.l0,
+        )
         volume = self.volume
         threshold = self.config.output.yield_threshold
         return BatchSolved(
-            P=P,
-            A=A,
+            P=P / self.network.reference_volume,
+            A=A / self.network.reference_volume,
             inner=p.z.reshape(k, self.n_inner, 2).copy(),
             plastic_stretch=p.plastic.copy(),
             stress=p.stress.copy(),
@@ -573,6 +591,7 @@ class BatchedRVE:
             yielded_fraction=(yielded(p.plastic, threshold) @ volume) / volume.sum(),
             iterations=iterations,
             factorizations=factorizations,
+            sensitivity=(-fluctuation).astype(np.float32),  # a predictor: single precision is enough
         )
 
 
@@ -651,3 +670,29 @@ def _summation(pattern: SparsePattern, n_elements: int) -> sp.csr_matrix:
     entry = np.flatnonzero(pattern.slot[: 16 * n_elements] >= 0)
     ones = np.ones(len(entry))
     return sp.csr_matrix((ones, (pattern.slot[entry], entry)), shape=(pattern.matrix.nnz, 16 * n_elements))
+
+
+def _local_errors(
+    law: FiberLaw,
+    start_stress: np.ndarray,
+    start_plastic: np.ndarray,
+    end: LawState,
+    stretch: np.ndarray,
+    tortuosity: np.ndarray,
+    dt: float,
+    weight: np.ndarray,
+) -> np.ndarray:
+    """:func:`espin.mechanics.time_steps.local_error` of every point at once: the element
+    arrays (k, e) are points first, ``tortuosity`` and ``weight`` (e,) [-, um^3] shared.
+    Returns (k,) float64."""
+    k = len(stretch)
+    if law.flow_rate == 0.0 or dt <= 0.0:
+        return np.zeros(k)
+    plastic = end.plastic_stretch
+    plastic_error = 0.5 * dt * np.abs((plastic - start_plastic) / dt - flow_rate(law, start_stress, start_plastic))
+    elastic_stretch = stretch / plastic
+    stress_error = elastic_modulus(law, elastic_stretch, tortuosity) * elastic_stretch / plastic * plastic_error
+    scale = np.abs(end.stress) @ weight
+    error = stress_error @ weight
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(error == 0.0, 0.0, np.where(scale > 0.0, error / scale, np.inf))
