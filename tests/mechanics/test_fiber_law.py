@@ -12,7 +12,6 @@ from espin.mechanics.fiber_law import (
     FiberLaw,
     axial_force_and_stiffness,
     elastic_stress,
-    recruitment_plastic_stretch,
     update,
     work_increment,
     yielded,
@@ -394,21 +393,3 @@ def test_warm_start_gives_the_same_state(law):
                                    atol=0, err_msg=name)
         np.testing.assert_allclose(warm.stress, cold.stress, rtol=1e-10, atol=1e-10, err_msg=name)
         np.testing.assert_allclose(warm.tangent, cold.tangent, rtol=1e-9, atol=1e-9, err_msg=name)
-
-
-@pytest.mark.parametrize("law", [PLLA, NO_HARDENING, FAST_FLOW], ids=["plla", "no-hardening", "fast-flow"])
-def test_recruitment_plastic_stretch_is_the_return_map_at_the_kink(law):
-    """An element stretched to lambda_r times the recruitment plastic stretch ends the step at
-    its kink: the return mapping there gives the same lambda_p, and e = lambda_r; with large
-    flows (fast flow, long steps) too, and no flow for an elastic law."""
-    rng = np.random.default_rng(3)
-    n = 400
-    old = 1.0 + rng.uniform(0.0, 0.2, n)
-    lr = np.where(rng.random(n) < 0.3, 1.0, 1.0 + rng.uniform(0.0, 0.1, n))
-    dt = rng.choice([1e-3, 0.1, 10.0, 1e4], n)
-    lp = recruitment_plastic_stretch(law, old, lr, dt)
-    state = update(law, lr * lp, old, lr, dt)
-    np.testing.assert_allclose(state.plastic_stretch, lp, rtol=1e-12)
-    assert np.all(lp >= old) and np.any(lp > old * (1 + 1e-6))
-    elastic = FiberLaw(3000, 3, 0.0, 5, 0.5)
-    np.testing.assert_array_equal(recruitment_plastic_stretch(elastic, old, lr, dt), old)

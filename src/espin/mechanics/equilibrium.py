@@ -88,14 +88,7 @@ from espin.mechanics.assembly import Kinematics, NetworkAssembler
 from espin.mechanics.bending import FiberJoints, fiber_joints
 from espin.mechanics.compression_limit import CompressionLimit
 from espin.mechanics.crossings import crossing_joints, with_crossings
-from espin.mechanics.fiber_law import (
-    STRETCH_FLOOR,
-    FiberLaw,
-    LawState,
-    axial_force_and_stiffness,
-    recruitment_plastic_stretch,
-    update,
-)
+from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
 from espin.mechanics.line_search import SLOPE_RATIO, line_search
 from espin.mechanics.linear_solvers import Factorization, LinearSolver
 from espin.mechanics.loading import LateralStress
@@ -109,6 +102,7 @@ _CLIPPED_AFTER_INDEFINITE = 3
 _SLACK_CONTINUATION = (100.0, 10.0, 1.0)  # E_b factors of the fallback, ending at the true law
 _KINK_ROUNDS = 3  # semismooth rounds of the kink correction per Newton iteration
 _KINK_MAX = 100  # more crossing elements than this: no correction (m solves would cost a factorization)
+_KINK_FIXED_POINT = 3  # iterations of lambda = lambda_r lambda_p(lambda) for the kink's stretch
 _KINK_SIDE = 1e-9  # relative offset of the stretch that evaluates one side of the kink
 _RELAX_MAX_NODES = 50  # more nodes over the tolerance: the residual is not local, no node relaxation
 _RELAX_ROUNDS = 3  # local Newton steps on those nodes per Newton iteration
@@ -521,7 +515,7 @@ class EquilibriumSolver:
                 break
             assumed = crossing
             k_model = tangent.axial[crossing]
-            l_k, force_k, k_tr = self._at_kink(crossing, trial.law.recruited[crossing], step)
+            l_k, force_k, k_tr = self._at_kink(crossing, trial.law.recruited[crossing], p, step)
             shift = force_k - p.force[crossing] - k_tr * (l_k - p.kin.length[crossing])
             new = [e for e in crossing.tolist() if e not in tangent.solved]
             if new:
@@ -544,18 +538,20 @@ class EquilibriumSolver:
         return direction, plain
 
     def _at_kink(
-        self, elements: np.ndarray, taut: np.ndarray, step: _Step
+        self, elements: np.ndarray, taut: np.ndarray, p: _Point, step: _Step
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Length [um], axial force [uN] and dT/dl [uN/um] of ``elements`` at their slack/taut
         kink, on the side ``taut`` says.
 
-        The kink is at e = lambda / lambda_p = lambda_r, lambda = lambda_r lambda_p with the
-        step's plastic stretch at the kink's stress E_b (lambda_r - 1)
-        (:func:`~espin.mechanics.fiber_law.recruitment_plastic_stretch`).
+        The kink is at e = lambda / lambda_p = lambda_r, where lambda_p is the step's plastic
+        stretch at that stretch: lambda = lambda_r lambda_p(lambda), a fixed point reached in
+        a few iterations because an element at its kink barely flows.
         """
         lr = np.maximum(self.tortuosity[elements], 1.0)
         old = step.start.plastic_stretch[elements]
-        lam = lr * recruitment_plastic_stretch(step.law, old, lr, step.dt)
+        lam = lr * p.law.plastic_stretch[elements]
+        for _ in range(_KINK_FIXED_POINT):
+            lam = lr * update(step.law, lam, old, lr, step.dt).plastic_stretch
         lam = lam * np.where(taut, 1.0 + _KINK_SIDE, 1.0 - _KINK_SIDE)
         state = update(step.law, lam, old, lr, step.dt)
         force, stiffness = axial_force_and_stiffness(state, self.area[elements], self.l0[elements])

@@ -58,7 +58,6 @@ __all__ = [
     "elastic_stress",
     "elastic_modulus",
     "update",
-    "recruitment_plastic_stretch",
     "work_increment",
     "axial_force_and_stiffness",
     "yielded",
@@ -211,39 +210,6 @@ def _recruitment_flow(
     if failed:
         raise _not_converged(failed)
     return flow
-
-
-def recruitment_plastic_stretch(
-    law: FiberLaw, plastic_stretch_old: ArrayLike, tortuosity: ArrayLike, dt: ArrayLike
-) -> np.ndarray:
-    """lambda_p at the end of a step of elements that end it at their kink e = lambda_r.
-
-    There the stress is E_b (lambda_r - 1) whatever lambda_p, so the backward-Euler flow
-    follows from it alone (the kink's stretch is lambda_r times the result).
-
-    Parameters
-    ----------
-    law
-        The fiber law.
-    plastic_stretch_old
-        (n,) lambda_p_n at the start of the step, > 0.
-    tortuosity
-        (n,) lambda_r; values below 1 count as 1.
-    dt
-        Step [s], >= 0.
-
-    Returns
-    -------
-    (n,) float64
-        lambda_p >= lambda_p_n (the stress at a kink is never negative).
-    """
-    plastic_old, lr, adt = _prepare(law, dt, plastic_stretch_old, tortuosity)
-    lr = np.maximum(lr, 1.0)
-    flow = np.zeros_like(plastic_old)
-    i = np.flatnonzero(adt > 0)
-    if i.size:
-        flow[i] = _recruitment_flow(law, plastic_old[i], lr[i], adt[i], np.full(i.size, np.inf))
-    return plastic_old + flow
 
 
 def _return_map(
