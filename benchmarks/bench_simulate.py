@@ -17,8 +17,9 @@ and 960 uniform time steps (solver.time_rtol = "off"; computed once, cached in t
 `scaling`: one elastic 1 % step on RVEs from about 1e4 to 5e5 DOF.
 Printed per case: DOF, reported steps, time steps, Newton iterations, factorizations, wall
 seconds, seconds in the fiber law, in assembly (kinematics, forces, tangents), in
-factorizations, in solves and in the line search (which includes law and assembly of its
-trials), and peak RSS. Each case runs in a fresh Python process so its peak memory is its own.
+factorizations, in solves, in the line search (which includes law and assembly of its
+trials) and in the node relaxation after it (the same: its evaluations included), and peak
+RSS. Each case runs in a fresh Python process so its peak memory is its own.
 """
 
 from __future__ import annotations
@@ -63,6 +64,7 @@ def run_case(size_ratio: float, layers: int, strain: float, steps: int, linear: 
     _timed(solver, "factorize", "factorize", totals)
     _timed(linear_solvers.Factorization, "solve", "solve", totals)
     _timed(equilibrium, "line_search", "line_search", totals)  # the name equilibrium calls
+    _timed(equilibrium.EquilibriumSolver, "_relax_nodes", "relax", totals)
     overrides = dict(rve__size_ratio=size_ratio, rve__layers=layers, loading__max_strain=strain,
                      loading__steps=steps, loading__lateral=lateral, solver__linear=linear)
     if elastic:
@@ -80,6 +82,7 @@ def run_case(size_ratio: float, layers: int, strain: float, steps: int, linear: 
         "iterations": int(result.iterations.sum()), "factorizations": int(result.factorizations.sum()),
         "wall_s": wall, "law_s": totals["law"], "assembly_s": totals["assembly"],
         "factorize_s": totals["factorize"], "solve_s": totals["solve"], "line_search_s": totals["line_search"],
+        "relax_s": totals["relax"],
         "peak_rss_MB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         "strain": [float(e) for e in result.strain], "P11_all_MPa": [float(p) for p in result.P[:, 0, 0]],
         "P11_MPa": [float(p) for p in result.P[:, 0, 0][[s for s in (10, 20, 30) if s <= steps]]],
@@ -99,12 +102,12 @@ def show(r: dict, extra: str = "") -> None:
     print(f"{r['size_ratio']:>5.0f} {r['layers']:>4d} {r['dof']:>8d} {r['linear']:>15s} {r['lateral']:>6s} "
           f"{r['steps']:>5d} {r['substeps']:>5d} {r['iterations']:>6d} {r['factorizations']:>6d} {r['wall_s']:>8.1f} "
           f"{r['law_s']:>7.1f} {r['assembly_s']:>7.1f} {r['factorize_s']:>7.1f} {r['solve_s']:>7.1f} "
-          f"{r['line_search_s']:>7.1f} {per_it:>7.2f} {r['peak_rss_MB']:>8.0f}  P11 "
+          f"{r['line_search_s']:>7.1f} {r['relax_s']:>7.1f} {per_it:>7.2f} {r['peak_rss_MB']:>8.0f}  P11 "
           f"{[round(p, 4) for p in r['P11_MPa']]}  F'22 {r['F22_end']:.4f}{extra}", flush=True)
 
 
 HEADER = (f"{'L~':>5} {'N_l':>4} {'DOF':>8} {'linear':>15s} {'lat.':>6s} {'steps':>5} {'dt':>5} {'iters':>6} "
-          f"{'facts':>6} {'wall s':>8} {'law s':>7} {'asm s':>7} {'fact s':>7} {'solv s':>7} {'ls s':>7} "
+          f"{'facts':>6} {'wall s':>8} {'law s':>7} {'asm s':>7} {'fact s':>7} {'solv s':>7} {'ls s':>7} {'relax s':>7} "
           f"{'s/iter':>7} {'peak MB':>8}")
 
 

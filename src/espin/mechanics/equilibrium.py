@@ -27,6 +27,14 @@ V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
   the corrected direction is kept when its full step passes the line search's slope test
   with a smaller residual than the plain one's (the plain full step's evaluation is the
   line search's first trial otherwise);
+* after each line search, a local Newton step on the few inner nodes whose force residual is
+  still over the tolerance (at most :data:`_RELAX_MAX_NODES`, without fiber joints): the
+  exact tangent's block of those nodes (their elements' 2 x 2 blocks, the rest of the
+  network held) solved densely, kept when the step lowers the largest force residual, up to
+  :data:`_RELAX_ROUNDS` rounds (one residual evaluation each, no factorization). After the
+  first Newton iterations the residual often sits at one or two nodes held by very short,
+  stiff elements (plla: a node tied to the border by two elements of 0.05 um), where the
+  flow's nonlinearity costs Newton a whole iteration and factorization;
 * a line search on Phi along the Newton direction (:mod:`espin.mechanics.line_search`)
   through its exact derivative (the residual projected on the direction, one residual
   evaluation per trial); where the residual grew,
@@ -70,6 +78,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg import cho_solve
 from threadpoolctl import ThreadpoolController, threadpool_info
 
 from espin.core.config import Config, SolverConfig
@@ -95,6 +104,8 @@ _KINK_ROUNDS = 3  # semismooth rounds of the kink correction per Newton iteratio
 _KINK_MAX = 100  # more crossing elements than this: no correction (m solves would cost a factorization)
 _KINK_FIXED_POINT = 3  # iterations of lambda = lambda_r lambda_p(lambda) for the kink's stretch
 _KINK_SIDE = 1e-9  # relative offset of the stretch that evaluates one side of the kink
+_RELAX_MAX_NODES = 50  # more nodes over the tolerance: the residual is not local, no node relaxation
+_RELAX_ROUNDS = 3  # local Newton steps on those nodes per Newton iteration
 _ELEMENTS_PER_THREAD = 10_000  # fewer per thread: the threads cost more than they save
 
 
@@ -743,10 +754,57 @@ class EquilibriumSolver:
                 def evaluate(z: np.ndarray, near: _Point, full: _Point = full) -> _Point:
                     return full if np.array_equal(z, full.z) else self._evaluate(z, step, near)
 
-                p = line_search(p, direction, evaluate, step.weight)
+                p = self._relax_nodes(line_search(p, direction, evaluate, step.weight), step, n_free)
         except StepNotConverged as failure:
             raise type(failure)(failure.reason, failure.kind, history=history, factorizations=factorizations) from None
         raise StepNotConverged(f"no convergence in {limit} iterations", history=history, factorizations=factorizations)
+
+    def _relax_nodes(self, p: _Point, step: _Step, n_free: int) -> _Point:
+        """``p`` after local Newton steps on the inner nodes whose force residual is over the
+        tolerance (module docstring); ``p`` itself when there are none or too many, with fiber
+        joints, or when a step does not lower the largest force residual."""
+        if self.joints is not None:
+            return p
+        n = 2 * self.n_inner
+        for _ in range(_RELAX_ROUNDS):
+            ok, norm, tolerance = self._converged(p, n_free)
+            forces = p.residual[:n].reshape(-1, 2)
+            nodes = np.flatnonzero(np.abs(forces).max(axis=1, initial=0.0) > tolerance)
+            if ok or nodes.size == 0 or nodes.size > _RELAX_MAX_NODES:
+                return p
+            try:
+                factor = np.linalg.cholesky(self._node_block(p, nodes))
+            except np.linalg.LinAlgError:  # not positive definite there: leave it to Newton
+                return p
+            move = cho_solve((factor, True), -forces[nodes].ravel())
+            z = p.z.copy()
+            z[:n].reshape(-1, 2)[nodes] += move.reshape(-1, 2)
+            try:
+                relaxed = self._evaluate(z, step, p)
+            except InadmissibleState:
+                return p
+            if not self._converged(relaxed, n_free)[1] < norm:
+                return p
+            p = relaxed
+        return p
+
+    def _node_block(self, p: _Point, nodes: np.ndarray) -> np.ndarray:
+        """(2 m, 2 m) block of the exact tangent at ``p`` on the DOF of the m inner ``nodes``
+        [uN/um]: the 2 x 2 blocks k a a^T + (T / l)(I - a a^T) of their elements."""
+        local = np.full(self.asm.n_dof // 2, -1)
+        local[nodes] = np.arange(nodes.size)
+        ends = local[self.network.element_nodes]
+        touched = np.flatnonzero((ends >= 0).any(axis=1))
+        ends = ends[touched]
+        axial, transverse = self._stiffness(p.force, p.stiffness, p.kin, clipped=False)
+        a = p.kin.unit[touched]
+        outer = a[:, :, None] * a[:, None, :]
+        blocks = axial[touched, None, None] * outer + transverse[touched, None, None] * (np.eye(2) - outer)
+        block = np.zeros((nodes.size, nodes.size, 2, 2))
+        for i, j, sign in ((0, 0, 1.0), (1, 1, 1.0), (0, 1, -1.0), (1, 0, -1.0)):
+            both = (ends[:, i] >= 0) & (ends[:, j] >= 0)
+            np.add.at(block, (ends[both, i], ends[both, j]), sign * blocks[both])
+        return block.transpose(0, 2, 1, 3).reshape(2 * nodes.size, 2 * nodes.size)
 
     def _trust_region(self, direction: np.ndarray, step: _Step) -> np.ndarray:
         """``direction`` shortened so that no inner node moves more than ``max_move`` [um]
