@@ -60,10 +60,17 @@ def test_batched_solves_equal_the_per_point_solves_from_a_yielded_start(rve):
             assert np.abs(solved.P[i] - P).max() <= 1e-7 * scale
             assert np.abs(solved.A[i] - A).max() <= 1e-6 * np.abs(A).max()
             assert np.abs(solved.inner[i] - result.state.inner).max() <= 1e-6 * network.size
-            assert np.abs(solved.plastic_stretch[i] - result.state.plastic_stretch).max() <= 1e-9
+            # The two solvers stop at different iterates within the tolerance (the per-point one
+            # also relaxes single nodes): an element's lambda_p moves with its stretch at most
+            # one for one (all of it where the flow is on its plateau).
+            stretches = [solver.asm.kinematics(solver.asm.positions(inner.ravel(), F[i])).length / solver.l0
+                         for inner in (solved.inner[i], result.state.inner)]
+            plastic_gap = np.abs(solved.plastic_stretch[i] - result.state.plastic_stretch).max()
+            assert plastic_gap <= np.abs(stretches[0] - stretches[1]).max() + 1e-12
             assert solved.local_error[i] == pytest.approx(error, rel=1e-6, abs=1e-12)
             # Iteration counts differ: the per-point solver also linearizes the elements that cross
-            # the slack/taut kink within a step, the batched one takes plain Newton steps.
+            # the slack/taut kink within a step and relaxes single nodes, the batched one takes
+            # plain Newton steps.
         starts = [StepState(time, solved.inner[i], np.zeros(0), F[i], solved.plastic_stretch[i], solved.stress[i])
                   for i in range(k)]
     assert np.all(solved.yielded_fraction[1:4] > 0.1)  # the loads past the knee did yield
