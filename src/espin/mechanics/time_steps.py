@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike
 
 from espin.mechanics.fiber_law import FiberLaw, LawState, elastic_modulus
 
-__all__ = ["flow_rate", "local_error"]
+__all__ = ["flow_rate", "local_error", "local_errors"]
 
 _MAX_ARGUMENT = 700.0  # sinh overflows beyond ~710
 
@@ -68,17 +68,32 @@ def local_error(
     float
         sum w |dt_e| / sum w |t_e|: 0 for an elastic law or a step without stress.
     """
+    return float(local_errors(law, start_stress, start_plastic_stretch, end, stretch, tortuosity, dt, weight))
+
+
+def local_errors(
+    law: FiberLaw,
+    start_stress: ArrayLike,
+    start_plastic_stretch: ArrayLike,
+    end: LawState,
+    stretch: ArrayLike,
+    tortuosity: ArrayLike,
+    dt: float,
+    weight: ArrayLike | float = 1.0,
+) -> np.ndarray:
+    """:func:`local_error` of several networks at once: element arrays (..., n), the sums over
+    the last axis (the same sums as :func:`local_error`'s); ``tortuosity`` and ``weight``
+    broadcast against them. Returns an array of the leading shape (a 0-d array for (n,))."""
+    plastic = np.asarray(end.plastic_stretch, dtype=float)
     if law.flow_rate == 0.0 or dt <= 0.0:
-        return 0.0
-    plastic = end.plastic_stretch
+        return np.zeros(plastic.shape[:-1])
     rate_end = (plastic - np.asarray(start_plastic_stretch, dtype=float)) / dt
     rate_start = flow_rate(law, start_stress, start_plastic_stretch)
     plastic_error = 0.5 * dt * np.abs(rate_end - rate_start)
     elastic_stretch = np.asarray(stretch, dtype=float) / plastic
     stress_error = elastic_modulus(law, elastic_stretch, tortuosity) * elastic_stretch / plastic * plastic_error
     weight = np.broadcast_to(np.asarray(weight, dtype=float), plastic.shape)
-    scale = float(np.sum(weight * np.abs(end.stress)))
-    error = float(np.sum(weight * stress_error))
-    if error == 0.0:
-        return 0.0
-    return error / scale if scale > 0.0 else np.inf
+    scale = np.sum(weight * np.abs(end.stress), axis=-1)
+    error = np.sum(weight * stress_error, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(error == 0.0, 0.0, np.where(scale > 0.0, error / scale, np.inf))

@@ -39,15 +39,13 @@ from espin.mechanics.assembly import SparsePattern
 from espin.mechanics.equilibrium import EquilibriumSolver, StepState
 from espin.mechanics.fiber_law import (
     STRETCH_FLOOR,
-    FiberLaw,
     LawState,
     axial_force_and_stiffness,
-    elastic_modulus,
     yielded,
 )
 from espin.mechanics.line_search import MAX_TRIALS, SHORTEST, accepts, next_step, shortened, simpson_decrease
 from espin.mechanics.linear_solvers import Factorization, LinearSolver, make_linear_solver
-from espin.mechanics.time_steps import flow_rate
+from espin.mechanics.time_steps import local_errors
 from espin.specimen import batched_kernels
 
 __all__ = ["BatchedRVE", "BatchSolved", "batchable"]
@@ -568,7 +566,7 @@ class BatchedRVE:
         # P of every point (homogenization.nominal_stress) and its local time error.
         P = np.einsum("ke,kei,eJ->kiJ", p.force, p.unit, self.element_vector)
         tangent = p.stiffness * self.l0 / self.area
-        errors = _local_errors(
+        errors = local_errors(
             self.law,
             start_stress,
             start_plastic,
@@ -670,29 +668,3 @@ def _summation(pattern: SparsePattern, n_elements: int) -> sp.csr_matrix:
     entry = np.flatnonzero(pattern.slot[: 16 * n_elements] >= 0)
     ones = np.ones(len(entry))
     return sp.csr_matrix((ones, (pattern.slot[entry], entry)), shape=(pattern.matrix.nnz, 16 * n_elements))
-
-
-def _local_errors(
-    law: FiberLaw,
-    start_stress: np.ndarray,
-    start_plastic: np.ndarray,
-    end: LawState,
-    stretch: np.ndarray,
-    tortuosity: np.ndarray,
-    dt: float,
-    weight: np.ndarray,
-) -> np.ndarray:
-    """:func:`espin.mechanics.time_steps.local_error` of every point at once: the element
-    arrays (k, e) are points first, ``tortuosity`` and ``weight`` (e,) [-, um^3] shared.
-    Returns (k,) float64."""
-    k = len(stretch)
-    if law.flow_rate == 0.0 or dt <= 0.0:
-        return np.zeros(k)
-    plastic = end.plastic_stretch
-    plastic_error = 0.5 * dt * np.abs((plastic - start_plastic) / dt - flow_rate(law, start_stress, start_plastic))
-    elastic_stretch = stretch / plastic
-    stress_error = elastic_modulus(law, elastic_stretch, tortuosity) * elastic_stretch / plastic * plastic_error
-    scale = np.abs(end.stress) @ weight
-    error = stress_error @ weight
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(error == 0.0, 0.0, np.where(scale > 0.0, error / scale, np.inf))
