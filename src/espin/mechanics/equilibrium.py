@@ -766,8 +766,8 @@ class EquilibriumSolver:
         if self.joints is not None:
             return p
         n = 2 * self.n_inner
+        ok, norm, tolerance = self._converged(p, n_free)
         for _ in range(_RELAX_ROUNDS):
-            ok, norm, tolerance = self._converged(p, n_free)
             forces = p.residual[:n].reshape(-1, 2)
             nodes = np.flatnonzero(np.abs(forces).max(axis=1, initial=0.0) > tolerance)
             if ok or nodes.size == 0 or nodes.size > _RELAX_MAX_NODES:
@@ -783,9 +783,10 @@ class EquilibriumSolver:
                 relaxed = self._evaluate(z, step, p)
             except InadmissibleState:
                 return p
-            if not self._converged(relaxed, n_free)[1] < norm:
+            ok, relaxed_norm, tolerance = self._converged(relaxed, n_free)
+            if not relaxed_norm < norm:
                 return p
-            p = relaxed
+            p, norm = relaxed, relaxed_norm
         return p
 
     def _node_block(self, p: _Point, nodes: np.ndarray) -> np.ndarray:
