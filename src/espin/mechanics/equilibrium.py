@@ -231,12 +231,29 @@ class _ThreadedLaw:
         if self.pool is None:
             return chunk(self.chunks[0])
         parts = list(self.pool.map(chunk, self.chunks))
-        return LawState(
-            *(
-                np.concatenate([getattr(part, name) for part in parts])
-                for name in ("stress", "plastic_stretch", "tangent", "recruited")
-            )
+        return LawState(*(np.concatenate([getattr(part, name) for part in parts]) for name in _LAW_FIELDS))
+
+    def patched(
+        self,
+        law: FiberLaw,
+        stretch: np.ndarray,
+        plastic_old: np.ndarray,
+        dt: float,
+        near: LawState,
+        elements: np.ndarray,
+    ) -> LawState:
+        """``near`` with the update of the ``elements`` (indices) alone, on this thread: the
+        others' stretches are those ``near`` was evaluated at."""
+        part = update(
+            law, stretch[elements], plastic_old[elements], self.tortuosity[elements], dt, near.plastic_stretch[elements]
         )
+        fields = {name: getattr(near, name).copy() for name in _LAW_FIELDS}
+        for name, values in fields.items():
+            values[elements] = getattr(part, name)
+        return LawState(**fields)
+
+
+_LAW_FIELDS = ("stress", "plastic_stretch", "tangent", "recruited")
 
 
 def low_rank_step(
@@ -360,11 +377,15 @@ class EquilibriumSolver:
         weight = np.r_[np.ones(2 * self.n_inner), np.full(len(directions), 2.0 / self.network.size)]
         return _Step(start, time - start.time, F_prescribed, directions, modes, weight, law, lateral)
 
-    def _evaluate(self, z: np.ndarray, step: _Step, near: _Point | None = None) -> _Point:
+    def _evaluate(
+        self, z: np.ndarray, step: _Step, near: _Point | None = None, moved: np.ndarray | None = None
+    ) -> _Point:
         """Everything at the iterate ``z``; an inadmissible state raises :class:`InadmissibleState`.
 
         ``near``: an evaluated iterate of the same step whose plastic stretches start the
         return mapping (a warm start: same result, fewer iterations of the fiber law).
+        ``moved``: the elements whose stretch differs from ``near``'s (indices; ``near``
+        required): the fiber law is updated for those alone and ``near``'s kept for the rest.
         """
         n = 2 * self.n_inner
         free = z[n:]
@@ -374,9 +395,16 @@ class EquilibriumSolver:
         x = self.asm.positions(z[:n], F)
         kin = self.asm.kinematics(x)
         stretch = kin.length / self.l0
-        law = self._law_update(
-            step.law, stretch, step.start.plastic_stretch, step.dt, None if near is None else near.law.plastic_stretch
-        )
+        if moved is not None and near is not None:
+            law = self._law_update.patched(step.law, stretch, step.start.plastic_stretch, step.dt, near.law, moved)
+        else:
+            law = self._law_update(
+                step.law,
+                stretch,
+                step.start.plastic_stretch,
+                step.dt,
+                None if near is None else near.law.plastic_stretch,
+            )
         force, stiffness = self.element_forces(law, stretch)
         gradient = self.asm.gradient(force, kin)
         if self.joints is not None:
@@ -772,15 +800,16 @@ class EquilibriumSolver:
             nodes = np.flatnonzero(np.abs(forces).max(axis=1, initial=0.0) > tolerance)
             if ok or nodes.size == 0 or nodes.size > _RELAX_MAX_NODES:
                 return p
+            touched, ends = self._node_elements(nodes)
             try:
-                factor = np.linalg.cholesky(self._node_block(p, nodes))
+                factor = np.linalg.cholesky(self._node_block(p, nodes.size, touched, ends))
             except np.linalg.LinAlgError:  # not positive definite there: leave it to Newton
                 return p
             move = cho_solve((factor, True), -forces[nodes].ravel())
             z = p.z.copy()
             z[:n].reshape(-1, 2)[nodes] += move.reshape(-1, 2)
             try:
-                relaxed = self._evaluate(z, step, p)
+                relaxed = self._evaluate(z, step, p, moved=touched)
             except InadmissibleState:
                 return p
             ok, relaxed_norm, tolerance = self._converged(relaxed, n_free)
@@ -789,23 +818,29 @@ class EquilibriumSolver:
             p, norm = relaxed, relaxed_norm
         return p
 
-    def _node_block(self, p: _Point, nodes: np.ndarray) -> np.ndarray:
-        """(2 m, 2 m) block of the exact tangent at ``p`` on the DOF of the m inner ``nodes``
-        [uN/um]: the 2 x 2 blocks k a a^T + (T / l)(I - a a^T) of their elements."""
+    def _node_elements(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The elements with an end among the m ``nodes`` (indices), and their two ends as
+        node numbers 0..m-1 (the position in ``nodes``), or -1 for other nodes."""
         local = np.full(self.asm.n_dof // 2, -1)
         local[nodes] = np.arange(nodes.size)
         ends = local[self.network.element_nodes]
         touched = np.flatnonzero((ends >= 0).any(axis=1))
-        ends = ends[touched]
+        return touched, ends[touched]
+
+    def _node_block(self, p: _Point, m: int, touched: np.ndarray, ends: np.ndarray) -> np.ndarray:
+        """(2 m, 2 m) block of the exact tangent at ``p`` on the DOF of m inner nodes
+        [uN/um]: the 2 x 2 blocks k a a^T + (T / l)(I - a a^T) of their elements.
+
+        ``touched``, ``ends``: the nodes' elements and their ends, from :meth:`_node_elements`."""
         axial, transverse = self._stiffness(p.force, p.stiffness, p.kin, clipped=False)
         a = p.kin.unit[touched]
         outer = a[:, :, None] * a[:, None, :]
         blocks = axial[touched, None, None] * outer + transverse[touched, None, None] * (np.eye(2) - outer)
-        block = np.zeros((nodes.size, nodes.size, 2, 2))
+        block = np.zeros((m, m, 2, 2))
         for i, j, sign in ((0, 0, 1.0), (1, 1, 1.0), (0, 1, -1.0), (1, 0, -1.0)):
             both = (ends[:, i] >= 0) & (ends[:, j] >= 0)
             np.add.at(block, (ends[both, i], ends[both, j]), sign * blocks[both])
-        return block.transpose(0, 2, 1, 3).reshape(2 * nodes.size, 2 * nodes.size)
+        return block.transpose(0, 2, 1, 3).reshape(2 * m, 2 * m)
 
     def _trust_region(self, direction: np.ndarray, step: _Step) -> np.ndarray:
         """``direction`` shortened so that no inner node moves more than ``max_move`` [um]
