@@ -46,7 +46,7 @@ def test_error_estimate_follows_the_true_local_error(law):
         step = update(law, stretch, plastic0, 1.0, h)
         exact = elastic_stress(law, stretch / _exact(law, t0, t0 + h, plastic0).y[0, -1], 1.0)
         true.append(abs(step.stress[0] / exact - 1.0))
-        estimate.append(local_error(law, stress0, plastic0, step, stretch, 1.0, h))
+        estimate.append(local_error(law, stress0, plastic0, step.stress, step.plastic_stretch, stretch, 1.0, h))
     ratio = np.array(estimate) / np.array(true)
     assert np.all((ratio > 0.5) & (ratio < 2.0)), ratio
     assert true[0] / true[1] == pytest.approx(4.0, rel=0.2)

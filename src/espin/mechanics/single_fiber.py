@@ -89,7 +89,14 @@ class _Fiber:
 
     def error(self, trial: _FiberStep) -> float:
         return local_error(
-            self.law, self.committed[0], self.committed[1], trial.state, trial.stretch, self.tortuosity, trial.dt
+            self.law,
+            self.committed[0],
+            self.committed[1],
+            trial.state.stress,
+            trial.state.plastic_stretch,
+            trial.stretch,
+            self.tortuosity,
+            trial.dt,
         )
 
     def commit(self, trial: _FiberStep) -> None:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike
 
-from espin.mechanics.fiber_law import FiberLaw, LawState, elastic_modulus
+from espin.mechanics.fiber_law import FiberLaw, elastic_modulus
 
 __all__ = ["flow_rate", "local_error", "local_errors"]
 
@@ -38,7 +38,8 @@ def local_error(
     law: FiberLaw,
     start_stress: ArrayLike,
     start_plastic_stretch: ArrayLike,
-    end: LawState,
+    end_stress: ArrayLike,
+    end_plastic_stretch: ArrayLike,
     stretch: ArrayLike,
     tortuosity: ArrayLike,
     dt: float,
@@ -52,8 +53,8 @@ def local_error(
         The fiber law.
     start_stress, start_plastic_stretch
         (n,) stress t [MPa] and lambda_p at the start of the step.
-    end
-        The law's state at the end of the step.
+    end_stress, end_plastic_stretch
+        (n,) t [MPa] and lambda_p at the end of the step (the fiber law's update).
     stretch
         (n,) stretch lambda at the end of the step.
     tortuosity
@@ -68,14 +69,19 @@ def local_error(
     float
         sum w |dt_e| / sum w |t_e|: 0 for an elastic law or a step without stress.
     """
-    return float(local_errors(law, start_stress, start_plastic_stretch, end, stretch, tortuosity, dt, weight))
+    return float(
+        local_errors(
+            law, start_stress, start_plastic_stretch, end_stress, end_plastic_stretch, stretch, tortuosity, dt, weight
+        )
+    )
 
 
 def local_errors(
     law: FiberLaw,
     start_stress: ArrayLike,
     start_plastic_stretch: ArrayLike,
-    end: LawState,
+    end_stress: ArrayLike,
+    end_plastic_stretch: ArrayLike,
     stretch: ArrayLike,
     tortuosity: ArrayLike,
     dt: float,
@@ -84,7 +90,7 @@ def local_errors(
     """:func:`local_error` of several networks at once: element arrays (..., n), the sums over
     the last axis (the same sums as :func:`local_error`'s); ``tortuosity`` and ``weight``
     broadcast against them. Returns an array of the leading shape (a 0-d array for (n,))."""
-    plastic = np.asarray(end.plastic_stretch, dtype=float)
+    plastic = np.asarray(end_plastic_stretch, dtype=float)
     if law.flow_rate == 0.0 or dt <= 0.0:
         return np.zeros(plastic.shape[:-1])
     rate_end = (plastic - np.asarray(start_plastic_stretch, dtype=float)) / dt
@@ -93,7 +99,7 @@ def local_errors(
     elastic_stretch = np.asarray(stretch, dtype=float) / plastic
     stress_error = elastic_modulus(law, elastic_stretch, tortuosity) * elastic_stretch / plastic * plastic_error
     weight = np.broadcast_to(np.asarray(weight, dtype=float), plastic.shape)
-    scale = np.sum(weight * np.abs(end.stress), axis=-1)
+    scale = np.sum(weight * np.abs(np.asarray(end_stress, dtype=float)), axis=-1)
     error = np.sum(weight * stress_error, axis=-1)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.where(error == 0.0, 0.0, np.where(scale > 0.0, error / scale, np.inf))

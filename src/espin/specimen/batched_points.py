@@ -39,7 +39,6 @@ from espin.mechanics.assembly import SparsePattern
 from espin.mechanics.equilibrium import EquilibriumSolver, StepState
 from espin.mechanics.fiber_law import (
     STRETCH_FLOOR,
-    LawState,
     axial_force_and_stiffness,
     yielded,
 )
@@ -565,12 +564,12 @@ class BatchedRVE:
         A = (corner - np.einsum("kna,knb->kab", coupling, fluctuation)).reshape(k, 2, 2, 2, 2)
         # P of every point (homogenization.nominal_stress) and its local time error.
         P = np.einsum("ke,kei,eJ->kiJ", p.force, p.unit, self.element_vector)
-        tangent = p.stiffness * self.l0 / self.area
         errors = local_errors(
             self.law,
             start_stress,
             start_plastic,
-            LawState(p.stress, p.plastic, tangent, p.recruited),
+            p.stress,
+            p.plastic,
             p.length / self.l0,
             self.tortuosity,
             dt,
