@@ -239,21 +239,20 @@ class _ThreadedLaw:
         stretch: np.ndarray,
         plastic_old: np.ndarray,
         dt: float,
+        guess: np.ndarray,
         near: LawState,
         elements: np.ndarray,
     ) -> LawState:
-        """``near`` with the update of the ``elements`` (indices) alone, on this thread: the
-        others' stretches are those ``near`` was evaluated at."""
-        part = update(
-            law, stretch[elements], plastic_old[elements], self.tortuosity[elements], dt, near.plastic_stretch[elements]
-        )
+        """``near`` with the update of the ``elements`` (indices) alone, from ``guess``, on
+        this thread: the others' stretches are those ``near`` was evaluated at."""
+        part = update(law, stretch[elements], plastic_old[elements], self.tortuosity[elements], dt, guess[elements])
         fields = {name: getattr(near, name).copy() for name in _LAW_FIELDS}
         for name, values in fields.items():
             values[elements] = getattr(part, name)
         return LawState(**fields)
 
 
-_LAW_FIELDS = ("stress", "plastic_stretch", "tangent", "recruited")
+_LAW_FIELDS = ("stress", "plastic_stretch", "tangent", "recruited", "plastic_rate")
 
 
 def low_rank_step(
@@ -382,8 +381,9 @@ class EquilibriumSolver:
     ) -> _Point:
         """Everything at the iterate ``z``; an inadmissible state raises :class:`InadmissibleState`.
 
-        ``near``: an evaluated iterate of the same step whose plastic stretches start the
-        return mapping (a warm start: same result, fewer iterations of the fiber law).
+        ``near``: an evaluated iterate of the same step whose plastic stretches, extrapolated
+        to first order in the stretch, start the return mapping (a warm start: same result,
+        fewer iterations of the fiber law).
         ``moved``: the elements whose stretch differs from ``near``'s (indices; ``near``
         required): the fiber law is updated for those alone and ``near``'s kept for the rest.
         """
@@ -395,16 +395,16 @@ class EquilibriumSolver:
         x = self.asm.positions(z[:n], F)
         kin = self.asm.kinematics(x)
         stretch = kin.length / self.l0
-        if moved is not None and near is not None:
-            law = self._law_update.patched(step.law, stretch, step.start.plastic_stretch, step.dt, near.law, moved)
-        else:
-            law = self._law_update(
-                step.law,
-                stretch,
-                step.start.plastic_stretch,
-                step.dt,
-                None if near is None else near.law.plastic_stretch,
-            )
+        if near is None:
+            law = self._law_update(step.law, stretch, step.start.plastic_stretch, step.dt, None)
+        else:  # lambda_p guessed to first order in the stretch from near's
+            guess = near.law.plastic_stretch + near.law.plastic_rate * (stretch - near.stretch)
+            if moved is None:
+                law = self._law_update(step.law, stretch, step.start.plastic_stretch, step.dt, guess)
+            else:
+                law = self._law_update.patched(
+                    step.law, stretch, step.start.plastic_stretch, step.dt, guess, near.law, moved
+                )
         force, stiffness = self.element_forces(law, stretch)
         gradient = self.asm.gradient(force, kin)
         if self.joints is not None:

@@ -155,12 +155,16 @@ class LawState:
         Consistent algorithmic tangent dt/dlambda, including d lambda_p / d lambda.
     recruited : (n,) bool
         Whether the element is taut, e = lambda / lambda_p >= lambda_r.
+    plastic_rate : (n,) float64
+        d lambda_p / d lambda of the step (0 below the stretch floor): with it a nearby
+        stretch's lambda_p is guessed to first order.
     """
 
     stress: np.ndarray
     plastic_stretch: np.ndarray
     tangent: np.ndarray
     recruited: np.ndarray
+    plastic_rate: np.ndarray
 
 
 def elastic_stress(law: FiberLaw, elastic_stretch: ArrayLike, tortuosity: ArrayLike) -> np.ndarray:
@@ -295,14 +299,14 @@ def update(
     guess = np.empty(0)
     if plastic_stretch_guess is not None:
         guess = np.ascontiguousarray(np.broadcast_to(np.asarray(plastic_stretch_guess, dtype=float), lam.shape))
-    stress, plastic, tangent = np.empty_like(lam), np.empty_like(lam), np.empty_like(lam)
+    stress, plastic, tangent, rate = (np.empty_like(lam) for _ in range(4))
     recruited = np.empty(lam.shape, dtype=bool)
     failed = kernels.law_update(
-        lam, plastic_old, lr, adt, guess, *law.kernel_constants(), stress, plastic, tangent, recruited
+        lam, plastic_old, lr, adt, guess, *law.kernel_constants(), stress, plastic, tangent, recruited, rate
     )
     if failed:
         raise _not_converged(failed)
-    return LawState(stress=stress, plastic_stretch=plastic, tangent=tangent, recruited=recruited)
+    return LawState(stress=stress, plastic_stretch=plastic, tangent=tangent, recruited=recruited, plastic_rate=rate)
 
 
 def _elastic_work(law: FiberLaw, lam0: np.ndarray, lam1: np.ndarray, plastic: np.ndarray, lr: np.ndarray) -> np.ndarray:

@@ -230,6 +230,7 @@ def law_update(
     plastic: np.ndarray,
     tangent: np.ndarray,
     recruited: np.ndarray,
+    plastic_rate: np.ndarray,
 ) -> int:
     """One backward Euler step of the fiber law for every element (1-D arrays of one length).
 
@@ -242,8 +243,8 @@ def law_update(
         A guess of each element's lambda_p, or an empty array for none.
     Et, Eb, bp, cp
         E_t, E_b [MPa], b_p [MPa], c_p.
-    stress, plastic, tangent, recruited
-        Outputs: t [MPa], lambda_p, dt/dlambda [MPa] and e >= lambda_r.
+    stress, plastic, tangent, recruited, plastic_rate
+        Outputs: t [MPa], lambda_p, dt/dlambda [MPa], e >= lambda_r and d lambda_p / d lambda.
 
     Returns
     -------
@@ -272,8 +273,10 @@ def law_update(
         dplastic = dg_dstretch * h / (1.0 - dg_dplastic * h)
         stress[i] = t
         plastic[i] = p
-        tangent[i] = 0.0 if stretch[i] < STRETCH_FLOOR else m / p * (1.0 - e * dplastic)
+        floored = stretch[i] < STRETCH_FLOOR
+        tangent[i] = 0.0 if floored else m / p * (1.0 - e * dplastic)
         recruited[i] = e >= lr
+        plastic_rate[i] = 0.0 if floored else dplastic
     return failed
 
 

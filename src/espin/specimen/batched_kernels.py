@@ -200,6 +200,7 @@ def evaluate(
     stretch = np.empty(e_count)
     adt_all = np.full(e_count, adt)
     tangent = np.empty(e_count)
+    plastic_rate = np.empty(e_count)
     no_guess = np.empty(0)
     ok = np.ones(k, dtype=np.bool_)
     Et, Eb, bp, cp = law
@@ -240,6 +241,7 @@ def evaluate(
             plastic[i],
             tangent,
             recruited[i],
+            plastic_rate,
         )
         if failed:
             ok[i] = False
