@@ -31,7 +31,8 @@ V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
   still over the tolerance (at most :data:`_RELAX_MAX_NODES`, without fiber joints): the
   exact tangent's block of those nodes (their elements' 2 x 2 blocks, the rest of the
   network held) solved densely, kept when the step lowers the largest force residual, up to
-  :data:`_RELAX_ROUNDS` rounds (one residual evaluation each, no factorization). After the
+  :data:`_RELAX_ROUNDS` rounds (one residual evaluation each, the fiber law updated on those
+  nodes' elements only; no factorization). After the
   first Newton iterations the residual often sits at one or two nodes held by very short,
   stiff elements (plla: a node tied to the border by two elements of 0.05 um), where the
   flow's nonlinearity costs Newton a whole iteration and factorization;
@@ -105,7 +106,7 @@ _KINK_MAX = 100  # more crossing elements than this: no correction (m solves wou
 _KINK_FIXED_POINT = 3  # iterations of lambda = lambda_r lambda_p(lambda) for the kink's stretch
 _KINK_SIDE = 1e-9  # relative offset of the stretch that evaluates one side of the kink
 _RELAX_MAX_NODES = 50  # more nodes over the tolerance: the residual is not local, no node relaxation
-_RELAX_ROUNDS = 3  # local Newton steps on those nodes per Newton iteration
+_RELAX_ROUNDS = 6  # local Newton steps on those nodes per Newton iteration
 _ELEMENTS_PER_THREAD = 10_000  # fewer per thread: the threads cost more than they save
 
 
