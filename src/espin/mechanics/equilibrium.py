@@ -28,8 +28,9 @@ V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
   with a smaller residual than the plain one's (the plain full step's evaluation is the
   line search's first trial otherwise);
 * after each line search, a local Newton step on the few inner nodes whose force residual is
-  still over the tolerance (at most :data:`_RELAX_MAX_NODES`, without fiber joints): the
-  exact tangent's block of those nodes (their elements' 2 x 2 blocks, the rest of the
+  still over the tolerance (at most :data:`_RELAX_MAX_NODES`, without fiber joints) and
+  their neighbours (:data:`_RELAX_RINGS` elements away, at most :data:`_RELAX_MAX_BLOCK`
+  nodes): the exact tangent's block of those nodes (their elements' 2 x 2 blocks, the rest of the
   network held) solved densely, kept when the step lowers the largest force residual, up to
   :data:`_RELAX_ROUNDS` rounds (one residual evaluation each, the fiber law updated on those
   nodes' elements only; no factorization). After the
@@ -107,6 +108,8 @@ _KINK_FIXED_POINT = 3  # iterations of lambda = lambda_r lambda_p(lambda) for th
 _KINK_SIDE = 1e-9  # relative offset of the stretch that evaluates one side of the kink
 _RELAX_MAX_NODES = 50  # more nodes over the tolerance: the residual is not local, no node relaxation
 _RELAX_ROUNDS = 6  # local Newton steps on those nodes per Newton iteration
+_RELAX_RINGS = 2  # the nodes' neighbours up to this many elements away relax with them
+_RELAX_MAX_BLOCK = 200  # most nodes in one local (dense) block
 _ELEMENTS_PER_THREAD = 10_000  # fewer per thread: the threads cost more than they save
 
 
@@ -802,6 +805,7 @@ class EquilibriumSolver:
             nodes = np.flatnonzero(np.abs(forces).max(axis=1, initial=0.0) > tolerance)
             if ok or nodes.size == 0 or nodes.size > _RELAX_MAX_NODES:
                 return p
+            nodes = self._with_neighbours(nodes)
             touched, ends = self._node_elements(nodes)
             try:
                 factor = np.linalg.cholesky(self._node_block(p, nodes.size, touched, ends))
@@ -819,6 +823,18 @@ class EquilibriumSolver:
                 return p
             p, norm = relaxed, relaxed_norm
         return p
+
+    def _with_neighbours(self, nodes: np.ndarray) -> np.ndarray:
+        """``nodes`` and the inner nodes up to :data:`_RELAX_RINGS` elements away, ring by
+        ring while they stay at most :data:`_RELAX_MAX_BLOCK` (sorted indices)."""
+        for _ in range(_RELAX_RINGS):
+            touched, _ = self._node_elements(nodes)
+            ring = self.network.element_nodes[touched].ravel()
+            wider = np.unique(np.concatenate([nodes, ring[ring < self.n_inner]]))
+            if wider.size > _RELAX_MAX_BLOCK:
+                break
+            nodes = wider
+        return nodes
 
     def _node_elements(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The elements with an end among the m ``nodes`` (indices), and their two ends as
