@@ -106,7 +106,7 @@ _KINK_ROUNDS = 3  # semismooth rounds of the kink correction per Newton iteratio
 _KINK_MAX = 100  # more crossing elements than this: no correction (m solves would cost a factorization)
 _KINK_FIXED_POINT = 3  # iterations of lambda = lambda_r lambda_p(lambda) for the kink's stretch
 _KINK_SIDE = 1e-9  # relative offset of the stretch that evaluates one side of the kink
-_RELAX_MAX_NODES = 50  # more nodes over the tolerance: the residual is not local, no node relaxation
+_RELAX_MAX_NODES = 200  # more nodes over the tolerance: the residual is not local, no node relaxation
 _RELAX_ROUNDS = 6  # local Newton steps on those nodes per Newton iteration
 _RELAX_RINGS = 2  # the nodes' neighbours up to this many elements away relax with them
 _RELAX_MAX_BLOCK = 200  # most nodes in one local (dense) block
