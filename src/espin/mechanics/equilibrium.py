@@ -31,9 +31,9 @@ V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
   still over the tolerance (at most :data:`_RELAX_MAX_NODES`, without fiber joints) and
   their neighbours (:data:`_RELAX_RINGS` elements away, at most :data:`_RELAX_MAX_BLOCK`
   nodes): the exact tangent's block of those nodes (their elements' 2 x 2 blocks, the rest of the
-  network held) solved densely, kept when the step lowers the largest force residual, up to
-  :data:`_RELAX_ROUNDS` rounds (one residual evaluation each, the fiber law updated on those
-  nodes' elements only; no factorization). After the
+  network held) solved densely, up to :data:`_RELAX_ROUNDS` rounds (one residual evaluation
+  each, the fiber law updated on those nodes' elements only; no factorization), and the
+  round with the lowest largest force residual kept if it is below the iterate's. After the
   first Newton iterations the residual often sits at one or two nodes held by very short,
   stiff elements (plla: a node tied to the border by two elements of 0.05 um), where the
   flow's nonlinearity costs Newton a whole iteration and factorization;
@@ -107,7 +107,7 @@ _KINK_MAX = 100  # more crossing elements than this: no correction (m solves wou
 _KINK_FIXED_POINT = 3  # iterations of lambda = lambda_r lambda_p(lambda) for the kink's stretch
 _KINK_SIDE = 1e-9  # relative offset of the stretch that evaluates one side of the kink
 _RELAX_MAX_NODES = 200  # more nodes over the tolerance: the residual is not local, no node relaxation
-_RELAX_ROUNDS = 6  # local Newton steps on those nodes per Newton iteration
+_RELAX_ROUNDS = 10  # local Newton steps on those nodes per Newton iteration
 _RELAX_RINGS = 2  # the nodes' neighbours up to this many elements away relax with them
 _RELAX_MAX_BLOCK = 200  # most nodes in one local (dense) block
 _ELEMENTS_PER_THREAD = 10_000  # fewer per thread: the threads cost more than they save
@@ -794,35 +794,41 @@ class EquilibriumSolver:
 
     def _relax_nodes(self, p: _Point, step: _Step, n_free: int) -> _Point:
         """``p`` after local Newton steps on the inner nodes whose force residual is over the
-        tolerance (module docstring); ``p`` itself when there are none or too many, with fiber
-        joints, or when a step does not lower the largest force residual."""
+        tolerance (module docstring): the rounds' point with the lowest largest force
+        residual, or ``p`` itself when none is lower, when there are no nodes or too many,
+        or with fiber joints.
+
+        The rounds need not lower the residual one after the other: a short, stiff element
+        whose other end is held by slack ones turns about it in a soft mode, and its length
+        depends on that turn to second order, so a local Newton step can overshoot before
+        the next ones converge."""
         if self.joints is not None:
             return p
         n = 2 * self.n_inner
         ok, norm, tolerance = self._converged(p, n_free)
+        best, best_norm = p, norm
         for _ in range(_RELAX_ROUNDS):
             forces = p.residual[:n].reshape(-1, 2)
             nodes = np.flatnonzero(np.abs(forces).max(axis=1, initial=0.0) > tolerance)
             if ok or nodes.size == 0 or nodes.size > _RELAX_MAX_NODES:
-                return p
+                break
             nodes = self._with_neighbours(nodes)
             touched, ends = self._node_elements(nodes)
             try:
                 factor = np.linalg.cholesky(self._node_block(p, nodes.size, touched, ends))
             except np.linalg.LinAlgError:  # not positive definite there: leave it to Newton
-                return p
+                break
             move = cho_solve((factor, True), -forces[nodes].ravel())
             z = p.z.copy()
             z[:n].reshape(-1, 2)[nodes] += move.reshape(-1, 2)
             try:
-                relaxed = self._evaluate(z, step, p, moved=touched)
+                p = self._evaluate(z, step, p, moved=touched)
             except InadmissibleState:
-                return p
-            ok, relaxed_norm, tolerance = self._converged(relaxed, n_free)
-            if not relaxed_norm < norm:
-                return p
-            p, norm = relaxed, relaxed_norm
-        return p
+                break
+            ok, norm, tolerance = self._converged(p, n_free)
+            if norm < best_norm:
+                best, best_norm = p, norm
+        return best
 
     def _with_neighbours(self, nodes: np.ndarray) -> np.ndarray:
         """``nodes`` and the inner nodes up to :data:`_RELAX_RINGS` elements away, ring by
