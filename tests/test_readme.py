@@ -95,7 +95,7 @@ RUNS: dict[str, Run | Skip] = {
             outputs=("small_test/curve.csv", "small_test/results.h5"), folders={"small_test": "simulate"}),
     "espin simulate plla --set rve.size_ratio=100 --set rve.layers=5 --direction-deg 45 -o small_45deg":
         Run(f"espin simulate plla --set rve.size_ratio=100 --set rve.layers=5 --direction-deg 45 -o small_45deg "
-            f"{NO_FIGURES}",
+            f"{SMALL} {NO_FIGURES}",
             outputs=("small_45deg/curve.csv",), folders={"small_45deg": "simulate"}),
     "espin simulate plla --test equibiaxial --max-strain 0.05 --set loading.steps=5 -o plla_equibiaxial":
         Run(f"espin simulate plla --test equibiaxial --max-strain 0.05 --set loading.steps=5 -o plla_equibiaxial {SMALL} "
@@ -140,7 +140,8 @@ RUNS: dict[str, Run | Skip] = {
     "espin design --target E=150 --target sigma_y=4.5 --var eta=0.1:0.3 --var kappa=0:4 --budget 30 "
     "--set rve.size_ratio=100 --set rve.layers=5 --set rve.sampling=balanced -o design":  # about 30 s as written
         Run("espin design --target E=150 --target sigma_y=4.5 --var eta=0.1:0.3 --var kappa=0:4 --budget 30 "
-            f"--set rve.size_ratio=100 --set rve.layers=5 --set rve.sampling=balanced -o design --budget 12 {TINY} "
+            f"--set rve.size_ratio=100 --set rve.layers=5 --set rve.sampling=balanced -o design --budget 9 --verify 2 "
+            f"{TINY} "
             f"{SHORT} {SERIAL}",
             outputs=_in("design", ("design.toml", "design.json", "evaluations.csv", "convergence.png", "maps.png",
                                    "verification.png", "pareto.png")),
@@ -160,7 +161,7 @@ RUNS: dict[str, Run | Skip] = {
         Run(outputs=_in("dof", ("dof.csv", "dof.png", "dof_fit.csv")), folders={"dof": "dof"}),
     "espin specimen plla --model surrogate --shape holed_strip --workers 2 -o holed":
         Run("espin specimen plla --model surrogate --shape holed_strip --workers 2 -o holed --max-strain 0.02 "
-            f"--steps 2 {TINY}",
+            f"--steps 2 --surrogate-reach 1 {TINY}",
             outputs=_in("holed", ("force_displacement.csv", "force.png", "specimen.png", "fields.pvd",
                                   "surrogate_samples.csv")),
             folders={"holed": "specimen"}),
