@@ -10,6 +10,13 @@ command that ``RUNS`` does not cover, when a run drops or changes a README argum
 adding one, when more than three lines are marked ``# long`` or a long line does not say how
 long it takes. Each command must exit 0 and leave the files the README promises; at the end,
 every output folder still holds its own run (the README order loses no output).
+
+Two more kinds of added arguments keep the run short without skipping a code path the README
+shows: ``simulate`` runs whose figures the README does not list draw none (``NO_FIGURES``:
+``plla_test`` draws and checks every figure of the same command, tests/test_figures.py each
+figure), and the commands that start a pool of worker processes by default run on one worker
+(``SERIAL``: at these sizes starting the workers, each importing espin, took longer than the
+tests they ran; the ``holed`` surrogate keeps its ``--workers 2``, so the pool path runs here).
 """
 
 from __future__ import annotations
@@ -36,6 +43,8 @@ AS_WRITTEN = "as written"
 SMALL = "--set rve.size_ratio=40 --set rve.layers=3"
 TINY = "--set rve.size_ratio=30 --set rve.layers=2"
 SHORT = "--set loading.max_strain=0.05 --set loading.steps=5"
+NO_FIGURES = "--set output.figures=false"
+SERIAL = "--workers 1"
 
 
 @dataclass(frozen=True)
@@ -82,23 +91,27 @@ RUNS: dict[str, Run | Skip] = {
     "espin generate plla --size-ratio 100 --layers 5 --seed 3 -o small_rve":
         Run(outputs=_in("small_rve", RVE_FILES), folders={"small_rve": "generate"}),
     "espin simulate small_rve/rve.h5 --max-strain 0.1 --steps 10 -o small_test":
-        Run(outputs=("small_test/curve.csv", "small_test/results.h5"), folders={"small_test": "simulate"}),
+        Run(f"espin simulate small_rve/rve.h5 --max-strain 0.1 --steps 10 -o small_test {NO_FIGURES}",
+            outputs=("small_test/curve.csv", "small_test/results.h5"), folders={"small_test": "simulate"}),
     "espin simulate plla --set rve.size_ratio=100 --set rve.layers=5 --direction-deg 45 -o small_45deg":
-        Run(outputs=("small_45deg/curve.csv",), folders={"small_45deg": "simulate"}),
+        Run(f"espin simulate plla --set rve.size_ratio=100 --set rve.layers=5 --direction-deg 45 -o small_45deg "
+            f"{SMALL} {NO_FIGURES}",
+            outputs=("small_45deg/curve.csv",), folders={"small_45deg": "simulate"}),
     "espin simulate plla --test equibiaxial --max-strain 0.05 --set loading.steps=5 -o plla_equibiaxial":
-        Run(f"espin simulate plla --test equibiaxial --max-strain 0.05 --set loading.steps=5 -o plla_equibiaxial {SMALL}",
+        Run(f"espin simulate plla --test equibiaxial --max-strain 0.05 --set loading.steps=5 -o plla_equibiaxial {SMALL} "
+            f"{NO_FIGURES}",
             outputs=("plla_equibiaxial/curve.csv",), folders={"plla_equibiaxial": "simulate"}),
     "espin config plla > my_mat.toml":
         Run(outputs=("my_mat.toml",)),
     "espin simulate my_mat.toml":
-        Run(f"espin simulate my_mat.toml {SMALL}", outputs=("my_mat_test/curve.csv",),
+        Run(f"espin simulate my_mat.toml {SMALL} {NO_FIGURES}", outputs=("my_mat_test/curve.csv",),
             folders={"my_mat_test": "simulate"}),
     "espin generate --set 'rve.orientation={von_mises={mean_deg=0, kappa=2}}' --set rve.max_deviation_deg=20 -o aligned_rve":
         Run(outputs=_in("aligned_rve", RVE_FILES), folders={"aligned_rve": "generate"}),
     "espin simulate plla-bonded --set rve.size_ratio=100 --set rve.layers=5 --max-strain 0.1 --steps 10 "
     "-o bonded_free":  # 15 s as written
         Run("espin simulate plla-bonded --set rve.size_ratio=100 --set rve.layers=5 --max-strain 0.1 --steps 10 "
-            f"-o bonded_free --max-strain 0.02 --steps 2 {SMALL}",
+            f"-o bonded_free --max-strain 0.02 --steps 2 {SMALL} {NO_FIGURES}",
             outputs=("bonded_free/curve.csv",), folders={"bonded_free": "simulate"}),
     # From SEM images to a virtual mat
     "espin example-data":
@@ -111,7 +124,7 @@ RUNS: dict[str, Run | Skip] = {
         Run("espin calibrate-geometry measured -o sem_mat.toml --seeds 1 --no-rendered-check --walk paper",
             outputs=("sem_mat.toml", "sem_mat.calibration.json")),
     "espin generate sem_mat.toml && espin simulate sem_mat.toml":
-        Run(f"espin generate sem_mat.toml {SMALL} && espin simulate sem_mat.toml {SMALL}",
+        Run(f"espin generate sem_mat.toml {SMALL} && espin simulate sem_mat.toml {SMALL} {NO_FIGURES}",
             outputs=("sem_mat_rve/rve.h5", "sem_mat_test/curve.csv"),
             folders={"sem_mat_rve": "generate", "sem_mat_test": "simulate"}),
     # Properties, calibration, studies
@@ -122,32 +135,33 @@ RUNS: dict[str, Run | Skip] = {
             folders={"avg": "properties"}),
     "espin fit spec1.csv spec2.csv spec3.csv --params eta,b_p,c_p --realizations 3 -o fit":  # long
         Run(f"espin fit spec1.csv spec2.csv spec3.csv --params eta,b_p,c_p --realizations 3 -o fit "
-            f"--params eta --realizations 1 --eta-points 2 --eta-tolerance 0.05 --step-strain 0.01 {TINY}",
+            f"--params eta --realizations 1 --eta-points 2 --eta-tolerance 0.05 --step-strain 0.01 {TINY} {SERIAL}",
             outputs=_in("fit", ("fitted.toml", "fit.csv", "fit.json", "fit.png")), folders={"fit": "fit"}),
     "espin design --target E=150 --target sigma_y=4.5 --var eta=0.1:0.3 --var kappa=0:4 --budget 30 "
     "--set rve.size_ratio=100 --set rve.layers=5 --set rve.sampling=balanced -o design":  # about 30 s as written
         Run("espin design --target E=150 --target sigma_y=4.5 --var eta=0.1:0.3 --var kappa=0:4 --budget 30 "
-            f"--set rve.size_ratio=100 --set rve.layers=5 --set rve.sampling=balanced -o design --budget 12 {TINY} "
-            f"{SHORT}",
+            f"--set rve.size_ratio=100 --set rve.layers=5 --set rve.sampling=balanced -o design --budget 9 --verify 2 "
+            f"{TINY} "
+            f"{SHORT} {SERIAL}",
             outputs=_in("design", ("design.toml", "design.json", "evaluations.csv", "convergence.png", "maps.png",
                                    "verification.png", "pareto.png")),
             folders={"design": "design"}),
     "espin study sweep plla --grid rve.volume_fraction=0.15,0.19,0.23 --grid rve.max_deviation_deg=5,15 "
     "--realizations 5 -o sweep":  # long
         Run("espin study sweep plla --grid rve.volume_fraction=0.15,0.19,0.23 --grid rve.max_deviation_deg=5,15 "
-            f"--realizations 5 -o sweep --realizations 1 {TINY} {SHORT}",
+            f"--realizations 5 -o sweep --realizations 1 {TINY} {SHORT} {SERIAL}",
             outputs=_in("sweep", ("results.csv", "summary.csv", "sweep_modulus.png")),
             folders={"sweep": "sweep"}),
     "espin study rve-size plla -o rve_size":  # long
         Run("espin study rve-size plla -o rve_size --size-ratios 20,30 --layer-counts 2,3 --layers-for-sizes 2 "
-            f"--size-for-layers 30 --realizations 1 {SHORT}",
+            f"--size-for-layers 30 --realizations 1 {SHORT} {SERIAL}",
             outputs=_in("rve_size", ("results.csv", "summary.csv", "rve_size_modulus.png")),
             folders={"rve_size": "rve-size"}),
     "espin study dof plla -o dof":
         Run(outputs=_in("dof", ("dof.csv", "dof.png", "dof_fit.csv")), folders={"dof": "dof"}),
     "espin specimen plla --model surrogate --shape holed_strip --workers 2 -o holed":
         Run("espin specimen plla --model surrogate --shape holed_strip --workers 2 -o holed --max-strain 0.02 "
-            f"--steps 2 {TINY}",
+            f"--steps 2 --surrogate-reach 1 {TINY}",
             outputs=_in("holed", ("force_displacement.csv", "force.png", "specimen.png", "fields.pvd",
                                   "surrogate_samples.csv")),
             folders={"holed": "specimen"}),
@@ -169,17 +183,19 @@ RUNS: dict[str, Run | Skip] = {
 }
 
 # Python lines that call espin, as the test runs them: AS_WRITTEN or the line with small
-# arguments. Python blocks run in one interpreter, in README order, between the commands.
+# arguments (or without figures, as NO_FIGURES above). Python blocks run in one interpreter, in
+# README order, between the commands.
 PYTHON_RUNS: dict[str, str] = {
     'rve = espin.generate("plla", rve__size_ratio=100, rve__layers=5)': AS_WRITTEN,
     "stats = espin.network_statistics(rve.mat, rve.network, rve.config)": AS_WRITTEN,
     'espin.write_rve_folder(rve, "py_rve")': AS_WRITTEN,
     'rve2 = espin.load_rve("py_rve/rve.h5")': AS_WRITTEN,
-    'result = espin.simulate(rve, "py_test", loading__max_strain=0.1, loading__steps=10)': AS_WRITTEN,
+    'result = espin.simulate(rve, "py_test", loading__max_strain=0.1, loading__steps=10)':
+        'result = espin.simulate(rve, "py_test", loading__max_strain=0.1, loading__steps=10, output__figures=False)',
     "props = espin.curve_properties(result.strain, result.stress())": AS_WRITTEN,
     'fitted = espin.fit(["spec1.csv", "spec2.csv"], parameters=("eta",), realizations=1, base=rve.config)':
         'fitted = espin.fit(["spec1.csv", "spec2.csv"], parameters=("eta",), realizations=1, eta_points=2, '
-        'eta_tolerance=0.05, step_strain=0.01, workers=2, '
+        'eta_tolerance=0.05, step_strain=0.01, '
         'base=espin.load_config("plla", {"rve.size_ratio": 30, "rve.layers": 2}))',
     'm = espin.measure("mat.tif", um_per_px=0.066)': AS_WRITTEN,
     'point = espin.specimen.reopen_point("dogbone", 7)': AS_WRITTEN,

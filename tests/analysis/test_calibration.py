@@ -45,7 +45,7 @@ def flow_fit(base):
     up to 1 % beyond."""
     truth = resolve_config(base, fiber__flow_resistance_MPa=4.0, fiber__hardening_exponent=0.8)
     data = synthetic_curve(truth, STRAIN, seeds=SEEDS, step_strain=5e-4, noise_sd_MPa=0.05, rng=0)
-    return fit(data, base=base, parameters=("b_p", "c_p"), seeds=SEEDS)
+    return fit(data, base=base, parameters=("b_p", "c_p"), seeds=SEEDS, workers=2)
 
 
 @pytest.mark.slow
@@ -144,7 +144,7 @@ def test_paper_case_eta_and_flow_from_other_specimens(base):
     strain, steps = np.linspace(0.15 / 8, 0.15, 8), {"step_strain": 0.02}
     data = synthetic_curve(truth, strain, seeds=(11, 12, 13), noise_sd_MPa=0.05, rng=2, **steps)
     result = fit(data, base=base, seeds=(1, 2, 3), bounds={"eta": (0.17, 0.25)}, eta_points=2,
-                 eta_tolerance=0.03, **steps)
+                 eta_tolerance=0.03, workers=2, **steps)
     true = {"rve.volume_fraction": 0.21, "fiber.flow_resistance_MPa": 4.0, "fiber.hardening_exponent": 0.8}
     for key, value in true.items():
         sd = math.hypot(result.uncertainties[key], result.realization_sd[key] / math.sqrt(3))

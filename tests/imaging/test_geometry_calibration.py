@@ -224,9 +224,16 @@ def sem_measurement(sem_image):
     return measure(sem_image.image, um_per_px=sem_image.um_per_px)
 
 
+@pytest.fixture(scope="module")
+def sem_calibration(sem_measurement):
+    """The calibration of that measurement with the light settings (FAST), run once for the
+    tests that read it (it is deterministic: the same measurement and seeds give the same result)."""
+    return calibrate_geometry(sem_measurement, "plla", **FAST)
+
+
 @pytest.mark.slow
-def test_synthetic_image_round_trip_recovers_the_deviation(sem_measurement, sem_image):
-    result = calibrate_geometry(sem_measurement, "plla", **FAST)
+def test_synthetic_image_round_trip_recovers_the_deviation(sem_measurement, sem_image, sem_calibration):
+    result = sem_calibration
     # The traced pieces are far shorter than the fibers across the image (median end to end
     # 15 D against 36 D), so their tortuosity is far lower; the calibrated walk says what
     # whole fibers across the window read, as tracing them by hand would.
@@ -261,7 +268,7 @@ def test_synthetic_image_round_trip_recovers_the_deviation(sem_measurement, sem_
 
 
 @pytest.mark.slow
-def test_calibration_from_an_espin_measure_folder(sem_measurement, tmp_path):
+def test_calibration_from_an_espin_measure_folder(sem_measurement, sem_calibration, tmp_path):
     folder = tmp_path / "measured"
     sem_measurement.write(folder, figures=False)
     result = calibrate_geometry(folder, "plla", **FAST)
@@ -270,7 +277,7 @@ def test_calibration_from_an_espin_measure_folder(sem_measurement, tmp_path):
     assert result.search["min_chord_um"] == pytest.approx(sem_measurement.min_chord_um, rel=1e-5)
     assert len(result.targets.tortuosity) == len(sem_measurement.fibers)
     # The same targets as the measurement in memory (fibers.csv keeps 6 digits).
-    direct = calibrate_geometry(sem_measurement, "plla", **FAST)
+    direct = sem_calibration
     assert result.config.rve.max_deviation_deg == pytest.approx(
         direct.config.rve.max_deviation_deg, abs=0.5)
     # The diameter target is the fully visible fibers' (fibers.csv's visible column); the
@@ -283,14 +290,14 @@ def test_calibration_from_an_espin_measure_folder(sem_measurement, tmp_path):
 
 
 @pytest.mark.slow
-def test_comparison_shows_the_image_beside_a_rendering_at_its_scale(sem_measurement, tmp_path):
+def test_comparison_shows_the_image_beside_a_rendering_at_its_scale(sem_measurement, sem_calibration, tmp_path):
     """The image an SEMMeasurement analysed is kept, and the folder gets comparison.png: the
     image and a synthetic SEM of the calibrated mat over the same field of view."""
     from PIL import Image
 
     from espin.imaging.geometry_calibration.comparison import render_like
 
-    result = calibrate_geometry(sem_measurement, "plla", **FAST)
+    result = sem_calibration
     assert result.image.pixels.shape == sem_measurement.image.shape
     rendering = render_like(result.config, result.image.pixels.shape, result.image.um_per_px)
     assert rendering.shape == sem_measurement.image.shape

@@ -14,6 +14,7 @@ import pytest
 
 import espin.geometry.rve
 from espin.core.errors import SEMError
+from espin.core.parallel import TaskPool
 from espin.geometry.fibers_csv import EDGE_COLUMNS, read_fibers_csv
 from espin.geometry.pieces import window_crossings, window_runs
 from espin.geometry.targets import GeometryTargets, MeasurementError
@@ -102,16 +103,22 @@ def test_straight_fibers_make_no_u_turns(straight):
     assert straightness > 0.97
 
 
+def _curling_window(seed: int):
+    """espin measure of a rendered 100 D window of a mat with 40 deg turns, and the window's
+    true crossings (module level: the test runs its seeds on worker processes)."""
+    mat = _mat(seed, 110, rve__max_deviation_deg=40.0)
+    image = render_sem(mat, side_um=100 * D, seed=seed)
+    return measure(image.image, um_per_px=image.um_per_px), _true_crossings(mat, image)
+
+
 @pytest.mark.slow
 def test_curling_fibers_u_turn_as_often_as_the_truth():
     """Paper walk of 40 deg turns per segment (persistence about 60 D) in 100 D windows: a
     fifth of the true portions crossing edge to edge leave through the edge they entered."""
-    measured, truth = [], []
-    for seed in range(1, 6):
-        mat = _mat(seed, 110, rve__max_deviation_deg=40.0)
-        image = render_sem(mat, side_um=100 * D, seed=seed)
-        measured.append(measure(image.image, um_per_px=image.um_per_px))
-        truth.append(_true_crossings(mat, image))
+    with TaskPool(workers=2) as pool:  # five independent images: on both cores
+        outcomes = sorted(pool.map(_curling_window, range(1, 6)), key=lambda outcome: outcome.index)
+    assert all(outcome.ok for outcome in outcomes), [outcome.traceback for outcome in outcomes]
+    measured, truth = [outcome.value[0] for outcome in outcomes], [outcome.value[1] for outcome in outcomes]
     n, u_turns, straightness = _pooled(measured)
     n_true, u_true, _ = _pooled(truth)
     p = u_true / n_true
