@@ -28,7 +28,8 @@ V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
   with a smaller residual than the plain one's (the plain full step's evaluation is the
   line search's first trial otherwise);
 * after each line search, a local Newton step on the few inner nodes whose force residual is
-  still over the tolerance (at most :data:`_RELAX_MAX_NODES`, without fiber joints) and
+  still over the tolerance (at most :data:`_RELAX_MAX_NODES` and :data:`_RELAX_MAX_SHARE` of
+  the inner nodes, without fiber joints) and
   their neighbours (:data:`_RELAX_RINGS` elements away, at most :data:`_RELAX_MAX_BLOCK`
   nodes): the exact tangent's block of those nodes (their elements' 2 x 2 blocks, the rest of the
   network held) solved densely, up to :data:`_RELAX_ROUNDS` rounds (one residual evaluation
@@ -77,6 +78,7 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
+from functools import cache
 
 import numpy as np
 import scipy.sparse as sp
@@ -107,6 +109,7 @@ _KINK_MAX = 100  # more crossing elements than this: no correction (m solves wou
 _KINK_FIXED_POINT = 3  # iterations of lambda = lambda_r lambda_p(lambda) for the kink's stretch
 _KINK_SIDE = 1e-9  # relative offset of the stretch that evaluates one side of the kink
 _RELAX_MAX_NODES = 200  # more nodes over the tolerance: the residual is not local, no node relaxation
+_RELAX_MAX_SHARE = 0.1  # nor when they are more than this share of the inner nodes (a small RVE)
 _RELAX_ROUNDS = 10  # local Newton steps on those nodes per Newton iteration
 _RELAX_RINGS = 2  # the nodes' neighbours up to this many elements away relax with them
 _RELAX_MAX_BLOCK = 200  # most nodes in one local (dense) block
@@ -257,6 +260,13 @@ class _ThreadedLaw:
 
 
 _LAW_FIELDS = ("stress", "plastic_stretch", "tangent", "recruited", "plastic_rate")
+
+
+@cache
+def _openblas_pools() -> ThreadpoolController:
+    """The process's OpenBLAS thread pools, found once: a ThreadpoolController scans every
+    loaded library (about 2 ms), and solves of small RVEs call this for every step."""
+    return ThreadpoolController().select(internal_api="openblas")
 
 
 def low_rank_step(
@@ -630,7 +640,7 @@ class EquilibriumSolver:
         """
         if getattr(self.linear, "uses_openblas", True):
             return nullcontext()
-        return ThreadpoolController().select(internal_api="openblas").limit(limits=1)
+        return _openblas_pools().limit(limits=1)
 
     def predicted_error(
         self,
@@ -805,12 +815,13 @@ class EquilibriumSolver:
         if self.joints is not None:
             return p
         n = 2 * self.n_inner
+        most = min(_RELAX_MAX_NODES, _RELAX_MAX_SHARE * self.n_inner)
         ok, norm, tolerance = self._converged(p, n_free)
         best, best_norm = p, norm
         for _ in range(_RELAX_ROUNDS):
             forces = p.residual[:n].reshape(-1, 2)
             nodes = np.flatnonzero(np.abs(forces).max(axis=1, initial=0.0) > tolerance)
-            if ok or nodes.size == 0 or nodes.size > _RELAX_MAX_NODES:
+            if ok or nodes.size == 0 or nodes.size > most:
                 break
             nodes = self._with_neighbours(nodes)
             touched, ends = self._node_elements(nodes)
