@@ -27,11 +27,12 @@ DENSE_WAVY = dict(rve__volume_fraction=0.3196, rve__max_deviation_deg=38.39, rve
 @pytest.mark.slow
 def test_wavy_sparse_mat_in_simple_shear_converges():
     """Before the continuation, step 2 failed after 12 cuts (35 s); now both steps converge in
-    about 6 s. Step 1 needs the continuation: Newton alone stops at 200 iterations."""
+    about 6 s. Step 1 needed the continuation (Newton alone stopped at its 200 iterations)
+    until the non-monotone node relaxation: Newton alone converges it now (184 iterations)."""
     rve = generate("plla", **WAVY_SPARSE)
     result = simulate(rve, loading__test="simple_shear", loading__max_strain=0.02, loading__steps=2)
     assert len(result.strain) == 3 and result.strain[-1] == pytest.approx(0.02)
-    assert result.iterations[1] > 200  # Newton failed first, the continuation then converged
+    assert result.iterations[1] <= 200  # Newton alone, without the continuation's stages
     assert np.all(np.isfinite(result.P)) and result.stress()[-1] > result.stress()[1] > 0
 
 
