@@ -357,6 +357,11 @@ class EquilibriumSolver:
         self.tortuosity = network.element_tortuosity
         self._law_update = _ThreadedLaw(self.tortuosity)
         self.n_inner = network.n_inner
+        # The elements of each node (CSR by node over the element ends), for the relaxation.
+        ends = network.element_nodes.ravel()
+        order = np.argsort(ends, kind="stable")
+        self._node_start = np.searchsorted(ends[order], np.arange(self.asm.n_dof // 2 + 1))
+        self._node_elements_list = order // 2
         self.border_reference = self.asm.reference[network.n_inner :]
         self.force_tolerance_abs = config.atol * law.taut_modulus * float(np.mean(self.area))
         fiber_fraction = float(np.sum(self.area * network.element_contour_length)) / network.reference_volume
@@ -820,7 +825,7 @@ class EquilibriumSolver:
         best, best_norm = p, norm
         for _ in range(_RELAX_ROUNDS):
             forces = p.residual[:n].reshape(-1, 2)
-            nodes = np.flatnonzero(np.abs(forces).max(axis=1, initial=0.0) > tolerance)
+            nodes = np.unique(np.flatnonzero(np.abs(p.residual[:n]) > tolerance) // 2)
             if ok or nodes.size == 0 or nodes.size > most:
                 break
             nodes = self._with_neighbours(nodes)
@@ -845,22 +850,27 @@ class EquilibriumSolver:
         """``nodes`` and the inner nodes up to :data:`_RELAX_RINGS` elements away, ring by
         ring while they stay at most :data:`_RELAX_MAX_BLOCK` (sorted indices)."""
         for _ in range(_RELAX_RINGS):
-            touched, _ = self._node_elements(nodes)
-            ring = self.network.element_nodes[touched].ravel()
+            ring = self.network.element_nodes[self._elements_of(nodes)].ravel()
             wider = np.unique(np.concatenate([nodes, ring[ring < self.n_inner]]))
             if wider.size > _RELAX_MAX_BLOCK:
                 break
             nodes = wider
         return nodes
 
+    def _elements_of(self, nodes: np.ndarray) -> np.ndarray:
+        """The elements with an end among ``nodes`` (sorted indices, each once)."""
+        start, stop = self._node_start[nodes], self._node_start[nodes + 1]
+        counts = stop - start
+        offsets = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
+        return np.unique(self._node_elements_list[np.repeat(start, counts) + offsets])
+
     def _node_elements(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The elements with an end among the m ``nodes`` (indices), and their two ends as
         node numbers 0..m-1 (the position in ``nodes``), or -1 for other nodes."""
         local = np.full(self.asm.n_dof // 2, -1)
         local[nodes] = np.arange(nodes.size)
-        ends = local[self.network.element_nodes]
-        touched = np.flatnonzero((ends >= 0).any(axis=1))
-        return touched, ends[touched]
+        touched = self._elements_of(nodes)
+        return touched, local[self.network.element_nodes[touched]]
 
     def _node_block(self, p: _Point, m: int, touched: np.ndarray, ends: np.ndarray) -> np.ndarray:
         """(2 m, 2 m) block of the exact tangent at ``p`` on the DOF of m inner nodes
