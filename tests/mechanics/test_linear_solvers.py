@@ -236,6 +236,23 @@ def test_multiple_right_hand_sides(solver: ls.LinearSolver) -> None:
     np.testing.assert_allclose(factorization.solve(B[:, ::2]), X[:, ::2], rtol=1e-8, atol=1e-10)
 
 
+def test_an_unchecked_solve_skips_the_product_by_k(solver: ls.LinearSolver, monkeypatch: pytest.MonkeyPatch) -> None:
+    """checked=False returns the backend's solution without the backward-error check (no
+    product by K, no refinement): on a well-conditioned K, the checked solve's."""
+    K = laplacian_2dof(9)
+    B = np.random.default_rng(8).standard_normal((K.shape[0], 3))
+    factorization = solver.factorize(K)
+    checked = factorization.solve(B)
+
+    def no_product(*args: object) -> None:
+        raise AssertionError("an unchecked solve computed a residual")
+
+    monkeypatch.setattr(type(factorization), "_residual", no_product)
+    np.testing.assert_allclose(factorization.solve(B, checked=False), checked, rtol=1e-12, atol=1e-14)
+    with pytest.raises(AssertionError, match="computed a residual"):
+        factorization.solve(B)
+
+
 def test_pattern_work_is_reused_across_values(
     solver: ls.LinearSolver, monkeypatch: pytest.MonkeyPatch
 ) -> None:

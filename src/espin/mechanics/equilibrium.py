@@ -567,7 +567,7 @@ class EquilibriumSolver:
             new = [e for e in crossing.tolist() if e not in tangent.solved]
             if new:
                 columns = self._element_modes(np.array(new), tangent.kin, step)
-                solved = tangent.factorization.solve(columns)
+                solved = tangent.factorization.solve(columns, checked=False)  # the corrected step is evaluated
                 tangent.solved.update((e, (columns[:, j], solved[:, j])) for j, e in enumerate(new))
             modes = np.column_stack([tangent.solved[e][0] for e in crossing.tolist()])
             solved = np.column_stack([tangent.solved[e][1] for e in crossing.tolist()])

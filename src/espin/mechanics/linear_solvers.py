@@ -99,7 +99,7 @@ class Factorization(_Releasable, ABC):
     :class:`~espin.core.errors.SolverError`. It is a context manager that releases it on exit.
 
     Every solve checks its normwise backward error with a product by (a private copy of) K
-    and, if it exceeds 1e-14, refines the solution up to two times.
+    and, if it exceeds 1e-14, refines the solution up to two times (unless asked not to).
 
     Attributes
     ----------
@@ -128,13 +128,17 @@ class Factorization(_Releasable, ABC):
         K is positive definite when this is 0 and no pivot was perturbed (``n_perturbed``).
         """
 
-    def solve(self, b: ArrayLike) -> np.ndarray:
+    def solve(self, b: ArrayLike, checked: bool = True) -> np.ndarray:
         """Solve ``K x = b``.
 
         Parameters
         ----------
         b : (n,) or (n, k) array_like of float
             Right-hand side(s), in the units of K times those of x.
+        checked : bool
+            Check the backward error and refine (default). False skips both (no product by
+            K): for solutions whose use is verified otherwise, e.g. the kink correction's
+            columns, whose corrected step is kept only if its own residual is lower.
 
         Returns
         -------
@@ -153,6 +157,8 @@ class Factorization(_Releasable, ABC):
         if b.ndim not in (1, 2) or b.shape[0] != self.n:
             raise ValueError(f"b must have shape ({self.n},) or ({self.n}, k), got {b.shape}")
         x = self._solve(b)
+        if not checked:
+            return x
         r, error = self._residual(b, x)
         for _ in range(_REFINEMENT_STEPS):
             if error <= _BACKWARD_ERROR_TOL:
