@@ -246,20 +246,30 @@ class _ThreadedLaw:
         stretch: np.ndarray,
         plastic_old: np.ndarray,
         dt: float,
-        guess: np.ndarray,
-        near: LawState,
+        near: _Point,
         elements: np.ndarray,
     ) -> LawState:
-        """``near`` with the update of the ``elements`` (indices) alone, from ``guess``, on
-        this thread: the others' stretches are those ``near`` was evaluated at."""
-        part = update(law, stretch[elements], plastic_old[elements], self.tortuosity[elements], dt, guess[elements])
-        fields = {name: getattr(near, name).copy() for name in _LAW_FIELDS}
+        """``near``'s law state with the update of the ``elements`` (indices) alone, started
+        to first order from ``near``'s, on this thread: the others' stretches are those
+        ``near`` was evaluated at."""
+        guess = _first_order_plastic_stretch(near, stretch, elements)
+        part = update(law, stretch[elements], plastic_old[elements], self.tortuosity[elements], dt, guess)
+        fields = {name: getattr(near.law, name).copy() for name in _LAW_FIELDS}
         for name, values in fields.items():
             values[elements] = getattr(part, name)
         return LawState(**fields)
 
 
 _LAW_FIELDS = ("stress", "plastic_stretch", "tangent", "recruited", "plastic_rate")
+
+
+def _first_order_plastic_stretch(
+    near: _Point, stretch: np.ndarray, elements: np.ndarray | slice = slice(None)
+) -> np.ndarray:
+    """lambda_p of the ``elements`` at ``stretch``, to first order from ``near``'s state."""
+    return near.law.plastic_stretch[elements] + near.law.plastic_rate[elements] * (
+        stretch[elements] - near.stretch[elements]
+    )
 
 
 @cache
@@ -416,14 +426,11 @@ class EquilibriumSolver:
         stretch = kin.length / self.l0
         if near is None:
             law = self._law_update(step.law, stretch, step.start.plastic_stretch, step.dt, None)
-        else:  # lambda_p guessed to first order in the stretch from near's
-            guess = near.law.plastic_stretch + near.law.plastic_rate * (stretch - near.stretch)
-            if moved is None:
-                law = self._law_update(step.law, stretch, step.start.plastic_stretch, step.dt, guess)
-            else:
-                law = self._law_update.patched(
-                    step.law, stretch, step.start.plastic_stretch, step.dt, guess, near.law, moved
-                )
+        elif moved is None:
+            guess = _first_order_plastic_stretch(near, stretch)
+            law = self._law_update(step.law, stretch, step.start.plastic_stretch, step.dt, guess)
+        else:
+            law = self._law_update.patched(step.law, stretch, step.start.plastic_stretch, step.dt, near, moved)
         force, stiffness = self.element_forces(law, stretch)
         gradient = self.asm.gradient(force, kin)
         if self.joints is not None:
