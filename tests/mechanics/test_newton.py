@@ -8,23 +8,31 @@ import scipy.linalg
 
 from espin.geometry.rve import generate
 from espin.mechanics.driver import run_program
-from espin.mechanics.equilibrium import low_rank_step
+from espin.mechanics.kink_correction import KinkColumns
 from espin.mechanics.linear_solvers import make_linear_solver
 
 
-def test_low_rank_step_solves_the_changed_system():
+def test_kink_columns_solve_the_changed_system():
     """The Sherman-Morrison-Woodbury step equals a direct solve of (K + B D B^T) d = -r - B c,
-    for stiffening and softening changes alike."""
+    for stiffening and softening changes alike, over columns held in two batches and taken
+    in any order and subset."""
     rng = np.random.default_rng(4)
-    n, m = 12, 3
+    n = 12
     A = rng.normal(size=(n, n))
     K = A @ A.T + n * np.eye(n)
     r = rng.normal(size=n)
-    B = rng.normal(size=(n, m))
-    delta = np.array([1000.0, -0.5, 30.0])
-    shift = rng.normal(size=m)
+    B_all = rng.normal(size=(n, 5))
+    B_all[rng.random(B_all.shape) < 0.5] = 0.0  # sparse columns, as d l_e / d z are
     factor = scipy.linalg.cho_factor(K)
-    got = low_rank_step(scipy.linalg.cho_solve(factor, -r), B, scipy.linalg.cho_solve(factor, B), delta, shift)
+    columns = KinkColumns(lambda b: scipy.linalg.cho_solve(factor, b))
+    columns.add(np.array([7, 3]), B_all[:, :2])
+    np.testing.assert_array_equal(columns.missing(np.array([3, 11, 7, 2])), [11, 2])
+    columns.add(np.array([11, 2, 5]), B_all[:, 2:])
+    elements, which = np.array([5, 7, 11]), [4, 0, 2]
+    B = B_all[:, which]
+    delta = np.array([1000.0, -0.5, 30.0])
+    shift = rng.normal(size=3)
+    got = columns.step(scipy.linalg.cho_solve(factor, -r), elements, delta, shift)
     expected = np.linalg.solve(K + B @ np.diag(delta) @ B.T, -r - B @ shift)
     np.testing.assert_allclose(got, expected, rtol=1e-10, atol=1e-12)
 

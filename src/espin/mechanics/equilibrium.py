@@ -20,13 +20,14 @@ V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
   residual within the tolerance lends its factorization to the next one (no new
   factorization), as long as that gives a descent direction;
 * with the exact tangent, a semismooth correction at the slack/taut kink (modulus x1000 at
-  e = lambda_r): the elements whose recruitment at the full Newton step differs from the one the factorized
-  tangent was built with are linearized on the side the step puts them (their force about
-  the kink, on that side), a low-rank change solved with the same factorization
-  (Sherman-Morrison-Woodbury, :func:`low_rank_step`), repeated while that set changes;
-  the corrected direction is kept when its full step passes the line search's slope test
-  with a smaller residual than the plain one's (the plain full step's evaluation is the
-  line search's first trial otherwise);
+  e = lambda_r): the elements whose recruitment at the full Newton step (foreseen from their
+  lengths there, without the fiber law) differs from the one the factorized tangent was
+  built with are linearized on the side the step puts them (their force about the kink, on
+  that side), a low-rank change solved with the same factorization
+  (Sherman-Morrison-Woodbury, :mod:`espin.mechanics.kink_correction`), repeated while that
+  set changes; the corrected direction is kept when its full step passes the line search's
+  slope test with a smaller residual than the iterate's (the plain direction is searched
+  otherwise);
 * after each line search, a local Newton step on the few inner nodes whose force residual is
   still over the tolerance (at most :data:`_RELAX_MAX_NODES` and :data:`_RELAX_MAX_SHARE` of
   the inner nodes, without fiber joints) and
@@ -93,6 +94,7 @@ from espin.mechanics.bending import FiberJoints, fiber_joints
 from espin.mechanics.compression_limit import CompressionLimit
 from espin.mechanics.crossings import crossing_joints, with_crossings
 from espin.mechanics.fiber_law import STRETCH_FLOOR, FiberLaw, LawState, axial_force_and_stiffness, update
+from espin.mechanics.kink_correction import KinkColumns
 from espin.mechanics.line_search import SLOPE_RATIO, line_search
 from espin.mechanics.linear_solvers import Factorization, LinearSolver
 from espin.mechanics.loading import LateralStress
@@ -196,8 +198,12 @@ class _Tangent:
     recruited: np.ndarray  # (n_elements,) bool: taut at the point it was built
     clipped: bool  # the positive semi-definite tangent (an indefinite exact one was refused)
     kin: Kinematics  # the geometry it was built with
-    solved: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
-    """Element -> (b_e, K^-1 b_e), b_e = d l_e / d z at ``kin``: solved once per tangent."""
+    kink: KinkColumns = field(init=False)
+    """b_e = d l_e / d z at ``kin`` and K^-1 b_e of the elements met at the kink so far."""
+
+    def __post_init__(self) -> None:
+        # The corrected step is evaluated, so its columns need no backward-error check.
+        object.__setattr__(self, "kink", KinkColumns(lambda b: self.factorization.solve(b, checked=False)))
 
 
 @dataclass
@@ -277,33 +283,6 @@ def _openblas_pools() -> ThreadpoolController:
     """The process's OpenBLAS thread pools, found once: a ThreadpoolController scans every
     loaded library (about 2 ms), and solves of small RVEs call this for every step."""
     return ThreadpoolController().select(internal_api="openblas")
-
-
-def low_rank_step(
-    direction: np.ndarray, modes: np.ndarray, solved: np.ndarray, delta: np.ndarray, shift: np.ndarray
-) -> np.ndarray:
-    """Solution d of (K + B diag(delta) B^T) d = -r - B shift from solves with K.
-
-    By the Sherman-Morrison-Woodbury formula: with dz = K^-1 (-r) (``direction``) and
-    Y = K^-1 B (``solved``), u = dz - Y shift and d = u - Y (I + diag(delta) B^T Y)^-1
-    diag(delta) B^T u.
-
-    Parameters
-    ----------
-    direction : (n,) float64
-        K^-1 (-r).
-    modes : (n, m) float64
-        B, one column per changed element (d l_e / d z, dimensionless).
-    solved : (n, m) float64
-        K^-1 B.
-    delta : (m,) float64 [uN/um]
-        Change of each element's axial stiffness.
-    shift : (m,) float64 [uN]
-        Change of each element's force model at the current iterate.
-    """
-    u = direction - solved @ shift
-    capacitance = np.eye(len(delta)) + delta[:, None] * (modes.T @ solved)
-    return u - solved @ np.linalg.solve(capacitance, delta * (modes.T @ u))
 
 
 class EquilibriumSolver:
@@ -417,13 +396,7 @@ class EquilibriumSolver:
         required): the fiber law is updated for those alone and ``near``'s kept for the rest.
         """
         n = 2 * self.n_inner
-        free = z[n:]
-        F = step.F_prescribed + np.tensordot(free, step.directions, axes=1) if len(free) else step.F_prescribed
-        if not (np.all(np.isfinite(z)) and np.linalg.det(F) > 0.0):
-            raise InadmissibleState("the iterate left the admissible states (non-finite, or det F <= 0)")
-        x = self.asm.positions(z[:n], F)
-        kin = self.asm.kinematics(x)
-        stretch = kin.length / self.l0
+        F, x, kin, stretch = self._geometry(z, step)
         if near is None:
             law = self._law_update(step.law, stretch, step.start.plastic_stretch, step.dt, None)
         elif moved is None:
@@ -440,6 +413,25 @@ class EquilibriumSolver:
             target, _ = step.lateral.nominal(float(np.vdot(F, step.directions[0])))
             residual[n] -= self.network.reference_volume * target
         return _Point(z, F, x, kin, stretch, law, force, stiffness, gradient, residual)
+
+    def _geometry(self, z: np.ndarray, step: _Step) -> tuple[np.ndarray, np.ndarray, Kinematics, np.ndarray]:
+        """F, the node positions [um], their kinematics and the element stretches at the
+        iterate ``z``; :class:`InadmissibleState` where ``z`` is not finite or det F <= 0."""
+        n = 2 * self.n_inner
+        free = z[n:]
+        F = step.F_prescribed + np.tensordot(free, step.directions, axes=1) if len(free) else step.F_prescribed
+        if not (np.all(np.isfinite(z)) and np.linalg.det(F) > 0.0):
+            raise InadmissibleState("the iterate left the admissible states (non-finite, or det F <= 0)")
+        x = self.asm.positions(z[:n], F)
+        kin = self.asm.kinematics(x)
+        return F, x, kin, kin.length / self.l0
+
+    def _recruited_at(self, z: np.ndarray, step: _Step, near: _Point) -> np.ndarray:
+        """Whether each element is taut (e >= lambda_r) at the iterate ``z``, foreseen
+        without the fiber law: its plastic stretch there to first order from ``near``'s."""
+        _, _, _, stretch = self._geometry(z, step)
+        plastic = _first_order_plastic_stretch(near, stretch)
+        return np.maximum(stretch, STRETCH_FLOOR) / plastic >= np.maximum(self.tortuosity, 1.0)
 
     def element_forces(self, law: LawState, stretch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Axial force T [uN] and dT/dl [uN / um] of every element: the fiber law's, plus the
@@ -545,51 +537,62 @@ class EquilibriumSolver:
         self, p: _Point, direction: np.ndarray, tangent: _Tangent, step: _Step
     ) -> tuple[np.ndarray, _Point]:
         """The Newton direction with the elements that cross the slack/taut kink linearized
-        on the side the full step puts them, and the full-step trial of the direction returned.
+        on the side its full step puts them, and the evaluated full step of the direction
+        returned.
 
         ``direction`` solved ``K dz = -r`` with ``tangent`` (the exact one, built at ``p``
-        or, for a chord step, at an earlier iterate q). An element whose recruitment at the trial z + dz
-        differs from q's enters the model with its force linearized about its kink, on the
-        trial's side (:meth:`_at_kink`), T_e(l) ~ T_k + k_k (l - l_k), instead of
+        or, for a chord step, at an earlier iterate q). An element whose recruitment at the
+        full step z + dz, foreseen from its length there (:meth:`_recruited_at`, without the
+        fiber law), differs from q's enters the model with its force linearized about its
+        kink, on that side (:meth:`_at_kink`), T_e(l) ~ T_k + k_k (l - l_k), instead of
         T_z + k_q (l - l_z): a change of rank one per element (delta_e = k_k - k_q along its
         d l / d z = b_e) and a shift c_e = T_k - T_z - k_k (l_k - l_z) of its force, so
         (K + B diag(delta) B^T) d = -r - B c, solved with the same factorization
-        (:func:`low_rank_step`; b_e at the tangent's geometry, so K^-1 b_e is solved once per
-        tangent and element, and chord steps reuse it). Repeated from the new trial while the set of
-        crossing elements changes (at most :data:`_KINK_ROUNDS` rounds): a semismooth
-        Newton step whose active set is taken from its own full step. The corrected
-        direction is taken when its full step passes the line search's slope test with a
-        smaller residual than the plain full step's; else ``direction`` is returned.
+        (:class:`~espin.mechanics.kink_correction.KinkColumns`: b_e at the tangent's
+        geometry, so K^-1 b_e is solved once per tangent and element, and chord steps reuse
+        it). Repeated from the corrected step's foreseen recruitment while the set of
+        crossing elements changes (at most :data:`_KINK_ROUNDS` rounds): a semismooth Newton
+        step whose active set is taken from its own full step. The corrected direction is
+        returned when its full step passes the line search's slope test with a smaller
+        residual than ``p``'s (the fiber law evaluated there only); else ``direction``.
         """
-        plain = self._evaluate(p.z + direction, step, p)
-        trial, assumed = plain, np.zeros(0, dtype=np.int64)
+        corrected, assumed = direction, np.zeros(0, dtype=np.int64)
         for _ in range(_KINK_ROUNDS):
-            crossing = np.flatnonzero(trial.law.recruited != tangent.recruited)
+            try:
+                taut = self._recruited_at(p.z + corrected, step, p)
+            except InadmissibleState:
+                break
+            crossing = np.flatnonzero(taut != tangent.recruited)
             if crossing.size == 0 or crossing.size > _KINK_MAX or np.array_equal(crossing, assumed):
                 break
             assumed = crossing
-            k_model = tangent.axial[crossing]
-            l_k, force_k, k_tr = self._at_kink(crossing, trial.law.recruited[crossing], p, step)
-            shift = force_k - p.force[crossing] - k_tr * (l_k - p.kin.length[crossing])
-            new = [e for e in crossing.tolist() if e not in tangent.solved]
-            if new:
-                columns = self._element_modes(np.array(new), tangent.kin, step)
-                solved = tangent.factorization.solve(columns, checked=False)  # the corrected step is evaluated
-                tangent.solved.update((e, (columns[:, j], solved[:, j])) for j, e in enumerate(new))
-            modes = np.column_stack([tangent.solved[e][0] for e in crossing.tolist()])
-            solved = np.column_stack([tangent.solved[e][1] for e in crossing.tolist()])
-            corrected = low_rank_step(direction, modes, solved, k_tr - k_model, shift)
+            l_k, force_k, k_k = self._at_kink(crossing, taut[crossing], p, step)
+            shift = force_k - p.force[crossing] - k_k * (l_k - p.kin.length[crossing])
+            new = tangent.kink.missing(crossing)
+            if new.size:
+                tangent.kink.add(new, self._element_modes(new, tangent.kin, step))
+            corrected = tangent.kink.step(direction, crossing, k_k - tangent.axial[crossing], shift)
             if not np.dot(corrected, p.residual) < 0.0:
+                corrected = direction
                 break
+        if corrected is not direction:
             try:
                 trial = self._evaluate(p.z + corrected, step, p)
             except InadmissibleState:
-                break
-            s0, s1 = float(np.dot(p.residual, corrected)), float(np.dot(trial.residual, corrected))
-            slope_ok = s1 <= 0.0 or abs(s1) <= SLOPE_RATIO * abs(s0)
-            if slope_ok and np.linalg.norm(step.weight * trial.residual) < np.linalg.norm(step.weight * plain.residual):
+                trial = None
+            if trial is not None and self._full_step_fits(p, trial, corrected, step):
                 return corrected, trial
-        return direction, plain
+        return direction, self._evaluate(p.z + direction, step, p)
+
+    @staticmethod
+    def _full_step_fits(p: _Point, trial: _Point, direction: np.ndarray, step: _Step) -> bool:
+        """Whether the full step ``trial`` of ``direction`` from ``p`` passes the line
+        search's slope test with a smaller residual than ``p``'s."""
+        s0, s1 = float(np.dot(p.residual, direction)), float(np.dot(trial.residual, direction))
+        slope_ok = s1 <= 0.0 or abs(s1) <= SLOPE_RATIO * abs(s0)
+        return slope_ok and bool(
+            np.linalg.norm(step.weight * trial.residual) < np.linalg.norm(step.weight * p.residual)
+        )
 
     def _at_kink(
         self, elements: np.ndarray, taut: np.ndarray, p: _Point, step: _Step
