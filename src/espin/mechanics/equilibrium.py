@@ -17,9 +17,8 @@ V0 (P'22 - s) or V0 (P'22 - s / F'22). Newton's method with:
   semi-definite by construction); after an indefinite exact tangent the next few iterations
   use the clipped one directly;
 * a chord step: an iteration whose residual ratio r_k / r_k-1, repeated once, brings the
-  residual within :data:`_CHORD_REACH` tolerances lends its factorization to the next one
-  (no new factorization), as long as that gives a descent direction (the node relaxation
-  after it usually takes the rest);
+  residual within the tolerance lends its factorization to the next one (no new
+  factorization), as long as that gives a descent direction;
 * with the exact tangent, a semismooth correction at the slack/taut kink (modulus x1000 at
   e = lambda_r): the elements whose recruitment at the full Newton step (foreseen from their
   lengths there, without the fiber law) differs from the one the factorized tangent was
@@ -107,7 +106,6 @@ _MAX_ITERATIONS = 200  # default per step: plla seed 6 needs 75 at its first ste
 _MAX_ITERATIONS_MIXED = 500  # under mixed control: buckling chains need hundreds
 _CLIPPED_AFTER_INDEFINITE = 3
 _SLACK_CONTINUATION = (100.0, 10.0, 1.0)  # E_b factors of the fallback, ending at the true law
-_CHORD_REACH = 8.0  # a chord step when the repeated residual ratio reaches this many tolerances
 _KINK_ROUNDS = 3  # semismooth rounds of the kink correction per Newton iteration
 _KINK_MAX = 100  # more crossing elements than this: no correction (m solves would cost a factorization)
 _KINK_FIXED_POINT = 3  # iterations of lambda = lambda_r lambda_p(lambda) for the kink's stretch
@@ -788,9 +786,9 @@ class EquilibriumSolver:
             p = self._first_point(np.concatenate([guess_inner.ravel(), guess_free]), step)
             for iteration in range(limit + 1):
                 ok, norm, tolerance = self._converged(p, n_free)
-                # An iteration whose residual ratio, repeated once, comes within
-                # _CHORD_REACH tolerances lends its factorization to the next.
-                chord = tangent if history and norm * norm <= _CHORD_REACH * tolerance * history[-1] else None
+                # An iteration whose residual ratio, repeated once, reaches the tolerance
+                # lends its factorization to the next.
+                chord = tangent if history and norm * norm <= tolerance * history[-1] else None
                 history.append(norm)
                 if ok:
                     n = 2 * self.n_inner
