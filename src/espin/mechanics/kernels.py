@@ -108,6 +108,8 @@ def _expm1_flow(w: float, adt: float) -> tuple[float, float]:
 def _newton(
     kind: int,
     w: float,
+    em: float,
+    flow: float,
     lo: float,
     hi: float,
     adt: float,
@@ -123,6 +125,8 @@ def _newton(
 ) -> tuple[float, bool]:
     """|lambda_p - lambda_p_n| at the root of R in the bracket [lo, hi], and whether it converged.
 
+    Started from ``w`` with its ``em`` = expm1(w) and ``flow`` = a_p dt em (:func:`_expm1_flow`).
+
     R(w) = asinh(expm1(w)) - (normalized stress term). ``kind`` _FLOW: the return mapping,
     stress term sign g(lambda, lambda_p) with g = t / (b_p lambda_p^c_p); _RECRUITMENT:
     g_r / lambda_p^c_p of an element recruited at the step's end (``g_r`` = E_b (lambda_r - 1)
@@ -135,7 +139,6 @@ def _newton(
     """
     step = hi - lo
     step_before = step
-    em, flow = _expm1_flow(w, adt)
     for _ in range(MAX_ITERATIONS):
         if w < _LARGE_W:
             lhs = math.asinh(em)
@@ -194,24 +197,30 @@ def _plastic_increment(
     if not (adt > 0.0 and trial != 0.0):
         return 0.0, True
     sign = 1.0 if trial > 0.0 else -1.0
+    # The root lies where lambda_p is between lambda_p_n and lambda (t = 0 there).
+    gap = abs(stretch - plastic_old)
+    lo = 0.0
+    hi = _log1p_ratio(gap, adt)
+    if has_guess and guess != 0.0 and (guess > 0.0) == (sign > 0.0) and abs(guess) < gap:
+        em = abs(guess) / adt
+        w = math.log1p(em)
+        if w > lo and w < hi and w < _LARGE_W:
+            flow, ok = _newton(
+                _FLOW, w, em, abs(guess), lo, hi, adt, plastic_old, sign, stretch, lr, 0.0, Et, Eb, bp, cp
+            )
+            return sign * flow, ok
     g_trial = abs(trial) / (bp * _power(plastic_old, cp))
     # Upper bound of |g| at the root: |t| <= |trial| and lambda_p >= min(lambda, lambda_p_n).
     g_bound = g_trial * _power(plastic_old / min(stretch, plastic_old), cp)
-    lo = 0.0
-    hi = min(_log1p_ratio(abs(stretch - plastic_old), adt), _log1p_sinh(g_bound))
-    w = math.nan
-    if has_guess and guess != 0.0 and (guess > 0.0) == (sign > 0.0):
-        w_guess = _log1p_ratio(abs(guess), adt)
-        if w_guess > lo and w_guess < hi:
-            w = w_guess
-    if math.isnan(w):
-        # Start where asinh(...) = |g_trial|, or at recruitment (just on its taut side) in
-        # tension when that lies inside the bracket (fiber_law module notes).
-        w = min(hi, _log1p_sinh(g_trial))
-        kink_gap = stretch / lr * (1.0 - _KINK_SHIFT) - plastic_old
-        if sign > 0.0 and kink_gap > 0.0:
-            w = min(w, _log1p_ratio(kink_gap, adt))
-    flow, ok = _newton(_FLOW, w, lo, hi, adt, plastic_old, sign, stretch, lr, 0.0, Et, Eb, bp, cp)
+    hi = min(hi, _log1p_sinh(g_bound))
+    # Start where asinh(...) = |g_trial|, or at recruitment (just on its taut side) in
+    # tension when that lies inside the bracket (fiber_law module notes).
+    w = min(hi, _log1p_sinh(g_trial))
+    kink_gap = stretch / lr * (1.0 - _KINK_SHIFT) - plastic_old
+    if sign > 0.0 and kink_gap > 0.0:
+        w = min(w, _log1p_ratio(kink_gap, adt))
+    em, flow = _expm1_flow(w, adt)
+    flow, ok = _newton(_FLOW, w, em, flow, lo, hi, adt, plastic_old, sign, stretch, lr, 0.0, Et, Eb, bp, cp)
     return sign * flow, ok
 
 
@@ -323,7 +332,10 @@ def recruitment_flow(
     for i in range(plastic_old.size):
         g_r = Eb * (tortuosity[i] - 1.0) / bp
         hi = min(_log1p_sinh(g_r / _power(plastic_old[i], cp)), _log1p_ratio(limit[i], adt[i]))
-        flow[i], ok = _newton(_RECRUITMENT, hi, 0.0, hi, adt[i], plastic_old[i], 1.0, 0.0, 1.0, g_r, 0.0, Eb, bp, cp)
+        em, start = _expm1_flow(hi, adt[i])
+        flow[i], ok = _newton(
+            _RECRUITMENT, hi, em, start, 0.0, hi, adt[i], plastic_old[i], 1.0, 0.0, 1.0, g_r, 0.0, Eb, bp, cp
+        )
         failed += not ok
     return failed
 
