@@ -79,7 +79,7 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
-from functools import cache
+from functools import cache, partial
 
 import numpy as np
 import scipy.sparse as sp
@@ -207,7 +207,7 @@ class _Tangent:
 
     def __post_init__(self) -> None:
         # The corrected step is evaluated, so its columns need no backward-error check.
-        object.__setattr__(self, "kink", KinkColumns(lambda b: self.factorization.solve(b, checked=False)))
+        object.__setattr__(self, "kink", KinkColumns(partial(self.factorization.solve, checked=False)))
 
 
 @dataclass
