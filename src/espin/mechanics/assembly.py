@@ -131,6 +131,10 @@ class NetworkAssembler:
         )
         return Kinematics(vector=vector, length=length, unit=unit)
 
+    def lengths(self, x: np.ndarray) -> np.ndarray:
+        """(n_elements,) element lengths [um] at node positions ``x`` (n_nodes, 2)."""
+        return kernels.lengths(np.ascontiguousarray(x, dtype=float), self.network.element_nodes)
+
     # -- forces -----------------------------------------------------------------------------
     def gradient(self, force: np.ndarray, kin: Kinematics) -> np.ndarray:
         """(n_dof,) gradient of the stored energy: -T a at e1, +T a at e2, summed per DOF.

@@ -400,7 +400,9 @@ class EquilibriumSolver:
         required): the fiber law is updated for those alone and ``near``'s kept for the rest.
         """
         n = 2 * self.n_inner
-        F, x, kin, stretch = self._geometry(z, step)
+        F, x = self._deformation(z, step)
+        kin = self.asm.kinematics(x)
+        stretch = kin.length / self.l0
         if near is None:
             law = self._law_update(step.law, stretch, step.start.plastic_stretch, step.dt, self._flow_guess(step))
         elif moved is None:
@@ -418,22 +420,21 @@ class EquilibriumSolver:
             residual[n] -= self.network.reference_volume * target
         return _Point(z, F, x, kin, stretch, law, force, stiffness, gradient, residual)
 
-    def _geometry(self, z: np.ndarray, step: _Step) -> tuple[np.ndarray, np.ndarray, Kinematics, np.ndarray]:
-        """F, the node positions [um], their kinematics and the element stretches at the
-        iterate ``z``; :class:`InadmissibleState` where ``z`` is not finite or det F <= 0."""
+    def _deformation(self, z: np.ndarray, step: _Step) -> tuple[np.ndarray, np.ndarray]:
+        """F and the node positions [um] at the iterate ``z``; :class:`InadmissibleState`
+        where ``z`` is not finite or det F <= 0."""
         n = 2 * self.n_inner
         free = z[n:]
         F = step.F_prescribed + np.tensordot(free, step.directions, axes=1) if len(free) else step.F_prescribed
         if not (np.all(np.isfinite(z)) and np.linalg.det(F) > 0.0):
             raise InadmissibleState("the iterate left the admissible states (non-finite, or det F <= 0)")
-        x = self.asm.positions(z[:n], F)
-        kin = self.asm.kinematics(x)
-        return F, x, kin, kin.length / self.l0
+        return F, self.asm.positions(z[:n], F)
 
     def _recruited_at(self, z: np.ndarray, step: _Step, near: _Point) -> np.ndarray:
         """Whether each element is taut (e >= lambda_r) at the iterate ``z``, foreseen
         without the fiber law: its plastic stretch there to first order from ``near``'s."""
-        _, _, _, stretch = self._geometry(z, step)
+        _, x = self._deformation(z, step)
+        stretch = self.asm.lengths(x) / self.l0
         plastic = _first_order_plastic_stretch(near, stretch)
         return np.maximum(stretch, STRETCH_FLOOR) / plastic >= np.maximum(self.tortuosity, 1.0)
 

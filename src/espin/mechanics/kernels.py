@@ -31,6 +31,7 @@ __all__ = [
     "return_map",
     "recruitment_flow",
     "kinematics",
+    "lengths",
     "gradient",
     "fill_tangent",
 ]
@@ -363,6 +364,16 @@ def kinematics(
         else:
             unit[e, 0], unit[e, 1] = reference_unit[e, 0], reference_unit[e, 1]
     return vector, length, unit
+
+
+@_jit
+def lengths(x: np.ndarray, nodes: np.ndarray) -> np.ndarray:
+    """Length [um] of every element (:func:`kinematics`'s second output alone)."""
+    n = nodes.shape[0]
+    length = np.empty(n)
+    for e in range(n):
+        length[e] = math.hypot(x[nodes[e, 1], 0] - x[nodes[e, 0], 0], x[nodes[e, 1], 1] - x[nodes[e, 0], 1])
+    return length
 
 
 @_jit
