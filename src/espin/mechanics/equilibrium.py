@@ -282,6 +282,13 @@ def _first_order_plastic_stretch(
     )
 
 
+def _each_once(indices: np.ndarray, size: int) -> np.ndarray:
+    """The distinct ``indices`` (all in [0, size)), sorted: np.unique through a mask."""
+    mask = np.zeros(size, dtype=bool)
+    mask[indices] = True
+    return np.flatnonzero(mask)
+
+
 @cache
 def _openblas_pools() -> ThreadpoolController:
     """The process's OpenBLAS thread pools, found once: a ThreadpoolController scans every
@@ -848,7 +855,7 @@ class EquilibriumSolver:
         best, best_norm = p, norm
         for _ in range(_RELAX_ROUNDS):
             forces = p.residual[:n].reshape(-1, 2)
-            nodes = np.unique(np.flatnonzero(np.abs(p.residual[:n]) > tolerance) // 2)
+            nodes = np.flatnonzero(np.any(np.abs(forces) > tolerance, axis=1))
             if ok or nodes.size == 0 or nodes.size > most:
                 break
             nodes = self._with_neighbours(nodes)
@@ -874,7 +881,7 @@ class EquilibriumSolver:
         ring while they stay at most :data:`_RELAX_MAX_BLOCK` (sorted indices)."""
         for _ in range(_RELAX_RINGS):
             ring = self.network.element_nodes[self._elements_of(nodes)].ravel()
-            wider = np.unique(np.concatenate([nodes, ring[ring < self.n_inner]]))
+            wider = _each_once(np.concatenate([nodes, ring[ring < self.n_inner]]), self.n_inner)
             if wider.size > _RELAX_MAX_BLOCK:
                 break
             nodes = wider
@@ -885,7 +892,7 @@ class EquilibriumSolver:
         start, stop = self._node_start[nodes], self._node_start[nodes + 1]
         counts = stop - start
         offsets = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
-        return np.unique(self._node_elements_list[np.repeat(start, counts) + offsets])
+        return _each_once(self._node_elements_list[np.repeat(start, counts) + offsets], self.network.n_elements)
 
     def _node_elements(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The elements with an end among the m ``nodes`` (indices), and their two ends as
