@@ -135,9 +135,6 @@ class StepState:
         lambda_p.
     stress : (n_elements,) float64 [MPa]
         Element stress t (it starts the next step's local time error).
-    plastic_rate : (n_elements,) float64 [1/s] or None
-        d lambda_p / dt over the step that ended here (None at rest): extrapolated, it starts
-        the return mapping at the next step's predictor.
     """
 
     time: float
@@ -146,7 +143,6 @@ class StepState:
     F: np.ndarray
     plastic_stretch: np.ndarray
     stress: np.ndarray
-    plastic_rate: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -411,7 +407,7 @@ class EquilibriumSolver:
         kin = self.asm.kinematics(x)
         stretch = kin.length / self.l0
         if near is None:
-            law = self._law_update(step.law, stretch, step.start.plastic_stretch, step.dt, self._flow_guess(step))
+            law = self._law_update(step.law, stretch, step.start.plastic_stretch, step.dt, None)
         elif moved is None:
             guess = _first_order_plastic_stretch(near, stretch)
             law = self._law_update(step.law, stretch, step.start.plastic_stretch, step.dt, guess)
@@ -444,14 +440,6 @@ class EquilibriumSolver:
         stretch = self.asm.lengths(x) / self.l0
         plastic = _first_order_plastic_stretch(near, stretch)
         return np.maximum(stretch, STRETCH_FLOOR) / plastic >= np.maximum(self.tortuosity, 1.0)
-
-    @staticmethod
-    def _flow_guess(step: _Step) -> np.ndarray | None:
-        """lambda_p at the end of ``step``, its start's flow rate extrapolated (None without
-        one): a warm start of the return mapping at the step's predictor (the result does not
-        depend on it beyond rounding)."""
-        rate = step.start.plastic_rate
-        return None if rate is None else step.start.plastic_stretch + step.dt * rate
 
     def element_forces(self, law: LawState, stretch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Axial force T [uN] and dT/dl [uN / um] of every element: the fiber law's, plus the
@@ -812,9 +800,9 @@ class EquilibriumSolver:
                 history.append(norm)
                 if ok:
                     n = 2 * self.n_inner
-                    plastic = p.law.plastic_stretch
-                    rate = (plastic - start.plastic_stretch) / step.dt if step.dt > 0.0 else None
-                    state = StepState(time, p.z[:n].reshape(-1, 2), p.z[n:].copy(), p.F, plastic, p.law.stress, rate)
+                    state = StepState(
+                        time, p.z[:n].reshape(-1, 2), p.z[n:].copy(), p.F, p.law.plastic_stretch, p.law.stress
+                    )
                     return StepResult(state, p.law, p.force, p.kin, iteration, factorizations, norm, history)
                 if iteration == limit:
                     break
