@@ -237,7 +237,7 @@ def test_multiple_right_hand_sides(solver: ls.LinearSolver) -> None:
 
 
 def test_an_unchecked_solve_skips_the_product_by_k(solver: ls.LinearSolver, monkeypatch: pytest.MonkeyPatch) -> None:
-    """checked=False returns the backend's solution without the backward-error check (no
+    """rtol=inf returns the backend's solution without the backward-error check (no
     product by K, no refinement): on a well-conditioned K, the checked solve's."""
     K = laplacian_2dof(9)
     B = np.random.default_rng(8).standard_normal((K.shape[0], 3))
@@ -248,7 +248,7 @@ def test_an_unchecked_solve_skips_the_product_by_k(solver: ls.LinearSolver, monk
         raise AssertionError("an unchecked solve computed a residual")
 
     monkeypatch.setattr(type(factorization), "_residual", no_product)
-    np.testing.assert_allclose(factorization.solve(B, checked=False), checked, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(factorization.solve(B, rtol=np.inf), checked, rtol=1e-12, atol=1e-14)
     if factorization.backward_stable:  # Cholesky: no check even when asked
         np.testing.assert_array_equal(factorization.solve(B), checked)
     else:
@@ -387,6 +387,65 @@ def test_pardiso_factorizes_by_cholesky_while_positive_definite() -> None:
             assert relative_residual(K, factorization.solve(b), b) < 1e-10
 
 
+def backward_error(K: sp.csr_matrix, x: np.ndarray, b: np.ndarray) -> float:
+    norm_K = abs(K).sum(axis=1).max()
+    return float(np.abs(K @ x - b).max() / (norm_K * np.abs(x).max() + np.abs(b).max()))
+
+
+def test_pardiso_factorizes_a_large_positive_definite_matrix_in_single_precision(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """From SINGLE_PRECISION_FROM unknowns PARDISO's Cholesky is in single precision; each
+    solve gets the accuracy asked by refinement against K: the full one by default, a
+    Newton direction's relative residual with rtol, the raw single-precision solution with
+    inf."""
+    if "pardiso" not in BACKENDS:
+        pytest.skip("PARDISO unusable")
+    K = laplacian_2dof(20)  # 800 unknowns
+    b = np.random.default_rng(11).standard_normal(K.shape[0])
+    with make_linear_solver("pardiso") as solver:
+        monkeypatch.setattr(ls, "SINGLE_PRECISION_FROM", K.shape[0] + 1)
+        assert not solver.factorize(K).single_precision
+        monkeypatch.setattr(ls, "SINGLE_PRECISION_FROM", K.shape[0])
+        factorization = solver.factorize(K)
+        assert factorization.single_precision and factorization.n_negative == 0
+        assert solver.numeric_factorizations == 2
+        raw = factorization.solve(b, rtol=np.inf)
+        assert 1e-9 < relative_residual(K, raw, b) < 1e-4  # single precision, unrefined
+        solves = []
+        single_solve = type(factorization)._solve
+        monkeypatch.setattr(type(factorization), "_solve", lambda self, r: solves.append(1) or single_solve(self, r))
+        np.testing.assert_array_equal(factorization.solve(b, rtol=1e-4), raw)  # already within 1e-4
+        assert len(solves) == 1
+        x = factorization.solve(b)
+        assert backward_error(K, x, b) <= 1e-14 and len(solves) > 2  # refined to double precision
+        assert factorization.single_precision and solver.numeric_factorizations == 2
+
+
+def test_a_single_precision_factorization_that_cannot_be_refined_is_redone_in_double(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """When refinement cannot bring a single-precision solution to the accuracy asked (here:
+    no refinement step allowed), K is factorized again in double precision, counted, and
+    that factorization serves the solve and every later one."""
+    if "pardiso" not in BACKENDS:
+        pytest.skip("PARDISO unusable")
+    monkeypatch.setattr(ls, "SINGLE_PRECISION_FROM", 0)
+    monkeypatch.setattr(ls, "_SINGLE_REFINEMENT_STEPS", 0)
+    K = laplacian_2dof(20)
+    b = np.random.default_rng(12).standard_normal(K.shape[0])
+    with make_linear_solver("pardiso") as solver:
+        factorization = solver.factorize(K)
+        assert factorization.single_precision
+        assert relative_residual(K, factorization.solve(b, rtol=1e-3), b) < 1e-3  # single is enough
+        assert factorization.single_precision
+        x = factorization.solve(b)  # the full accuracy: not reached without refinement
+        assert not factorization.single_precision and factorization.n_negative == 0
+        assert solver.numeric_factorizations == 2
+        assert backward_error(K, x, b) <= 1e-14
+        np.testing.assert_array_equal(factorization.solve(b, rtol=np.inf), x)
+
+
 def test_make_linear_solver_names(monkeypatch: pytest.MonkeyPatch) -> None:
     assert set(LINEAR_SOLVER_NAMES) == {"auto", "superlu", "pardiso"}
     assert isinstance(make_linear_solver("superlu"), ls.SuperLUSolver)
@@ -425,10 +484,35 @@ def test_factor_size_follows_a_new_pattern(solver: ls.LinearSolver) -> None:
     assert after_change > solver.factorize(small).nnz_factor
 
 
-def test_a_curve_does_not_depend_on_the_mkl_thread_count(tmp_path):
-    """Same inputs, same curve on 1 or 2 MKL threads (PARDISO's factorizations included)."""
+def test_a_curve_in_single_precision_is_the_double_precision_curve(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Newton directions from single-precision factors (every tangent of this small RVE in
+    single precision) converge to the equilibria of the double-precision run: the same
+    curve to the Newton tolerance, and every factorization counted."""
+    if "pardiso" not in BACKENDS:
+        pytest.skip("PARDISO unusable")
+    from espin.geometry.rve import generate
+    from espin.mechanics.driver import run_program
+
+    rve = generate("plla", rve__size_ratio=40, rve__layers=3, loading__max_strain=0.1, loading__steps=10)
+    curves = {}
+    for single_from in (10**9, 0):
+        monkeypatch.setattr(ls, "SINGLE_PRECISION_FROM", single_from)
+        with make_linear_solver("pardiso") as solver:
+            result = run_program(rve.network, rve.config, solver)
+            assert int(result.factorizations.sum()) == solver.numeric_factorizations
+        curves[single_from] = result.P[1:, 0, 0]
+    np.testing.assert_allclose(curves[0], curves[10**9], rtol=1e-8)
+
+
+@pytest.mark.parametrize("single_from", [None, 0], ids=["as-is", "single-precision"])
+def test_a_curve_does_not_depend_on_the_mkl_thread_count(tmp_path, monkeypatch, single_from):
+    """Same inputs, same curve on 1 or 2 MKL threads (PARDISO's factorizations included, in
+    single precision too)."""
     import espin
     from threadpoolctl import threadpool_limits
+
+    if single_from is not None:
+        monkeypatch.setattr(ls, "SINGLE_PRECISION_FROM", single_from)
 
     def curve(name: str) -> str:
         espin.simulate("plla", tmp_path / name, loading__steps=40, loading__max_strain=0.03, solver__time_rtol="off",

@@ -106,6 +106,7 @@ _MAX_ITERATIONS = 200  # default per step: plla seed 6 needs 75 at its first ste
 _MAX_ITERATIONS_MIXED = 500  # under mixed control: buckling chains need hundreds
 _CLIPPED_AFTER_INDEFINITE = 3
 _SLACK_CONTINUATION = (100.0, 10.0, 1.0)  # E_b factors of the fallback, ending at the true law
+_NEWTON_FORCING = 1e-4  # relative residual a Newton direction's linear solve may leave (single precision)
 _KINK_ROUNDS = 3  # semismooth rounds of the kink correction per Newton iteration
 _KINK_MAX = 100  # more crossing elements than this: no correction (m solves would cost a factorization)
 _KINK_FIXED_POINT = 3  # iterations of lambda = lambda_r lambda_p(lambda) for the kink's stretch
@@ -203,7 +204,7 @@ class _Tangent:
 
     def __post_init__(self) -> None:
         # The corrected step is evaluated, so its columns need no backward-error check.
-        object.__setattr__(self, "kink", KinkColumns(partial(self.factorization.solve, checked=False)))
+        object.__setattr__(self, "kink", KinkColumns(partial(self.factorization.solve, rtol=np.inf)))
 
 
 @dataclass
@@ -501,32 +502,30 @@ class EquilibriumSolver:
 
     def _direction(
         self, p: _Point, step: _Step, chord: _Tangent | None, choice: _TangentChoice
-    ) -> tuple[np.ndarray, int, _Tangent]:
-        """Newton direction, the number of factorizations it took and the tangent used.
+    ) -> tuple[np.ndarray, _Tangent]:
+        """Newton direction and the tangent used, solved to :data:`_NEWTON_FORCING`.
 
         ``chord``: a tangent to reuse (a chord step, no factorization) if it gives a
         descent direction. ``choice`` is updated: an indefinite exact tangent makes the next
         few iterations take the clipped one directly.
         """
         if chord is not None:
-            direction = chord.factorization.solve(-p.residual)
+            direction = chord.factorization.solve(-p.residual, _NEWTON_FORCING)
             if np.dot(direction, p.residual) < 0.0:
-                return direction, 0, chord
-        factorizations = 0
+                return direction, chord
         if choice.clipped_left == 0:
             fact = self.linear.factorize(self._hessian(p, step, clipped=False))
-            factorizations += 1
             # Perturbed pivots mean a (nearly) singular tangent: not usable as exact.
             indefinite = bool(fact.n_negative) or fact.n_perturbed > 0
             if not indefinite:
-                direction = fact.solve(-p.residual)
+                direction = fact.solve(-p.residual, _NEWTON_FORCING)
                 if np.dot(direction, p.residual) < 0.0:
-                    return direction, factorizations, _Tangent(fact, p.stiffness, p.law.recruited, False, p.kin)
+                    return direction, _Tangent(fact, p.stiffness, p.law.recruited, False, p.kin)
             choice.clipped_left = _CLIPPED_AFTER_INDEFINITE
         choice.clipped_left -= 1
         fact = self.linear.factorize(self._hessian(p, step, clipped=True))
         tangent = _Tangent(fact, np.maximum(p.stiffness, 0.0), p.law.recruited, True, p.kin)
-        return fact.solve(-p.residual), factorizations + 1, tangent
+        return fact.solve(-p.residual, _NEWTON_FORCING), tangent
 
     def _element_modes(self, elements: np.ndarray, kin: Kinematics, step: _Step) -> np.ndarray:
         """(n_unknowns, m) d l_e / d z of the given elements: -a at their first node, +a at
@@ -787,7 +786,7 @@ class EquilibriumSolver:
         limit = self.iteration_limit(n_free)
         step = self._context(start, time, F_prescribed, directions, law, lateral)
         history: list[float] = []
-        factorizations = 0
+        counted = self.linear.numeric_factorizations
         choice = _TangentChoice()
         tangent = None
         try:
@@ -803,11 +802,11 @@ class EquilibriumSolver:
                     state = StepState(
                         time, p.z[:n].reshape(-1, 2), p.z[n:].copy(), p.F, p.law.plastic_stretch, p.law.stress
                     )
+                    factorizations = self.linear.numeric_factorizations - counted
                     return StepResult(state, p.law, p.force, p.kin, iteration, factorizations, norm, history)
                 if iteration == limit:
                     break
-                direction, used, tangent = self._direction(p, step, chord, choice)
-                factorizations += used
+                direction, tangent = self._direction(p, step, chord, choice)
                 if tangent.clipped:  # buckling: the plain direction (its full step the first trial)
                     full = self._evaluate(p.z + direction, step, p)
                 else:
@@ -822,7 +821,9 @@ class EquilibriumSolver:
 
                 p = self._relax_nodes(line_search(p, direction, evaluate, step.weight), step, n_free)
         except StepNotConverged as failure:
+            factorizations = self.linear.numeric_factorizations - counted
             raise type(failure)(failure.reason, failure.kind, history=history, factorizations=factorizations) from None
+        factorizations = self.linear.numeric_factorizations - counted
         raise StepNotConverged(f"no convergence in {limit} iterations", history=history, factorizations=factorizations)
 
     def _relax_nodes(self, p: _Point, step: _Step, n_free: int) -> _Point:

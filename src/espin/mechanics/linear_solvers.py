@@ -21,10 +21,16 @@ Backends
     K symmetrically and use the natural order.
 ``pardiso``
     Intel MKL PARDISO (MKL found by the optional package ``pypardiso``): Cholesky
-    (``mtype=2``) while the matrices are positive definite, else LDL^T of a real symmetric
-    indefinite matrix (``mtype=-2``) with Bunch-Kaufman pivoting and inertia; METIS
-    ordering, symbolic analysis once per pattern. 2.5-5 times faster than SuperLU on plla
-    tangents.
+    (``mtype=2``) while the matrices are positive definite, in single precision from
+    :data:`SINGLE_PRECISION_FROM` unknowns, else LDL^T of a real symmetric indefinite
+    matrix (``mtype=-2``) with Bunch-Kaufman pivoting and inertia; METIS ordering, symbolic
+    analysis once per pattern. 2.5-5 times faster than SuperLU on plla tangents.
+
+A factorization in single precision solves to the accuracy its caller asks
+(:meth:`Factorization.solve`'s ``rtol``) by iterative refinement against K in double
+precision, and factorizes K again in double precision when refinement cannot get there (an
+ill-conditioned K). A Newton direction needs no more than a small relative residual of its
+own; the converged state is judged by the residual of the equations in double precision.
 
 ``make_linear_solver("auto")`` takes PARDISO when it works on this machine, else SuperLU.
 MKL runs with the thread count set by the caller (``threadpoolctl.threadpool_limits``).
@@ -66,7 +72,18 @@ LINEAR_SOLVER_NAMES: tuple[str, ...] = ("auto", "superlu", "pardiso")
 """Names accepted by :func:`make_linear_solver` (config key ``solver.linear``)."""
 
 _REFINEMENT_STEPS = 2
-"""Iterative refinement steps at most per solve."""
+"""Iterative refinement steps at most per solve of a double-precision factorization."""
+
+_SINGLE_REFINEMENT_STEPS = 4
+"""Iterative refinement steps at most per solve of a single-precision factorization before it
+is factorized again in double precision (on a plla tangent the error of the solution falls
+from 7e-5 to 9e-9, 1e-12 and 4e-14 over three steps)."""
+
+SINGLE_PRECISION_FROM = 5_000
+"""Unknowns from which PARDISO factorizes a positive definite K in single precision. Single
+against double precision on plla tangents (2 threads, ``benchmarks/bench_single_precision.py``):
+factorization 0.86 of the time and solve 0.83 at 4,672 unknowns, 0.72 and 0.72 at 19,068, 0.59
+and 0.69 at 60,426; below a few thousand unknowns it gains less than 10 %."""
 
 _BACKWARD_ERROR_TOL = 1e-14
 """Normwise backward error ||K x - b|| / (||K|| ||x|| + ||b||) (max norms) that needs no
@@ -98,9 +115,11 @@ class Factorization(_Releasable, ABC):
     or the solver factorizes another matrix; using it afterwards raises
     :class:`~espin.core.errors.SolverError`. It is a context manager that releases it on exit.
 
-    Every solve checks its normwise backward error with a product by (a private copy of) K
-    and, if it exceeds 1e-14, refines the solution up to two times (unless asked not to, or
-    the factorization is :attr:`backward_stable`).
+    A solve is as accurate as its caller asks (:meth:`solve`): by default its normwise
+    backward error is checked with a product by (a private copy of) K and, if it exceeds
+    1e-14, the solution is refined up to two times (unless the factorization is
+    :attr:`backward_stable`); a factorization in :attr:`single_precision` is refined until
+    it reaches the accuracy asked, else factorized again in double precision.
 
     Attributes
     ----------
@@ -137,16 +156,26 @@ class Factorization(_Releasable, ABC):
         plla test). The check is skipped for it."""
         return False
 
-    def solve(self, b: ArrayLike, checked: bool = True) -> np.ndarray:
+    @property
+    def single_precision(self) -> bool:
+        """Whether the factors are in single precision (refined to the accuracy asked)."""
+        return False
+
+    def solve(self, b: ArrayLike, rtol: float = 0.0) -> np.ndarray:
         """Solve ``K x = b``.
 
         Parameters
         ----------
         b : (n,) or (n, k) array_like of float
             Right-hand side(s), in the units of K times those of x.
-        checked : bool
-            Check the backward error and refine (default; not for a :attr:`backward_stable`
-            factorization). False skips both (no product by K): for solutions whose use is
+        rtol : float
+            The accuracy the caller needs, as the relative residual ||K x - b|| / ||b|| (2-norm,
+            of every column). 0 (default): the full accuracy of double precision, a normwise
+            backward error of at most 1e-14 (checked, and refined if needed, unless the
+            factorization is :attr:`backward_stable`). Positive, e.g. a Newton direction's
+            forcing term: a double-precision factorization solves as with 0, a
+            single-precision one is refined only while its residual is over ``rtol``.
+            ``inf``: no check and no refinement (no product by K), for solutions whose use is
             verified otherwise, e.g. the kink correction's columns, whose corrected step is
             kept only if its own residual is lower.
 
@@ -167,7 +196,15 @@ class Factorization(_Releasable, ABC):
         if b.ndim not in (1, 2) or b.shape[0] != self.n:
             raise ValueError(f"b must have shape ({self.n},) or ({self.n}, k), got {b.shape}")
         x = self._solve(b)
-        if not checked or self.backward_stable:
+        if rtol == np.inf:
+            return x
+        if self.single_precision:
+            refined = self._refined_single(b, x, rtol)
+            if refined is not None:
+                return refined
+            self._promote()
+            x = self._solve(b)
+        if self.backward_stable:
             return x
         r, error = self._residual(b, x)
         for _ in range(_REFINEMENT_STEPS):
@@ -181,6 +218,37 @@ class Factorization(_Releasable, ABC):
         if error > _BACKWARD_ERROR_TOL:
             logger.debug("%s solve: backward error %.1e after refinement", type(self).__name__, error)
         return x
+
+    def _refined_single(self, b: np.ndarray, x: np.ndarray, rtol: float) -> np.ndarray | None:
+        """``x`` from the single-precision factors, refined against K until its relative
+        residual is at most ``rtol`` (0: its backward error at most 1e-14); None when
+        refinement stalls or runs out of steps first."""
+        b_norm = np.maximum(np.linalg.norm(b, axis=0), np.finfo(float).tiny)
+
+        def error_of(x: np.ndarray) -> tuple[np.ndarray, float]:
+            if not rtol:
+                return self._residual(b, x)
+            r = b - self._matrix @ x
+            return r, float(np.max(np.linalg.norm(r, axis=0) / b_norm))
+
+        tolerance = rtol or _BACKWARD_ERROR_TOL
+        r, error = error_of(x)
+        for _ in range(_SINGLE_REFINEMENT_STEPS):
+            if error <= tolerance:
+                return x
+            x_new = x + self._solve(r)
+            r_new, error_new = error_of(x_new)
+            if error_new >= error:
+                break
+            x, r, error = x_new, r_new, error_new
+        if error <= tolerance:
+            return x
+        logger.debug("single-precision solve at %.1e against %.1e: factorized in double precision", error, tolerance)
+        return None
+
+    def _promote(self) -> None:  # pragma: no cover - only single-precision factorizations are promoted
+        """Factorize K again in double precision (a :attr:`single_precision` backend's)."""
+        raise NotImplementedError
 
     def release(self) -> None:
         """Free the factorization's memory; it cannot solve afterwards."""
@@ -223,6 +291,12 @@ class LinearSolver(_Releasable, ABC):
     only when the pattern changes. A solver holds one factorization at a time: each call to
     :meth:`factorize` releases the previous one. Use two solvers to keep two factorizations.
     A solver is a context manager that releases all its memory on exit.
+
+    Attributes
+    ----------
+    numeric_factorizations : int
+        Numerical factorizations made so far: one per :meth:`factorize`, and one more for each
+        single-precision factorization factorized again in double precision.
     """
 
     name: ClassVar[str]
@@ -236,6 +310,7 @@ class LinearSolver(_Releasable, ABC):
     def __init__(self) -> None:
         self._pattern: _Pattern | None = None
         self._current: Factorization | None = None
+        self.numeric_factorizations = 0
 
     def factorize(self, K: sp.csr_matrix) -> Factorization:
         """Factorize a symmetric matrix.
@@ -274,6 +349,7 @@ class LinearSolver(_Releasable, ABC):
             self._pattern = None
             pattern = _Pattern.of(K)
         factorization = self._factorize(pattern.matrix(K.data), new_pattern)
+        self.numeric_factorizations += 1
         self._pattern = pattern
         self._current = factorization
         return factorization
@@ -554,7 +630,15 @@ class PardisoSolver(LinearSolver):
     the first pivot that is not positive (PARDISO error -4); K is then factorized by LDL^T,
     and so is the next matrix unless this one turned out positive definite after all. A
     successful Cholesky factorization proves K positive definite (``n_negative = 0``, no
-    perturbed pivot), so the inertia reported is always exact.
+    perturbed pivot) up to its rounding: a negative eigenvalue smaller than that (about 1e-7
+    ||K|| in single precision) can pass unseen, as its direction would in a solve.
+
+    From :data:`SINGLE_PRECISION_FROM` unknowns the Cholesky factorization is in single
+    precision (``iparm[27] = 1``, a third state): about half the memory traffic and time of
+    the double one at plla size. Its solves are refined against K in double precision to
+    the accuracy asked (:meth:`Factorization.solve`); when refinement stalls short of it, K
+    is factorized again in double precision (by Cholesky, or LDL^T if that fails), which
+    then serves every later solve of this factorization.
 
     The LDL^T uses Bunch-Kaufman pivoting within supernodes, which keeps it stable on most
     indefinite K, and PARDISO reports the inertia (``iparm[21]``, ``iparm[22]``). Pivots it
@@ -581,41 +665,66 @@ class PardisoSolver(LinearSolver):
     def __init__(self) -> None:
         super().__init__()
         self._cholesky = _PardisoHandle(_POSITIVE_DEFINITE)
+        self._single = _PardisoHandle(_POSITIVE_DEFINITE, single_precision=True)
         self._ldlt = _PardisoHandle(_INDEFINITE)
         self._upper: _UpperTriangle | None = None
         self._definite = True  # the last matrix was positive definite: try Cholesky first
-        for handle in (self._cholesky, self._ldlt):
+        for handle in self._handles:
             finalizer = weakref.finalize(self, handle.free)
             finalizer.atexit = False  # the process frees everything at exit anyway
+
+    @property
+    def _handles(self) -> tuple[_PardisoHandle, ...]:
+        return self._cholesky, self._single, self._ldlt
 
     def _factorize(self, K: sp.csr_matrix, new_pattern: bool) -> Factorization:
         if new_pattern:
             self._upper = None
-            self._cholesky.free()
-            self._ldlt.free()
+            for handle in self._handles:
+                handle.free()
             self._upper = _UpperTriangle.of(K)
-        upper = self._upper
-        assert upper is not None, "made with the pattern"
-        values = upper.values(K)
+        values = self._upper_pattern.values(K)
         if self._definite:
-            try:
-                self._cholesky.factorize(upper, values)
-            except StepNotConverged:  # error -4: a pivot <= 0, K is not positive definite
-                logger.debug("Cholesky met a pivot <= 0: LDL^T instead")
-            else:
-                nnz_factor = int(self._cholesky.iparm[17])
-                return _PardisoFactorization(self, self._cholesky, K, values, 0, 0, nnz_factor)
-        self._ldlt.factorize(upper, values)
+            cholesky = self._cholesky_factors(values, single=K.shape[0] >= SINGLE_PRECISION_FROM)
+            if cholesky is not None:
+                return _PardisoFactorization(self, *cholesky, K, 0, 0)
+        handle, values, n_negative, n_perturbed = self._ldlt_factors(values)
+        return _PardisoFactorization(self, handle, values, K, n_negative, n_perturbed)
+
+    def _cholesky_factors(self, values: np.ndarray, single: bool) -> tuple[_PardisoHandle, np.ndarray] | None:
+        """The Cholesky factorization of the upper-triangle ``values`` (in single precision if
+        asked and K's values fit): its handle and the values it holds; None at a pivot <= 0."""
+        handle = self._cholesky
+        if single:
+            single_values = values.astype(np.float32)
+            if np.all(np.isfinite(single_values)):
+                handle, values = self._single, single_values
+        try:
+            handle.factorize(self._upper_pattern, values)
+        except StepNotConverged:  # error -4: a pivot <= 0, K is not positive definite
+            logger.debug("Cholesky met a pivot <= 0: LDL^T instead")
+            return None
+        return handle, values
+
+    def _ldlt_factors(self, values: np.ndarray) -> tuple[_PardisoHandle, np.ndarray, int, int]:
+        """The LDL^T factorization of the upper-triangle ``values``: its handle, the values,
+        K's negative eigenvalues and the perturbed pivots."""
+        self._ldlt.factorize(self._upper_pattern, values)
         iparm = self._ldlt.iparm
         if iparm[13]:
             logger.debug("PARDISO perturbed %d pivots (K nearly singular)", iparm[13])
         self._definite = not (iparm[22] or iparm[13])
-        return _PardisoFactorization(self, self._ldlt, K, values, int(iparm[22]), int(iparm[13]), int(iparm[17]))
+        return self._ldlt, values, int(iparm[22]), int(iparm[13])
+
+    @property
+    def _upper_pattern(self) -> _UpperTriangle:
+        assert self._upper is not None, "made with the pattern"
+        return self._upper
 
     def _release_pattern_data(self) -> None:
         self._upper = None
-        self._cholesky.free()
-        self._ldlt.free()
+        for handle in self._handles:
+            handle.free()
         self._definite = True
 
 
@@ -631,6 +740,8 @@ class _PardisoHandle:
     mtype : int
         :data:`_POSITIVE_DEFINITE` (Cholesky) or :data:`_INDEFINITE` (LDL^T with
         Bunch-Kaufman pivoting and inertia).
+    single_precision : bool
+        Factors, values and right-hand sides in single precision (float32; ``iparm[27]``).
 
     Attributes
     ----------
@@ -640,9 +751,10 @@ class _PardisoHandle:
         PARDISO's parameters (0-based), with the outputs of the last call.
     """
 
-    def __init__(self, mtype: int) -> None:
+    def __init__(self, mtype: int, single_precision: bool = False) -> None:
         self._mkl = load_mkl()
         self.mtype = mtype
+        self.single_precision = single_precision
         self._pt = np.zeros(64, dtype=np.int64)  # PARDISO's internal pointers
         self.iparm = np.zeros(64, dtype=np.int32)  # 0 selects MKL's default unless set below
         self.iparm[0] = 1  # use these iparm values
@@ -657,6 +769,7 @@ class _PardisoHandle:
         # must not depend on the cores it ran on). The improved variant (10) is faster still but
         # neither reports the inertia nor stops Cholesky at a pivot <= 0 (it returns NaN): not used.
         self.iparm[23] = 0 if mtype == 2 else 1
+        self.iparm[27] = int(single_precision)
         self.iparm[34] = 1  # zero-based ia, ja
         self.threads = 0
 
@@ -725,22 +838,21 @@ class _PardisoHandle:
 
 
 class _PardisoFactorization(Factorization):
-    """The numerical factorization held by a :class:`PardisoSolver`'s handle."""
+    """The numerical factorization held by one of a :class:`PardisoSolver`'s handles."""
 
     def __init__(
         self,
         solver: PardisoSolver,
         handle: _PardisoHandle,
-        K: sp.csr_matrix,
         values: np.ndarray,
+        K: sp.csr_matrix,
         n_negative: int,
         n_perturbed: int,
-        nnz_factor: int,
     ) -> None:
-        super().__init__(K, n_perturbed, nnz_factor)
+        super().__init__(K, n_perturbed, int(handle.iparm[17]))
         self._solver = solver
-        self._handle = handle  # the PARDISO state (Cholesky or LDL^T) that holds the factors
-        self._values: np.ndarray | None = values  # refinement needs the factorized values
+        self._handle = handle  # the PARDISO state (Cholesky, single or double, or LDL^T) holding the factors
+        self._values: np.ndarray | None = values  # the factorized values (float32 in single precision)
         self._n_negative = n_negative
 
     @property
@@ -753,10 +865,32 @@ class _PardisoFactorization(Factorization):
         """True for a Cholesky factorization (``mtype=2``), False for LDL^T."""
         return self._handle.mtype == _POSITIVE_DEFINITE
 
+    @property
+    def single_precision(self) -> bool:
+        """Whether the factors are the single-precision Cholesky's."""
+        return self._handle.single_precision
+
     def _solve(self, b: np.ndarray) -> np.ndarray:
+        if self.single_precision:
+            x = self._handle.call(33, self._solver._upper, self._values, np.asfortranarray(b, dtype=np.float32))
+            assert x is not None, "phase 33 returns the solution"
+            return x.astype(np.float64)
         x = self._handle.call(33, self._solver._upper, self._values, np.asfortranarray(b))
         assert x is not None, "phase 33 returns the solution"
         return x
+
+    def _promote(self) -> None:
+        assert self._matrix is not None, "valid"
+        self._free()
+        solver = self._solver
+        values = solver._upper_pattern.values(self._matrix)
+        cholesky = solver._cholesky_factors(values, single=False)
+        if cholesky is not None:
+            (self._handle, self._values), self._n_negative, self.n_perturbed = cholesky, 0, 0
+        else:
+            self._handle, self._values, self._n_negative, self.n_perturbed = solver._ldlt_factors(values)
+        self.nnz_factor = int(self._handle.iparm[17])
+        solver.numeric_factorizations += 1
 
     def _free(self) -> None:
         if self._solver._current is self:  # phase 0: free the numerical factors only
