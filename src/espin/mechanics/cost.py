@@ -35,7 +35,7 @@ depend on the machine:
   more for tortuous fibers (``TURN_EXPONENT``);
 - u(DOF) = ``ITERATION_BASE`` + ``ITERATION_SCALE`` (DOF / 10^4)^``ITERATION_EXPONENT`` per
   Newton iteration (fiber law, assembly, factorization, line search; PARDISO, one BLAS
-  thread; the growing part ``SUPERLU_FACTOR`` times larger with SuperLU), r =
+  thread; with SuperLU ``SUPERLU_BASE`` + ``SUPERLU_SCALE`` (DOF / 10^4)^``SUPERLU_EXPONENT``), r =
   ``RECORD_PER_DOF`` per DOF of a recorded step (stresses, fractions), and t_gen =
   ``GENERATE_S_PER_SEGMENT`` per segment for the mat's generation.
 
@@ -58,7 +58,12 @@ after the non-monotone node relaxation (up to 10 rounds, neighbours two elements
 as dear (``REFERENCE_SECONDS_PER_ITERATION`` 0.0054 -> 0.0084 s) and a test's iterations cost
 fewer of them. The old constants predicted 1.12-1.44 times the iterations run and 1.5-3.3
 times the measured time; the new 0.91-1.13 times the iterations (the fit's ten rows 0.91-1.11)
-and 0.69-1.33 of the measured time where the load held still.
+and 0.69-1.33 of the measured time where the load held still. The cost of a PARDISO iteration was
+fitted a fifth time after PARDISO's Cholesky went to single precision from 5,000 unknowns (its
+factorization 0.59 of the time at 60,426 unknowns): the old constants predicted 0.72-1.77 of the
+measured time (1.77 for the plla mat), the new 0.75-1.39 (0.99 for plla); the growth with the
+DOF is now milder (exponent 1.13 instead of 1.55). SuperLU, unchanged, keeps the fourth fit's
+cost (its growing part 3 times PARDISO's then).
 Newton's iteration count is the model's weakest part: a mat that stalls near yield (a free
 lateral stress, shear, unloading) can take longer than predicted.
 
@@ -113,14 +118,15 @@ REFERENCE_SECONDS_PER_ITERATION = 0.0084
 (0.0054 before the non-monotone node relaxation: the test's 54 iterations became 35 for about
 the same work, 1.55 times as dear each, docs/performance.md)."""
 
-ITERATION_BASE = 0.37
+ITERATION_BASE = 0.20
 """Cost of one Newton iteration of a small mat [calibration iterations] (node relaxation
 included)."""
-ITERATION_SCALE = 1.13
+ITERATION_SCALE = 1.30
 """Cost of one Newton iteration at 10^4 DOF beyond the base [calibration iterations] (node
 relaxation included)."""
-ITERATION_EXPONENT = 1.55
-"""Growth of an iteration's cost with the DOF (factorization fill)."""
+ITERATION_EXPONENT = 1.13
+"""Growth of an iteration's cost with the DOF (factorization fill; single precision from
+5,000 DOF)."""
 RECORD_PER_DOF = 1.6e-4
 """Cost of one recorded step per DOF (stresses, fractions, the step's record) [calibration
 iterations]."""
@@ -136,9 +142,15 @@ YIELD_EXPONENT = 0.34
 """Growth of the yield region's iterations with the DOF."""
 YIELD_STRAIN_SPAN = 0.09
 """Strain by which the yield region is passed [-]."""
-SUPERLU_FACTOR = 3.0
-"""SuperLU's iterations against PARDISO's, the DOF-growing part (docs/performance.md: the plla
-test in 117 s against 36 s)."""
+SUPERLU_BASE = 0.37
+"""Cost of one Newton iteration of a small mat with SuperLU [calibration iterations] (the fourth
+fit's PARDISO base; SuperLU was not refitted since)."""
+SUPERLU_SCALE = 3.39
+"""Cost of one SuperLU iteration at 10^4 DOF beyond the base [calibration iterations]: 3 times
+PARDISO's growing part at the fourth fit (docs/performance.md: the plla test in 117 s against
+36 s)."""
+SUPERLU_EXPONENT = 1.55
+"""Growth of a SuperLU iteration's cost with the DOF (factorization fill, double precision)."""
 TURN_REFERENCE_DEG = {"paper": 5.0, "smooth": 8.0}
 """Fiber turns of the mats behind ``YIELD_ITERATIONS``: the paper walk's ``max_deviation_deg``
 (plla: 5), the smooth walk's ``waviness_deg`` [deg]."""
@@ -358,8 +370,11 @@ def predict_test(config: Config, calibration: Calibration | None = None) -> Tens
     yield_part = plastic * YIELD_ITERATIONS * (dof / 1e4) ** YIELD_EXPONENT * min(1.0, path / YIELD_STRAIN_SPAN)
     iterations = (ITERATIONS_PER_SUBSTEP * substeps + yield_part) * TEST_ITERATIONS.get(program.test, 1.0)
     x = dof / 1e4
-    growth = ITERATION_SCALE * x**ITERATION_EXPONENT * (1.0 if _pardiso(config.solver.linear) else SUPERLU_FACTOR)
-    units = iterations * (ITERATION_BASE + growth) + steps * RECORD_PER_DOF * dof
+    if _pardiso(config.solver.linear):
+        per_iteration = ITERATION_BASE + ITERATION_SCALE * x**ITERATION_EXPONENT
+    else:
+        per_iteration = SUPERLU_BASE + SUPERLU_SCALE * x**SUPERLU_EXPONENT
+    units = iterations * per_iteration + steps * RECORD_PER_DOF * dof
     seconds = calibration.seconds_per_iteration * units + calibration.slowness * GENERATE_S_PER_SEGMENT * size.segments
     return TensileCost(dof, steps, substeps, iterations, seconds)
 
