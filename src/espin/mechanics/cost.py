@@ -61,7 +61,7 @@ times the measured time; the new 0.91-1.13 times the iterations (the fit's ten r
 and 0.69-1.33 of the measured time where the load held still. The cost of a PARDISO iteration was
 fitted a fifth time after PARDISO's Cholesky went to single precision from 5,000 unknowns (its
 factorization 0.59 of the time at 60,426 unknowns): the old constants predicted 0.72-1.77 of the
-measured time (1.77 for the plla mat), the new 0.75-1.39 (0.99 for plla); the growth with the
+measured time (1.77 for the plla mat), the new 0.75-1.38 in the next run (1.09); the growth with the
 DOF is now milder (exponent 1.13 instead of 1.55). SuperLU, unchanged, keeps the fourth fit's
 cost (its growing part 3 times PARDISO's then).
 Newton's iteration count is the model's weakest part: a mat that stalls near yield (a free
